@@ -1,0 +1,25 @@
+"""taskrl: multi-task and goal-conditioned reinforcement learning in PyTorch.
+
+    import taskrl
+    run = taskrl.train("bitflip-her", n_bits=20)   # -> Run(run_dir, config, metrics, agent)
+    agent = taskrl.load(run.run_dir)               # agent.act(obs) on the env's observations
+"""
+
+__version__ = "0.1.0"
+
+
+def train(*args, **kwargs):
+    """See :func:`taskrl.run.train`."""
+    from taskrl.run import train as _train
+
+    return _train(*args, **kwargs)
+
+
+def load(*args, **kwargs):
+    """See :func:`taskrl.run.load`."""
+    from taskrl.run import load as _load
+
+    return _load(*args, **kwargs)
+
+
+__all__ = ["train", "load", "__version__"]

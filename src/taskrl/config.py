@@ -1,0 +1,187 @@
+"""Typed run configuration: one dataclass, validated in one place, saved with every run.
+
+Agent hyperparameters live in the agent's own dataclass (``DQNConfig``) nested here, so every
+hyperparameter is declared once. The CLI turns each leaf field into a ``--kebab-case`` flag.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import typing
+from pathlib import Path
+from typing import Any, Literal
+
+from taskrl.agents.dqn import DQNConfig
+
+ENVS = ("bitflip",)
+ALGOS = ("dqn",)
+HER_STRATEGIES = ("future", "final", "episode", "random", "none")
+
+
+class ConfigError(ValueError):
+    """A bad configuration value; ``field`` names the offending setting."""
+
+    def __init__(self, field: str, message: str) -> None:
+        super().__init__(f"{field}: {message}")
+        self.field = field
+        self.message = message
+
+
+@dataclasses.dataclass
+class TrainConfig:
+    """Everything a training run needs; saved as ``config.json`` in the run directory.
+
+    Attributes:
+        env: environment name.
+        n_bits: bit-string length for ``bitflip`` (also its horizon).
+        terminate_on_success: end an episode when its goal is reached.
+        algo: learning algorithm.
+        total_steps: environment steps to train for (summed over parallel environments).
+        num_envs: environments stepped in parallel while collecting.
+        seed: seed for network initialisation, environments and sampling.
+        device: ``cpu``, ``cuda``, ``cuda:N`` or ``auto`` (CUDA when available).
+        buffer_size: replay capacity in transitions.
+        her: hindsight strategy (``none`` disables relabelling).
+        her_k: relabelled transitions per real one; the relabelled fraction is k/(k+1).
+        batch_size: transitions per gradient update.
+        learning_starts: environment steps collected before the first update.
+        updates_per_step: gradient updates per environment step (fractions accumulate).
+        epsilon_start: initial probability of a random action.
+        epsilon_end: final probability of a random action.
+        epsilon_decay_steps: environment steps over which epsilon decays linearly.
+        eval_interval: environment steps between evaluations.
+        eval_episodes: episodes per evaluation (greedy policy, fixed evaluation seeds).
+        stop_at_success: stop once evaluation success reaches this (0 = train to total_steps).
+        checkpoint_interval: environment steps between checkpoints (also one at the end).
+        save_replay: include the replay buffer in checkpoints so a resumed run loses no data.
+        threads: torch CPU threads (0 = torch's default).
+        dqn: DQN hyperparameters.
+    """
+
+    env: Literal["bitflip"] = "bitflip"
+    n_bits: int = 15
+    terminate_on_success: bool = True
+    algo: Literal["dqn"] = "dqn"
+    total_steps: int = 100_000
+    num_envs: int = 16
+    seed: int = 0
+    device: str = "cpu"
+    buffer_size: int = 1_000_000
+    her: Literal["future", "final", "episode", "random", "none"] = "future"
+    her_k: int = 4
+    batch_size: int = 256
+    learning_starts: int = 1_000
+    updates_per_step: float = 0.25
+    epsilon_start: float = 0.5
+    epsilon_end: float = 0.05
+    epsilon_decay_steps: int = 20_000
+    eval_interval: int = 5_000
+    eval_episodes: int = 100
+    stop_at_success: float = 0.0
+    checkpoint_interval: int = 50_000
+    save_replay: bool = True
+    threads: int = 0
+    dqn: DQNConfig = dataclasses.field(default_factory=DQNConfig)
+
+
+def field_docs(cls: type) -> dict[str, str]:
+    """``{field: description}`` from the ``Attributes:`` section of a dataclass docstring."""
+    docs: dict[str, str] = {}
+    lines = (cls.__doc__ or "").split("Attributes:", 1)[-1].splitlines()
+    current: list[str] = []
+    for line in lines:
+        text = line.strip()
+        head, sep, rest = text.partition(":")
+        if sep and head and all(part.isidentifier() for part in head.replace(" ", "").split(",")):
+            current = [h.strip() for h in head.split(",")]
+            for name in current:
+                docs[name] = rest.strip()
+        elif text and current:
+            for name in current:
+                docs[name] += " " + text
+    return docs
+
+
+def validate(config: TrainConfig) -> TrainConfig:
+    """Raise :class:`ConfigError` naming the field and the allowed values; return the config."""
+
+    def require(ok: bool, field: str, message: str) -> None:
+        if not ok:
+            raise ConfigError(field, message)
+
+    c, d = config, config.dqn
+    require(c.env in ENVS, "env", f"unknown env {c.env!r}; allowed: {', '.join(ENVS)}")
+    require(c.algo in ALGOS, "algo", f"unknown algo {c.algo!r}; allowed: {', '.join(ALGOS)}")
+    require(c.her in HER_STRATEGIES, "her", f"unknown strategy {c.her!r}; allowed: {', '.join(HER_STRATEGIES)}")
+    require(c.n_bits >= 1, "n_bits", f"must be >= 1 (got {c.n_bits})")
+    for name in ("total_steps", "num_envs", "batch_size", "eval_interval", "eval_episodes", "checkpoint_interval"):
+        require(getattr(c, name) >= 1, name, f"must be >= 1 (got {getattr(c, name)})")
+    require(c.her_k >= 0, "her_k", f"must be >= 0 (got {c.her_k})")
+    require(c.learning_starts >= 0, "learning_starts", f"must be >= 0 (got {c.learning_starts})")
+    require(c.updates_per_step >= 0, "updates_per_step", f"must be >= 0 (got {c.updates_per_step})")
+    for name in ("epsilon_start", "epsilon_end", "stop_at_success"):
+        require(0.0 <= getattr(c, name) <= 1.0, name, f"must be in [0, 1] (got {getattr(c, name)})")
+    require(c.epsilon_decay_steps >= 0, "epsilon_decay_steps", f"must be >= 0 (got {c.epsilon_decay_steps})")
+    require(c.threads >= 0, "threads", f"must be >= 0 (got {c.threads})")
+    require(c.device == "auto" or c.device == "cpu" or c.device.startswith("cuda"), "device",
+            f"unknown device {c.device!r}; allowed: cpu, cuda, cuda:N, auto")
+    require(d.loss in ("huber", "mse"), "loss", f"unknown loss {d.loss!r}; allowed: huber, mse")
+    require(0.0 <= d.gamma < 1.0, "gamma", f"must be in [0, 1) (got {d.gamma})")
+    require(d.lr > 0, "lr", f"must be > 0 (got {d.lr})")
+    require(0.0 < d.tau <= 1.0, "tau", f"must be in (0, 1] (got {d.tau})")
+    require(d.target_update_interval >= 1, "target_update_interval", f"must be >= 1 (got {d.target_update_interval})")
+    require(len(d.hidden_sizes) >= 1 and all(h >= 1 for h in d.hidden_sizes), "hidden_sizes",
+            f"must be one or more positive widths (got {list(d.hidden_sizes)})")
+    require(d.max_grad_norm >= 0, "max_grad_norm", f"must be >= 0 (got {d.max_grad_norm})")
+    return config
+
+
+def leaf_fields(cls: type = TrainConfig, prefix: tuple[str, ...] = ()) -> list[tuple[tuple[str, ...], dataclasses.Field, type]]:
+    """Every non-dataclass field as ``(path, field, resolved type)``; nested configs are flattened."""
+    hints = typing.get_type_hints(cls)
+    out = []
+    for f in dataclasses.fields(cls):
+        tp = hints[f.name]
+        if dataclasses.is_dataclass(tp):
+            out += leaf_fields(tp, prefix + (f.name,))
+        else:
+            out.append((prefix + (f.name,), f, tp))
+    return out
+
+
+def with_overrides(config: TrainConfig, overrides: dict[str, Any]) -> TrainConfig:
+    """A copy of ``config`` with leaf fields replaced by name (``{"n_bits": 30, "lr": 1e-3}``)."""
+    paths = {path[-1]: path for path, _, _ in leaf_fields()}
+    unknown = sorted(set(overrides) - set(paths))
+    if unknown:
+        raise ConfigError(unknown[0], f"unknown setting; allowed: {', '.join(sorted(paths))}")
+    data = to_dict(config)
+    for name, value in overrides.items():
+        node = data
+        *parents, leaf = paths[name]
+        for p in parents:
+            node = node[p]
+        node[leaf] = list(value) if isinstance(value, tuple) else value
+    return from_dict(data)
+
+
+def to_dict(config: TrainConfig) -> dict[str, Any]:
+    return dataclasses.asdict(config)
+
+
+def from_dict(data: dict[str, Any]) -> TrainConfig:
+    """Rebuild a config from :func:`to_dict` output (e.g. a run's ``config.json``)."""
+    data = dict(data)
+    dqn = dict(data.pop("dqn", {}))
+    if "hidden_sizes" in dqn:
+        dqn["hidden_sizes"] = tuple(int(h) for h in dqn["hidden_sizes"])
+    return TrainConfig(**data, dqn=DQNConfig(**dqn))
+
+
+def save(config: TrainConfig, path: Path) -> None:
+    Path(path).write_text(json.dumps(to_dict(config), indent=2) + "\n")
+
+
+def load(path: Path) -> TrainConfig:
+    return from_dict(json.loads(Path(path).read_text()))

@@ -1,0 +1,65 @@
+"""The batched environment contract every native environment follows.
+
+A batched environment steps ``num_envs`` copies at once. Everything is a tensor with a leading
+env dimension, on ``device``. Episodes reset automatically in the same step they end: the
+returned observation is the first one of the new episode and ``info["final_obs"]`` holds the
+observation the finished episode ended in (for every env; it equals ``obs`` where nothing ended).
+That is the only place final observations appear, so a collector reads the true next state as
+``info["final_obs"]``.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import torch
+
+Obs = dict[str, torch.Tensor]
+StepResult = tuple[Obs, torch.Tensor, torch.Tensor, torch.Tensor, dict[str, Any]]
+
+
+class BatchedEnv:
+    """Base class of native batched environments.
+
+    Subclasses set ``num_envs``, ``device``, ``horizon`` (maximum episode length),
+    ``single_observation_space`` (a gymnasium ``Dict``) and ``single_action_space``, and implement
+    ``reset`` and ``step``.
+    """
+
+    num_envs: int
+    device: torch.device
+    horizon: int
+    single_observation_space: gym.spaces.Dict
+    single_action_space: gym.spaces.Space
+
+    def reset(self, seed: int | None = None) -> Obs:
+        """Reset every copy. ``seed`` reseeds the environment's generator."""
+        raise NotImplementedError
+
+    def step(self, action: torch.Tensor) -> StepResult:
+        """Advance every copy by one step; returns ``obs, reward, terminated, truncated, info``."""
+        raise NotImplementedError
+
+
+class GoalEnvMixin:
+    """Goal-conditioned environments: observations carry ``achieved_goal`` and ``desired_goal``.
+
+    ``compute_reward`` and ``compute_terminated`` take batches of goals and follow the signature
+    gymnasium-robotics uses, so hindsight relabelling treats native and gymnasium environments
+    alike.
+    """
+
+    def compute_reward(self, achieved_goal: torch.Tensor, desired_goal: torch.Tensor, info: Any = None) -> torch.Tensor:
+        raise NotImplementedError
+
+    def compute_terminated(self, achieved_goal: torch.Tensor, desired_goal: torch.Tensor, info: Any = None) -> torch.Tensor:
+        """Whether reaching ``achieved_goal`` ends the episode for ``desired_goal`` (default: never)."""
+        return torch.zeros(achieved_goal.shape[0], dtype=torch.bool, device=achieved_goal.device)
+
+
+def is_goal_env(env: Any) -> bool:
+    """True when ``env`` exposes the goal-env observation keys and a ``compute_reward``."""
+    space = getattr(env, "single_observation_space", None)
+    keys = set(space.spaces) if isinstance(space, gym.spaces.Dict) else set()
+    return {"achieved_goal", "desired_goal"} <= keys and callable(getattr(env, "compute_reward", None))

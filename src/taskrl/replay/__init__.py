@@ -1,0 +1,7 @@
+"""Replay: episode storage, sampling and relabelling."""
+
+from taskrl.replay.batch import Batch
+from taskrl.replay.episodes import EpisodeReplay
+from taskrl.replay.hindsight import STRATEGIES, HindsightRelabeler
+
+__all__ = ["Batch", "EpisodeReplay", "HindsightRelabeler", "STRATEGIES"]

@@ -1,0 +1,35 @@
+"""The batch every agent's ``update`` consumes: explicit keys, one loss for every kind of data."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import torch
+
+Obs = dict[str, torch.Tensor]
+
+
+@dataclasses.dataclass
+class Batch:
+    """A batch of transitions ``(s, a, r, s', terminated, truncated)``.
+
+    ``obs`` and ``next_obs`` are dicts with the environment's observation keys (for goal-conditioned
+    data ``observation``, ``achieved_goal``, ``desired_goal``). ``terminated`` means no bootstrap from
+    ``next_obs``; ``truncated`` (a time limit) still bootstraps. ``episode`` and ``step`` locate
+    each transition in the replay so relabellers can look up the rest of its episode.
+    """
+
+    obs: Obs
+    action: torch.Tensor
+    reward: torch.Tensor
+    next_obs: Obs
+    terminated: torch.Tensor
+    truncated: torch.Tensor
+    episode: torch.Tensor
+    step: torch.Tensor
+
+    def __len__(self) -> int:
+        return self.reward.shape[0]
+
+    def replace(self, **changes) -> "Batch":
+        return dataclasses.replace(self, **changes)

@@ -1,0 +1,174 @@
+"""Device-resident episode storage.
+
+Layout: one preallocated tensor per key, ``[max_episodes, horizon + 1, ...]`` for observations
+(index ``t + 1`` is the next observation of step ``t``, so next states are never stored twice) and
+``[max_episodes, horizon, ...]`` for actions, rewards and flags. Each parallel environment writes
+its running episode into a staging row; the episode is committed to the ring of stored episodes
+only when it ends. Hence every sampleable transition belongs to a complete episode: hindsight
+goals never come from a future that does not exist yet, and an overwrite replaces whole episodes.
+"""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import torch
+
+from taskrl.replay.batch import Batch, Obs
+
+
+def _space_dtype(space: gym.spaces.Space) -> torch.dtype:
+    return torch.from_numpy(np.zeros((), dtype=space.dtype)).dtype
+
+
+class EpisodeReplay:
+    """Ring buffer of complete episodes with uniform sampling over stored transitions.
+
+    Args:
+        observation_space: the single-env gymnasium ``Dict`` observation space; each key is
+            stored in the space's dtype (bits as int8, not float32).
+        action_space: the single-env action space.
+        capacity: number of transitions to hold (rounded down to whole episodes of ``horizon``).
+        horizon: the longest episode the environment produces.
+        num_envs: parallel environments writing at once.
+        device: where the storage lives (the device of the learner).
+    """
+
+    def __init__(
+        self,
+        observation_space: gym.spaces.Dict,
+        action_space: gym.spaces.Space,
+        capacity: int,
+        horizon: int,
+        num_envs: int,
+        device: str | torch.device = "cpu",
+    ) -> None:
+        self.device = torch.device(device)
+        self.horizon = horizon
+        self.num_envs = num_envs
+        self.max_episodes = capacity // horizon
+        if self.max_episodes < 2 * num_envs:
+            raise ValueError(
+                f"buffer_size={capacity} holds {self.max_episodes} episodes of horizon {horizon}; "
+                f"it must hold at least 2 * num_envs = {2 * num_envs} episodes"
+            )
+        self.obs_keys = list(observation_space.spaces)
+        h = horizon
+
+        def alloc(rows: int, steps: int, shape: tuple, dtype: torch.dtype) -> torch.Tensor:
+            return torch.zeros((rows, steps, *shape), dtype=dtype, device=self.device)
+
+        def tables(rows: int) -> dict[str, torch.Tensor]:
+            t = {f"obs/{k}": alloc(rows, h + 1, s.shape, _space_dtype(s)) for k, s in observation_space.spaces.items()}
+            t["action"] = alloc(rows, h, action_space.shape, _space_dtype(action_space))
+            t["reward"] = alloc(rows, h, (), torch.float32)
+            t["terminated"] = alloc(rows, h, (), torch.bool)
+            t["truncated"] = alloc(rows, h, (), torch.bool)
+            return t
+
+        self.storage = tables(self.max_episodes)
+        self.staging = tables(num_envs)
+        self.length = torch.zeros(self.max_episodes, dtype=torch.long, device=self.device)
+        self.stage_t = torch.zeros(num_envs, dtype=torch.long, device=self.device)
+        self.next_slot = 0
+        self.num_episodes = 0
+        self._cumulative = torch.zeros(self.max_episodes, dtype=torch.long, device=self.device)
+        self._env_ids = torch.arange(num_envs, device=self.device)
+
+    # ---------------------------------------------------------------- writing
+    def start(self, obs: Obs) -> None:
+        """Begin an episode in every environment from its first observation."""
+        for k in self.obs_keys:
+            self.staging[f"obs/{k}"][:, 0] = obs[k]
+        self.stage_t.zero_()
+
+    def add(
+        self,
+        action: torch.Tensor,
+        reward: torch.Tensor,
+        terminated: torch.Tensor,
+        truncated: torch.Tensor,
+        next_obs: Obs,
+        reset_obs: Obs,
+    ) -> None:
+        """Append one step of every environment.
+
+        ``next_obs`` is the observation the step led to (the final observation where an episode
+        ended); ``reset_obs`` is what the environment returned, whose rows start the next episode
+        where one ended.
+        """
+        envs, t = self._env_ids, self.stage_t
+        st = self.staging
+        st["action"][envs, t] = action.to(st["action"].dtype)
+        st["reward"][envs, t] = reward.float()
+        st["terminated"][envs, t] = terminated
+        st["truncated"][envs, t] = truncated
+        for k in self.obs_keys:
+            st[f"obs/{k}"][envs, t + 1] = next_obs[k]
+        self.stage_t += 1
+        done = terminated | truncated
+        if bool((self.stage_t >= self.horizon).logical_and(~done).any()):
+            raise RuntimeError(f"an episode ran past horizon={self.horizon} without being truncated")
+        if bool(done.any()):
+            ids = done.nonzero().squeeze(1)
+            self._commit(ids)
+            for k in self.obs_keys:
+                st[f"obs/{k}"][ids, 0] = reset_obs[k][ids]
+            self.stage_t[ids] = 0
+
+    def _commit(self, env_ids: torch.Tensor) -> None:
+        n = env_ids.numel()
+        slots = (self.next_slot + torch.arange(n, device=self.device)) % self.max_episodes
+        for key, table in self.storage.items():
+            table[slots] = self.staging[key][env_ids]
+        self.length[slots] = self.stage_t[env_ids]
+        self.next_slot = (self.next_slot + n) % self.max_episodes
+        self.num_episodes = min(self.num_episodes + n, self.max_episodes)
+        torch.cumsum(self.length, 0, out=self._cumulative)
+
+    # ---------------------------------------------------------------- reading
+    @property
+    def num_transitions(self) -> int:
+        return int(self._cumulative[-1])
+
+    def sample_indices(self, batch_size: int, generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """Uniform over stored transitions: returns ``(episode, step)`` index tensors."""
+        total = self._cumulative[-1]
+        if int(total) == 0:
+            raise RuntimeError("cannot sample from an empty replay: no episode has finished yet")
+        u = (torch.rand(batch_size, generator=generator, device=self.device) * total).long().clamp_(max=total - 1)
+        episode = torch.searchsorted(self._cumulative, u, right=True)
+        step = u - (self._cumulative[episode] - self.length[episode])
+        return episode, step
+
+    def gather(self, episode: torch.Tensor, step: torch.Tensor) -> Batch:
+        """The transitions at ``(episode, step)``."""
+        s = self.storage
+        return Batch(
+            obs={k: s[f"obs/{k}"][episode, step] for k in self.obs_keys},
+            action=s["action"][episode, step],
+            reward=s["reward"][episode, step],
+            next_obs={k: s[f"obs/{k}"][episode, step + 1] for k in self.obs_keys},
+            terminated=s["terminated"][episode, step],
+            truncated=s["truncated"][episode, step],
+            episode=episode,
+            step=step,
+        )
+
+    def sample(self, batch_size: int, generator: torch.Generator | None = None) -> Batch:
+        return self.gather(*self.sample_indices(batch_size, generator))
+
+    # ---------------------------------------------------------------- checkpointing
+    def state_dict(self) -> dict[str, torch.Tensor]:
+        """Stored episodes only; running episodes restart after a resume."""
+        state = {f"storage/{k}": v for k, v in self.storage.items()}
+        state["length"] = self.length
+        state["counters"] = torch.tensor([self.next_slot, self.num_episodes])
+        return state
+
+    def load_state_dict(self, state: dict[str, torch.Tensor]) -> None:
+        for k, v in self.storage.items():
+            v.copy_(state[f"storage/{k}"])
+        self.length.copy_(state["length"])
+        self.next_slot, self.num_episodes = (int(x) for x in state["counters"])
+        torch.cumsum(self.length, 0, out=self._cumulative)

@@ -1,0 +1,97 @@
+"""Hindsight relabelling (Andrychowicz et al., 2017).
+
+A transition sampled for goal g is, with probability ``k / (k + 1)``, replayed as if the goal had
+been a goal the agent actually achieved: with ``future`` a state reached later in the same
+episode, ``final`` the episode's last state, ``episode`` any state of the episode, ``random`` any
+stored state. The reward (and termination, where success ends an episode) is recomputed for the
+new goal through the environment's own functions.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable, Literal
+
+import torch
+
+from taskrl.replay.batch import Batch
+from taskrl.replay.episodes import EpisodeReplay
+
+GoalFn = Callable[[torch.Tensor, torch.Tensor, Any], torch.Tensor]
+STRATEGIES = ("future", "final", "episode", "random")
+Strategy = Literal["future", "final", "episode", "random"]
+
+
+class HindsightRelabeler:
+    """Relabels a sampled batch with achieved goals; a ``relabel(batch, replay, generator)`` step.
+
+    Args:
+        reward_fn: ``compute_reward(achieved_goal, desired_goal, info)`` of the environment,
+            vectorised over a batch.
+        strategy: where replacement goals come from: ``future``, ``final``, ``episode`` or ``random``.
+        k: relabelled transitions per original one; the relabelled fraction is ``k / (k + 1)``.
+        terminated_fn: ``compute_terminated(achieved_goal, desired_goal, info)``; when given,
+            termination of relabelled transitions is recomputed for the new goal (needed when
+            success ends an episode), otherwise the stored flag is kept.
+        achieved_key, desired_key: observation keys of the achieved and desired goals.
+    """
+
+    def __init__(
+        self,
+        reward_fn: GoalFn,
+        strategy: Strategy = "future",
+        k: int = 4,
+        terminated_fn: GoalFn | None = None,
+        achieved_key: str = "achieved_goal",
+        desired_key: str = "desired_goal",
+    ) -> None:
+        if strategy not in STRATEGIES:
+            raise ValueError(f"her strategy must be one of {', '.join(STRATEGIES)}; got {strategy!r}")
+        if k < 0:
+            raise ValueError(f"her k must be >= 0, got {k}")
+        self.reward_fn = reward_fn
+        self.terminated_fn = terminated_fn
+        self.strategy = strategy
+        self.k = k
+        self.relabel_fraction = k / (k + 1)
+        self.achieved_key = achieved_key
+        self.desired_key = desired_key
+
+    def goal_indices(self, batch: Batch, replay: EpisodeReplay, generator: torch.Generator | None) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(episode, observation index)`` of each replacement goal.
+
+        Observation index ``i`` is the state reached after step ``i - 1``; the transition at step
+        ``t`` ends in observation ``t + 1``, so ``future`` draws from ``[t + 1, length]``.
+        """
+        episode, t = batch.episode, batch.step
+        length = replay.length[episode]
+        u = torch.rand(len(batch), generator=generator, device=t.device)
+        if self.strategy == "future":
+            index = t + 1 + (u * (length - t)).long().minimum(length - t - 1)
+        elif self.strategy == "final":
+            index = length
+        elif self.strategy == "episode":
+            index = 1 + (u * length).long().minimum(length - 1)
+        else:  # random: the next state of any stored transition
+            episode, step = replay.sample_indices(len(batch), generator)
+            index = step + 1
+        return episode, index
+
+    def __call__(self, batch: Batch, replay: EpisodeReplay, generator: torch.Generator | None = None) -> Batch:
+        relabel = torch.rand(len(batch), generator=generator, device=batch.reward.device) < self.relabel_fraction
+        goal_episode, goal_index = self.goal_indices(batch, replay, generator)
+        achieved = replay.storage[f"obs/{self.achieved_key}"][goal_episode, goal_index]
+        old_goal = batch.obs[self.desired_key]
+        goal = torch.where(relabel.view(-1, *[1] * (old_goal.dim() - 1)), achieved, old_goal)
+
+        next_achieved = batch.next_obs[self.achieved_key]
+        reward = torch.where(relabel, self.reward_fn(next_achieved, goal, None).to(batch.reward.dtype), batch.reward)
+        terminated = batch.terminated
+        if self.terminated_fn is not None:
+            terminated = torch.where(relabel, self.terminated_fn(next_achieved, goal, None), terminated)
+        return batch.replace(
+            obs={**batch.obs, self.desired_key: goal},
+            next_obs={**batch.next_obs, self.desired_key: goal},
+            reward=reward,
+            terminated=terminated,
+            truncated=batch.truncated & ~terminated,
+        )
