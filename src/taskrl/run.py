@@ -142,7 +142,7 @@ def train(
     generator = torch.Generator(device=device)
     generator.manual_seed(config.seed + 1)
 
-    state = LoopState()
+    state = LoopState(next_checkpoint=config.checkpoint_interval)
     if resume is not None:
         saved = load_checkpoint(run_dir / "checkpoints", ("agent", "replay", "loop"), device)
         agent.load_state_dict(saved["agent"])

@@ -167,8 +167,16 @@ class EpisodeReplay:
         return state
 
     def load_state_dict(self, state: dict[str, torch.Tensor]) -> None:
+        """Restore stored episodes; a resumed run may have a different capacity, so the newest
+        episodes that fit are kept, oldest first."""
+        next_slot, num_episodes = (int(x) for x in state["counters"])
+        saved_max = state["length"].shape[0]
+        order = (torch.arange(num_episodes) + (next_slot - num_episodes)) % saved_max  # oldest -> newest
+        order = order[-self.max_episodes:].to(state["length"].device)
+        keep = order.numel()
         for k, v in self.storage.items():
-            v.copy_(state[f"storage/{k}"])
-        self.length.copy_(state["length"])
-        self.next_slot, self.num_episodes = (int(x) for x in state["counters"])
+            v[:keep] = state[f"storage/{k}"][order].to(self.device)
+        self.length.zero_()
+        self.length[:keep] = state["length"][order].to(self.device)
+        self.next_slot, self.num_episodes = keep % self.max_episodes, keep
         torch.cumsum(self.length, 0, out=self._cumulative)

@@ -231,11 +231,12 @@ def policy_improvement(mdp: FiniteMDP, policy: Any, *, solver: Solver = "auto") 
     """Greedy improvement ``pi'(s) = argmax_a Q_pi[s, a]`` (keeps ``pi(s)`` on exact ties)."""
     pi = check_policy(mdp, policy)
     q = q_values(mdp, pi, solver=solver)
-    return greedy_policy(q, current=pi if pi.ndim == 1 else None, atol=_tie_tol(q))
+    return greedy_policy(q, current=pi if pi.ndim == 1 else None, atol=_tie_tol(q, 1e-12))
 
 
-def _tie_tol(q: np.ndarray) -> float:
-    return 1e-10 * (1.0 + float(np.abs(q).max(initial=0.0)))
+def _tie_tol(q: np.ndarray, rel: float) -> float:
+    """Differences below this are treated as round-off ties."""
+    return rel * (1.0 + float(np.abs(q).max(initial=0.0)))
 
 
 def policy_iteration(
@@ -277,7 +278,9 @@ def policy_iteration(
             V = evaluate_policy_iterative(mdp, pi, tol=tol, values=V).values
         # Improvement: pi'(s) = argmax_a R(s, a) + gamma sum_s' P(s'|s, a) V(s').
         Q = _backup(mdp, V).T
-        new_pi = greedy_policy(Q, current=pi if pi.ndim == 1 else None, atol=_tie_tol(Q))
+        # A looser tie tolerance than policy_improvement: Krylov/iterative evaluation errors
+        # must not flip near-tied actions back and forth.
+        new_pi = greedy_policy(Q, current=pi if pi.ndim == 1 else None, atol=_tie_tol(Q, 1e-10))
         if pi.ndim == 1 and np.array_equal(new_pi, pi):
             converged = True  # V is now the fixed point of the Bellman optimality operator
             break

@@ -276,7 +276,7 @@ class FiniteMDP:
     @cached_property
     def rewards_by_action(self) -> np.ndarray:
         """Expected rewards as ``[A, S]``, zero for terminal states (they absorb with no reward)."""
-        Rt = np.ascontiguousarray(self.R.T)
+        Rt = np.array(self.R.T, order="C")  # a copy: R itself is read-only
         Rt[:, self.terminal] = 0.0
         Rt.flags.writeable = False
         return Rt

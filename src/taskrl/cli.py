@@ -1,0 +1,155 @@
+"""The ``taskrl`` command line.
+
+    taskrl presets                         list presets with a one-line description each
+    taskrl train PRESET [--setting VALUE]  train (every TrainConfig field is a --kebab-case flag)
+    taskrl train --resume RUN_DIR          continue a run from its last checkpoint
+    taskrl eval RUN_DIR                    re-evaluate a saved agent, print JSON
+    taskrl solve MDP [--method ...]        exact dynamic programming on finite MDPs
+
+Bad input exits with code 2 and one line naming the setting and the allowed values.
+"""
+
+from __future__ import annotations
+
+import argparse
+import difflib
+import json
+import sys
+import typing
+from typing import Any, Sequence
+
+COMMANDS = ("train", "eval", "presets", "solve")
+POSITIONAL = ("preset", "run_dir")
+
+
+class UsageError(Exception):
+    """Bad command-line input: printed as one line, exit code 2."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(allow_abbrev=False, **kwargs)
+
+    def error(self, message: str) -> typing.NoReturn:
+        raise UsageError(message)
+
+
+def _flag(name: str) -> str:
+    return "--" + name.replace("_", "-")
+
+
+def _add_config_flags(parser: argparse.ArgumentParser) -> None:
+    from taskrl.agents.dqn import DQNConfig
+    from taskrl.config import TrainConfig, field_docs, leaf_fields
+
+    docs = {**field_docs(TrainConfig), **field_docs(DQNConfig)}
+    for path, field, tp in leaf_fields():
+        name = path[-1]
+        kwargs: dict[str, Any] = {"dest": name, "default": argparse.SUPPRESS, "help": docs.get(name, "")}
+        origin = typing.get_origin(tp)
+        if tp is bool:
+            kwargs["action"] = argparse.BooleanOptionalAction
+        elif origin is typing.Literal:
+            kwargs["choices"] = typing.get_args(tp)
+        elif origin is tuple:
+            kwargs.update(type=int, nargs="+", metavar="N")
+        else:
+            kwargs["type"] = tp
+        parser.add_argument(_flag(name), **kwargs)
+
+
+def _parse(parser: argparse.ArgumentParser, argv: Sequence[str]) -> argparse.Namespace:
+    args, unknown = parser.parse_known_args(argv)
+    if unknown:
+        flags = sorted(f for a in parser._actions for f in a.option_strings if f.startswith("--"))
+        bad = unknown[0]
+        close = difflib.get_close_matches(bad.split("=")[0], flags, n=1)
+        hint = f" (did you mean {close[0]}?)" if close else ""
+        raise UsageError(f"unknown option {bad!r}{hint}; allowed: {', '.join(flags)}")
+    return args
+
+
+def cmd_presets(argv: Sequence[str]) -> int:
+    from taskrl.presets import PRESETS
+
+    _parse(_Parser(prog="taskrl presets", description="List the training presets."), argv)
+    width = max(len(n) for n in PRESETS)
+    for name, preset in PRESETS.items():
+        print(f"{name:<{width}}  {preset.description}")
+    return 0
+
+
+def cmd_train(argv: Sequence[str]) -> int:
+    from taskrl.presets import PRESETS
+
+    parser = _Parser(prog="taskrl train", description="Train an agent from a preset; every setting below overrides it.")
+    parser.add_argument("preset", nargs="?", choices=list(PRESETS), help="preset name (see `taskrl presets`)")
+    parser.add_argument("--out", help="run directory (default runs/<preset>-<timestamp>)")
+    parser.add_argument("--resume", metavar="RUN_DIR", help="continue this run from its last checkpoint")
+    parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=True, help="progress bar and final table")
+    parser.add_argument("--tensorboard", action=argparse.BooleanOptionalAction, default=True, help="write TensorBoard events")
+    _add_config_flags(parser)
+    args = vars(_parse(parser, argv))
+    preset, out, resume = args.pop("preset"), args.pop("out"), args.pop("resume")
+    progress, tensorboard = args.pop("progress"), args.pop("tensorboard")
+    if preset is None and resume is None:
+        raise UsageError(f"a preset is required unless --resume is given; allowed: {', '.join(PRESETS)}")
+    if "hidden_sizes" in args:
+        args["hidden_sizes"] = tuple(args["hidden_sizes"])
+
+    from taskrl.run import train
+
+    run = train(preset, out=out, resume=resume, progress=progress, tensorboard=tensorboard, **args)
+    if not progress:
+        print(json.dumps({"run_dir": str(run.run_dir), **run.metrics}))
+    return 0
+
+
+def cmd_eval(argv: Sequence[str]) -> int:
+    parser = _Parser(prog="taskrl eval", description="Re-evaluate a saved agent greedily; prints JSON.")
+    parser.add_argument("run_dir", help="a run directory written by `taskrl train`")
+    parser.add_argument("--episodes", type=int, default=100, help="evaluation episodes (default 100)")
+    parser.add_argument("--seed", type=int, default=None, help="evaluation seed (default: the run's evaluation seed)")
+    parser.add_argument("--device", default="cpu", help="cpu, cuda, cuda:N or auto")
+    args = _parse(parser, argv)
+    if args.episodes < 1:
+        raise UsageError(f"--episodes must be >= 1 (got {args.episodes})")
+    from taskrl.run import evaluate_run
+
+    print(json.dumps(evaluate_run(args.run_dir, args.episodes, args.seed, args.device)))
+    return 0
+
+
+def cmd_solve(argv: Sequence[str]) -> int:
+    from taskrl.tabular.cli import main as solve_main
+
+    return solve_main(list(argv))
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or argv[0] in ("-h", "--help"):
+        print(__doc__.strip())
+        return 0
+    command, rest = argv[0], argv[1:]
+    handlers = {"train": cmd_train, "eval": cmd_eval, "presets": cmd_presets, "solve": cmd_solve}
+    from taskrl.config import ConfigError
+
+    try:
+        if command not in handlers:
+            raise UsageError(f"unknown command {command!r}; allowed: {', '.join(COMMANDS)}")
+        return handlers[command](rest)
+    except UsageError as e:
+        print(f"taskrl {command}: error: {e}", file=sys.stderr)
+        return 2
+    except ConfigError as e:
+        label = e.field.upper() if e.field in POSITIONAL else _flag(e.field)
+        print(f"taskrl {command}: error: {label} {e.message}", file=sys.stderr)
+        return 2
+    except FileNotFoundError as e:
+        print(f"taskrl {command}: error: {e}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

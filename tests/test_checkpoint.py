@@ -1,0 +1,97 @@
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import torch
+
+import taskrl
+from taskrl.agents.dqn import DQNAgent, DQNConfig
+from taskrl.checkpoint import flatten_state, load_checkpoint, save_checkpoint, unflatten_state
+from taskrl.logger import read_metrics
+
+TINY = dict(n_bits=5, num_envs=4, eval_episodes=20, tensorboard=False, learning_starts=100, batch_size=32)
+
+
+def test_state_round_trip_keeps_optimizer_state_and_int_keys(tmp_path):
+    agent = DQNAgent(("observation",), 3, 2, DQNConfig(hidden_sizes=(8,)))
+    agent.q(({"observation": torch.ones(1, 3)})).sum().backward()
+    agent.optimizer.step()
+    state = agent.state_dict()
+    save_checkpoint(tmp_path, {"agent": state}, step=7)
+    loaded = load_checkpoint(tmp_path, ("agent",))["agent"]
+    assert list(loaded["optimizer"]["state"]) == list(state["optimizer"]["state"])  # int keys survive
+    for k, v in state["q"].items():
+        assert torch.equal(loaded["q"][k], v)
+    other = DQNAgent(("observation",), 3, 2, DQNConfig(hidden_sizes=(8,)))
+    other.load_state_dict(loaded)
+    assert other.updates == agent.updates
+    tensors, skeleton = flatten_state({"a": [1, 2.5, "x", None, torch.arange(3)]})
+    assert torch.equal(unflatten_state(tensors, skeleton)["a"][4], torch.arange(3))
+
+
+def test_checkpoint_files_are_safetensors_and_json_only(tmp_path):
+    save_checkpoint(tmp_path, {"agent": {"w": torch.zeros(2)}, "loop": {"env_steps": 3}}, step=3)
+    folder = tmp_path / (tmp_path / "latest").read_text().strip()
+    assert sorted(p.name for p in folder.iterdir()) == ["agent.json", "agent.safetensors", "loop.json", "loop.safetensors"]
+    for p in folder.glob("*.json"):
+        json.loads(p.read_text())
+
+
+def test_a_half_written_checkpoint_is_never_loaded(tmp_path):
+    save_checkpoint(tmp_path, {"loop": {"env_steps": 1}}, step=1)
+    # A run killed while writing leaves only a .partial folder; 'latest' still names the old one.
+    (tmp_path / ".step_000000000002.partial").mkdir()
+    (tmp_path / ".step_000000000002.partial" / "loop.json").write_text("{trunc")
+    assert load_checkpoint(tmp_path, ("loop",))["loop"]["env_steps"] == 1
+
+
+def test_only_the_newest_checkpoints_are_kept(tmp_path):
+    for step in range(5):
+        save_checkpoint(tmp_path, {"loop": {"env_steps": step}}, step=step, keep=2)
+    assert sorted(p.name for p in tmp_path.glob("step_*")) == ["step_000000000003", "step_000000000004"]
+
+
+def test_resume_continues_counters_weights_and_metrics(tmp_path):
+    out = tmp_path / "run"
+    first = taskrl.train("bitflip-her", out=out, total_steps=2_000, eval_interval=500, checkpoint_interval=1_000, **TINY)
+    saved_q = {k: v.clone() for k, v in first.agent.q.state_dict().items()}
+    resumed_agent = taskrl.load(out)
+    assert all(torch.equal(resumed_agent.q.state_dict()[k], v) for k, v in saved_q.items())
+    second = taskrl.train(resume=out, total_steps=4_000, tensorboard=False)
+    assert second.metrics["env_steps"] == 4_000
+    assert second.metrics["updates"] > first.metrics["updates"]
+    assert second.metrics["wall_seconds"] > first.metrics["wall_seconds"]
+    steps = [r["env_steps"] for r in read_metrics(out / "metrics.csv")]
+    assert steps == sorted(set(steps)) and steps[-1] == 4_000
+    assert json.loads((out / "config.json").read_text())["total_steps"] == 4_000
+
+
+def test_a_killed_run_resumes_from_its_last_checkpoint(tmp_path):
+    out = tmp_path / "killed"
+    cmd = [sys.executable, "-m", "taskrl.cli", "train", "bitflip-her", "--out", str(out), "--no-progress",
+           "--no-tensorboard", "--n-bits", "6", "--num-envs", "4", "--total-steps", "10000000",
+           "--checkpoint-interval", "400", "--eval-interval", "400", "--eval-episodes", "10", "--learning-starts", "100"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    deadline = time.time() + 120
+    while not (out / "checkpoints" / "latest").exists():
+        assert proc.poll() is None, proc.stderr.read().decode()
+        assert time.time() < deadline
+        time.sleep(0.2)
+    time.sleep(1.5)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    saved_steps = load_checkpoint(out / "checkpoints", ("loop",))["loop"]["env_steps"]
+    assert saved_steps >= 400
+    result = subprocess.run([sys.executable, "-m", "taskrl.cli", "train", "--resume", str(out), "--no-progress",
+                             "--no-tensorboard", "--total-steps", str(saved_steps + 800)],
+                            capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    final = json.loads(result.stdout.strip().splitlines()[-1])
+    assert final["env_steps"] == saved_steps + 800
+    steps = [r["env_steps"] for r in read_metrics(out / "metrics.csv")]
+    assert steps == sorted(set(steps))  # rows written after the last checkpoint were dropped
+    assert Path(out / "learning_curve.png").stat().st_size > 1000
