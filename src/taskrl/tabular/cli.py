@@ -71,6 +71,7 @@ def _fmt(x: float) -> str:
 
 
 def _print_tables(console, mdp: FiniteMDP, V: np.ndarray, Q: np.ndarray, policy: np.ndarray, max_rows: int) -> None:
+    from rich.markup import escape
     from rich.table import Table
 
     S, A = mdp.n_states, mdp.n_actions
@@ -81,31 +82,32 @@ def _print_tables(console, mdp: FiniteMDP, V: np.ndarray, Q: np.ndarray, policy:
     table.add_column("state")
     table.add_column("V", justify="right")
     for a in mdp.action_names:
-        table.add_column(f"Q({a})", justify="right")
+        table.add_column(escape(f"Q({a})"), justify="right")
     for a in mdp.action_names:
-        table.add_column(f"A({a})", justify="right")
+        table.add_column(escape(f"A({a})"), justify="right")
     table.add_column("policy")
     for s in order:
         label = mdp.state_names[s] + (" [start]" if mdp.initial[s] > 0 else "") + (" [terminal]" if mdp.terminal[s] else "")
         table.add_row(
-            label,
+            escape(label),
             _fmt(V[s]),
             *(_fmt(Q[s, a]) for a in range(A)),
             *(_fmt(Adv[s, a]) for a in range(A)),
-            "-" if mdp.terminal[s] else mdp.action_names[int(policy[s])],
+            "-" if mdp.terminal[s] else escape(mdp.action_names[int(policy[s])]),
         )
     console.print(table)
     if len(order) < S:
         console.print(f"({S - len(order)} more states not shown; use --max-rows)")
     if mdp.grid is not None:
         console.print("\npolicy:")
-        console.print("\n".join(render_grid(mdp, policy)), highlight=False)
+        console.print("\n".join(render_grid(mdp, policy)), markup=False)
         console.print("\nvalues:")
-        console.print("\n".join(render_grid(mdp, values=V)), highlight=False)
+        console.print("\n".join(render_grid(mdp, values=V)), markup=False)
 
 
 def _run(args: argparse.Namespace) -> int:
     from rich.console import Console
+    from rich.markup import escape
 
     mdp, max_steps = _make_env(args.env, args.gamma)
     console = Console(highlight=False)
@@ -115,7 +117,7 @@ def _run(args: argparse.Namespace) -> int:
     if not console.is_terminal:
         console = Console(highlight=False, width=max(needed, 80))
     console.print(
-        f"[bold]{mdp.name}[/bold]: {mdp.n_states} states x {mdp.n_actions} actions, gamma={mdp.gamma:g}, "
+        f"[bold]{escape(mdp.name)}[/bold]: {mdp.n_states} states x {mdp.n_actions} actions, gamma={mdp.gamma:g}, "
         f"{int(mdp.terminal.sum())} terminal states, {mdp.P_by_action.nnz} transitions"
     )
     start = mdp.initial
