@@ -1,0 +1,212 @@
+"""taskrl against Stable-Baselines3: DQN + hindsight relabelling on random-goal bit flipping.
+
+Both libraries train on the identical task: taskrl's bit flipping with a random start and a
+random target every episode (SB3 runs it through the gymnasium registration
+``taskrl/BitFlip-v0``, so its HerReplayBuffer calls the same ``compute_reward``). Both are
+evaluated by the same function on the same 100 evaluation episodes every ``--eval-interval``
+environment steps, with the greedy policy; evaluation time is excluded from both clocks.
+
+SB3 uses the settings of its own HER learning test (tests/test_her.py::test_performance_her):
+2 envs, lr 5e-4, batch 32, default 64x64 network, train_freq 1, gradient_steps = n_envs,
+learning_starts 100, final epsilon 0.02, target update every 500 steps; goal strategy
+``future`` with k = 4. taskrl uses its ``bitflip-her`` preset.
+
+Reported: median wall-clock and env steps to 90% success over seeds, and the ratio; raw
+training throughput (env steps/s) and gradient updates/s at equal batch size and network.
+
+    .venv/bin/python benchmarks/her_bitflip.py --n-bits 15 25 --seeds 0 1 2 --write
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+import taskrl
+from taskrl.envs import BitFlip
+from taskrl.run import EVAL_SEED_OFFSET
+from taskrl.training.evaluation import evaluate
+
+
+def taskrl_time_to_success(n_bits: int, seed: int, budget: int, eval_interval: int, target: float) -> dict:
+    with tempfile.TemporaryDirectory() as tmp:
+        run = taskrl.train("bitflip-her", out=Path(tmp) / "run", n_bits=n_bits, seed=seed, total_steps=budget,
+                           eval_interval=eval_interval, stop_at_success=target, tensorboard=False,
+                           checkpoint_interval=10**12, save_replay=False)
+        m = run.metrics
+    solved = m["success_rate"] >= target
+    return {"solved": solved, "env_steps": m["env_steps"], "seconds": m["wall_seconds"],
+            "env_steps_per_s": m["env_steps"] / max(m["wall_seconds"], 1e-9), "final_success": m["success_rate"]}
+
+
+def sb3_model(n_bits: int, seed: int, budget: int, batch_size: int = 32, net_arch=(64, 64)):
+    import gymnasium as gym
+    from stable_baselines3 import DQN, HerReplayBuffer
+    from stable_baselines3.common.env_util import make_vec_env
+
+    n_envs = 2
+    env = make_vec_env(lambda: gym.make("taskrl/BitFlip-v0", n_bits=n_bits), n_envs=n_envs, seed=seed)
+    return DQN(
+        "MultiInputPolicy", env,
+        replay_buffer_class=HerReplayBuffer,
+        replay_buffer_kwargs=dict(n_sampled_goal=4, goal_selection_strategy="future"),
+        learning_rate=5e-4, train_freq=1, gradient_steps=n_envs, learning_starts=100,
+        exploration_final_eps=0.02, target_update_interval=500, batch_size=batch_size,
+        buffer_size=int(1e5), policy_kwargs=dict(net_arch=list(net_arch)), seed=seed, verbose=0,
+    )
+
+
+def sb3_policy(model):
+    def act(obs):
+        np_obs = {k: v.cpu().numpy() for k, v in obs.items()}
+        return torch.as_tensor(model.predict(np_obs, deterministic=True)[0])
+    return act
+
+
+def sb3_time_to_success(n_bits: int, seed: int, budget: int, eval_interval: int, target: float) -> dict:
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    model = sb3_model(n_bits, seed, budget)
+    eval_seed = seed + EVAL_SEED_OFFSET  # the episodes taskrl evaluates on for this seed
+    eval_env = BitFlip(n_bits, num_envs=100, seed=eval_seed)
+    result = {"solved": False, "final_success": 0.0}
+
+    class EvalAndClock(BaseCallback):
+        def _on_training_start(self) -> None:
+            self.train_seconds, self.started, self.next_eval = 0.0, time.perf_counter(), eval_interval
+
+        def _on_step(self) -> bool:
+            if self.num_timesteps < self.next_eval:
+                return True
+            self.train_seconds += time.perf_counter() - self.started
+            self.next_eval += eval_interval
+            success = evaluate(sb3_policy(self.model), eval_env, eval_seed)["success_rate"]
+            result.update(env_steps=self.num_timesteps, seconds=self.train_seconds, final_success=success)
+            self.started = time.perf_counter()
+            if success >= target:
+                result["solved"] = True
+                return False
+            return True
+
+    model.learn(total_timesteps=budget, callback=EvalAndClock())
+    result["env_steps_per_s"] = result["env_steps"] / max(result["seconds"], 1e-9)
+    return result
+
+
+
+def updates_per_second(batch_size: int, hidden: tuple[int, ...], n_bits: int = 15, n_updates: int = 600) -> dict:
+    """Gradient updates/s (sampling + relabelling + update) at equal batch size and network."""
+    # SB3: fill its HER buffer, then time its own train() loop.
+    model = sb3_model(n_bits, 0, 10_000, batch_size=batch_size, net_arch=hidden)
+    model.learn(total_timesteps=3_000)
+    model.train(gradient_steps=50, batch_size=batch_size)
+    start = time.perf_counter()
+    model.train(gradient_steps=n_updates, batch_size=batch_size)
+    sb3 = n_updates / (time.perf_counter() - start)
+
+    # taskrl: the loop's sample -> relabel -> update path, same batch and hidden sizes.
+    from taskrl.config import with_overrides
+    from taskrl.presets import preset_config
+    from taskrl.replay import EpisodeReplay
+    from taskrl.run import make_agent, make_env, make_relabeler
+
+    cfg = with_overrides(preset_config("bitflip-her"), {"n_bits": n_bits, "batch_size": batch_size, "hidden_sizes": tuple(hidden)})
+    env = make_env(cfg, 16, 0, torch.device("cpu"))
+    agent, relabel = make_agent(cfg, env, torch.device("cpu")), make_relabeler(cfg, env)
+    replay = EpisodeReplay(env.single_observation_space, env.single_action_space, 100_000, env.horizon, 16)
+    obs = env.reset(seed=0)
+    replay.start(obs)
+    for _ in range(3_000 // 16):
+        action = torch.randint(0, n_bits, (16,))
+        nxt, r, te, tr, info = env.step(action)
+        replay.add(action, r, te, tr, info["final_obs"], nxt)
+    g = torch.Generator().manual_seed(0)
+
+    def one():
+        agent.update(relabel(replay.sample(batch_size, g), replay, g))
+
+    for _ in range(50):
+        one()
+    start = time.perf_counter()
+    for _ in range(n_updates):
+        one()
+    ours = n_updates / (time.perf_counter() - start)
+    return {"batch_size": batch_size, "hidden": list(hidden), "sb3_updates_per_s": sb3, "taskrl_updates_per_s": ours, "ratio": ours / sb3}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--n-bits", type=int, nargs="+", default=[15, 25])
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    parser.add_argument("--libs", nargs="+", default=["taskrl", "sb3"], choices=["taskrl", "sb3"])
+    parser.add_argument("--budget", type=int, nargs="+", default=None,
+                        help="env-step cap per n (default 150k for n<=15, else 400k)")
+    parser.add_argument("--eval-interval", type=int, default=1_000)
+    parser.add_argument("--target", type=float, default=0.9)
+    parser.add_argument("--threads", type=int, default=1, help="torch threads for both libraries")
+    parser.add_argument("--skip-throughput", action="store_true")
+    parser.add_argument("--write", action="store_true", help="append the results to benchmarks/RESULTS.md")
+    parser.add_argument("--json", type=Path, default=Path("benchmarks/out/her_bitflip.json"))
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    budgets = args.budget or [150_000 if n <= 15 else 400_000 for n in args.n_bits]
+
+    runners = {"taskrl": taskrl_time_to_success, "sb3": sb3_time_to_success}
+    results: dict = {"runs": [], "throughput": []}
+    for n, budget in zip(args.n_bits, budgets):
+        for lib in args.libs:
+            for seed in args.seeds:
+                r = runners[lib](n, seed, budget, args.eval_interval, args.target)
+                r.update(lib=lib, n_bits=n, seed=seed, budget=budget)
+                results["runs"].append(r)
+                print(json.dumps(r), flush=True)
+    if not args.skip_throughput:
+        for batch, hidden in ((32, (64, 64)), (256, (256, 256))):
+            t = updates_per_second(batch, hidden)
+            results["throughput"].append(t)
+            print(json.dumps(t), flush=True)
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps(results, indent=2))
+
+    lines = ["| n bits | library | solved (seeds) | median env steps to 90% | median seconds to 90% | median env steps/s |",
+             "|---|---|---|---|---|---|"]
+    medians: dict = {}
+    for n in args.n_bits:
+        for lib in args.libs:
+            rs = [r for r in results["runs"] if r["n_bits"] == n and r["lib"] == lib]
+            solved = [r for r in rs if r["solved"]]
+            # Unsolved seeds count as the full budget / time (a lower bound on their true cost).
+            steps = statistics.median(r["env_steps"] for r in rs)
+            secs = statistics.median(r["seconds"] for r in rs)
+            sps = statistics.median(r["env_steps_per_s"] for r in rs)
+            medians[(n, lib)] = (steps, secs, sps, len(solved) == len(rs))
+            lines.append(f"| {n} | {lib} | {len(solved)}/{len(rs)} | {steps:,.0f} | {secs:.1f} | {sps:,.0f} |")
+    if set(args.libs) == {"taskrl", "sb3"}:
+        lines += ["", "| n bits | wall-clock ratio (SB3 / taskrl) | env-step ratio (SB3 / taskrl) | env steps/s ratio (taskrl / SB3) |", "|---|---|---|---|"]
+        for n in args.n_bits:
+            t, s = medians[(n, "taskrl")], medians[(n, "sb3")]
+            note = "" if s[3] else " (SB3 did not solve every seed: its time is the budget, so the ratio is a lower bound)"
+            lines.append(f"| {n} | {s[1] / t[1]:.1f}x{note} | {s[0] / t[0]:.1f}x | {t[2] / s[2]:.1f}x |")
+    if results["throughput"]:
+        lines += ["", "| batch | hidden | SB3 updates/s | taskrl updates/s | ratio |", "|---|---|---|---|---|"]
+        for t in results["throughput"]:
+            lines.append(f"| {t['batch_size']} | {t['hidden']} | {t['sb3_updates_per_s']:,.0f} | {t['taskrl_updates_per_s']:,.0f} | {t['ratio']:.1f}x |")
+    table = "\n".join(lines)
+    print(table)
+    if args.write:
+        from common import append_results
+
+        append_results("DQN + hindsight relabelling vs Stable-Baselines3 (random-goal bit flipping)",
+                       f"Seeds {args.seeds}, eval every {args.eval_interval} env steps on 100 fixed episodes, "
+                       f"torch threads = {args.threads} for both, evaluation excluded from both clocks.\n\n{table}")
+
+
+if __name__ == "__main__":
+    main()
