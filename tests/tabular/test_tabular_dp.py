@@ -133,3 +133,38 @@ def test_large_sparse_mdp_krylov_path():
     pi = policy_iteration(mdp)  # auto -> Krylov above 1000 states
     vi = value_iteration(mdp, tol=1e-11)
     np.testing.assert_allclose(pi.values, vi.values, atol=1e-8)
+
+
+def test_greedy_policy_picks_the_first_maximum_and_keeps_tied_current_actions():
+    from taskrl.tabular import greedy_policy
+
+    q = np.array([[1.0, 3.0, 3.0], [2.0, 2.0, 0.0], [0.0, 0.0, 5.0]])
+    np.testing.assert_array_equal(greedy_policy(q), [1, 0, 2])
+    np.testing.assert_array_equal(greedy_policy(q, current=np.array([2, 1, 0])), [2, 1, 2])
+    np.testing.assert_array_equal(greedy_policy(q, current=np.array([0, 1, 0]), atol=2.5), [0, 1, 2])
+    rng = np.random.default_rng(0)
+    for A in (1, 7, 300):  # 300 actions takes the np.argmax path
+        q = rng.integers(0, 4, size=(50, A)).astype(float)  # many exact ties
+        np.testing.assert_array_equal(greedy_policy(q), q.argmax(axis=1))
+
+
+def test_deterministic_policy_chain_matches_the_dense_tensor():
+    from taskrl.tabular import policy_chain
+
+    mdp = random_mdp(2, S=9, A=4, gamma=0.8, successors=3, n_terminal=2, sparse=True)
+    pi = np.random.default_rng(2).integers(0, 4, size=9)
+    gP, R = policy_chain(mdp, pi)
+    P = mdp.transition_tensor()[np.arange(9), pi] * 0.8
+    P[mdp.terminal] = 0.0
+    P[:, mdp.terminal] = 0.0
+    np.testing.assert_allclose(gP.toarray(), P, atol=1e-15)
+    np.testing.assert_allclose(R, np.where(mdp.terminal, 0.0, mdp.R[np.arange(9), pi]))
+
+
+def test_krylov_falls_back_when_bicgstab_breaks_down():
+    from taskrl.tabular import CHILL, constant_policy, drummer
+
+    mdp = drummer()  # finite-horizon chain: BiCGSTAB breaks down on the always-chill system
+    chill = constant_policy(mdp, CHILL)
+    np.testing.assert_allclose(evaluate_policy(mdp, chill, solver="krylov"),
+                               evaluate_policy(mdp, chill, solver="sparse"), atol=1e-12)

@@ -35,10 +35,14 @@ __all__ = [
 Solver = Literal["auto", "dense", "sparse", "krylov"]
 
 #: Up to this many states "auto" uses a sparse LU (exact, single-threaded); above, a Krylov
-#: method verified by its residual. A sparse LU of a *random* sparse MDP fills in almost
-#: completely (measured ~20 s at 1e4 states), while BiCGSTAB needs a few dozen mat-vecs.
-#: Dense LAPACK is avoided by default: multi-threaded OpenBLAS can be 30x slower on a busy machine.
-LU_MAX_STATES = 1000
+#: method verified by its residual, with LU as the fallback. A sparse LU of a *random* sparse MDP
+#: fills in almost completely (measured ~20 s at 1e4 states), while BiCGSTAB needs a few dozen
+#: mat-vecs. Dense LAPACK is not the default: multi-threaded OpenBLAS can be 30x slower on a
+#: busy machine.
+LU_MAX_STATES = 200
+#: When BiCGSTAB fails (e.g. breaks down on a finite-horizon chain), systems up to this size go
+#: straight to LU; larger ones try GMRES first.
+LU_FALLBACK_MAX_STATES = 2000
 
 
 @dataclass(frozen=True, eq=False)
@@ -104,7 +108,9 @@ def _backup(mdp: FiniteMDP, v: np.ndarray) -> np.ndarray:
     return q.reshape(mdp.n_actions, mdp.n_states)
 
 
-def evaluate_policy(mdp: FiniteMDP, policy: Any, *, solver: Solver = "auto") -> np.ndarray:
+def evaluate_policy(
+    mdp: FiniteMDP, policy: Any, *, solver: Solver = "auto", values: np.ndarray | None = None
+) -> np.ndarray:
     """Exact policy evaluation: solve ``(I - gamma P_pi) V = R_pi`` for ``V_pi``, shape ``[S]``.
 
     Args:
@@ -112,8 +118,10 @@ def evaluate_policy(mdp: FiniteMDP, policy: Any, *, solver: Solver = "auto") -> 
         policy: deterministic ``[S]`` actions or stochastic ``[S, A]`` probabilities.
         solver: ``"dense"`` (``numpy.linalg.solve``), ``"sparse"`` (``scipy.sparse.linalg.spsolve``,
             a sparse LU: exact, but fill-in makes it slow on large random MDPs), ``"krylov"``
-            (BiCGSTAB to relative residual 1e-12, falling back to GMRES and then LU), or
+            (BiCGSTAB to relative residual 1e-12, falling back to GMRES and/or LU), or
             ``"auto"`` (sparse LU up to ``LU_MAX_STATES`` states, else Krylov).
+        values: initial guess for the Krylov solver (policy iteration passes the previous
+            policy's values); ignored by the direct solvers.
 
     Raises:
         ValueError: if ``I - gamma P_pi`` is singular, which happens when ``gamma = 1`` and the
@@ -132,7 +140,7 @@ def evaluate_policy(mdp: FiniteMDP, policy: Any, *, solver: Solver = "auto") -> 
     elif solver == "sparse":
         V = _spsolve(M, R_pi)
     elif solver == "krylov":
-        V = _krylov(M, R_pi)
+        V = _krylov(M, R_pi, None if values is None else np.asarray(values, dtype=np.float64))
     else:
         raise ValueError(f"solver={solver!r} is not one of 'auto', 'dense', 'sparse', 'krylov'")
     scale = max(1.0, float(np.abs(R_pi).max(initial=0.0)))
@@ -155,12 +163,62 @@ def _spsolve(M: sp.csr_matrix, b: np.ndarray) -> np.ndarray:
             return np.full(M.shape[0], np.nan)
 
 
-def _krylov(M: sp.csr_matrix, b: np.ndarray) -> np.ndarray:
-    """Solve ``M x = b`` iteratively; ``M = I - gamma P_pi`` is well conditioned unless gamma ~ 1."""
-    bnorm = max(float(np.linalg.norm(b)), 1e-300)
-    for method in (spla.bicgstab, spla.gmres):
-        x, info = method(M, b, rtol=1e-12, atol=0.0, maxiter=10 * M.shape[0])
-        if info == 0 and np.all(np.isfinite(x)) and np.linalg.norm(M @ x - b) <= 1e-10 * bnorm:
+def _dot(x: np.ndarray, y: np.ndarray) -> float:
+    # einsum's own loop, not BLAS: multi-threaded BLAS dots of this size are slow on a busy machine.
+    return float(np.einsum("i,i->", x, y))
+
+
+def _bicgstab(M: sp.csr_matrix, b: np.ndarray, x: np.ndarray, rtol: float, maxiter: int) -> np.ndarray | None:
+    """BiCGSTAB (van der Vorst, 1992) for ``M x = b``; ``None`` on breakdown or no convergence.
+
+    Each iteration costs two sparse mat-vecs and a few vector updates.
+    """
+    target = rtol * np.sqrt(_dot(b, b))
+    r = b - M @ x
+    r_hat = r.copy()
+    rho = alpha = omega = 1.0
+    v = np.zeros_like(b)
+    p = np.zeros_like(b)
+    for _ in range(maxiter):
+        if np.sqrt(_dot(r, r)) <= target:
+            return x
+        rho_new = _dot(r_hat, r)
+        if rho_new == 0.0 or omega == 0.0:
+            return None  # breakdown
+        p = r + (rho_new / rho) * (alpha / omega) * (p - omega * v)
+        v = M @ p
+        denom = _dot(r_hat, v)
+        if denom == 0.0:
+            return None
+        alpha = rho_new / denom
+        s = r - alpha * v
+        t = M @ s
+        tt = _dot(t, t)
+        omega = _dot(t, s) / tt if tt > 0 else 0.0
+        x = x + alpha * p + omega * s
+        r = s - omega * t
+        rho = rho_new
+    return x if np.sqrt(_dot(r, r)) <= target else None
+
+
+def _krylov(M: sp.csr_matrix, b: np.ndarray, x0: np.ndarray | None = None) -> np.ndarray:
+    """Solve ``M x = b`` for ``M = I - gamma P_pi`` iteratively, checking the residual."""
+    n = M.shape[0]
+    bnorm = max(np.sqrt(_dot(b, b)), 1e-300)
+
+    def ok(x: np.ndarray | None) -> bool:
+        if x is None or not np.all(np.isfinite(x)):
+            return False
+        res = M @ x - b
+        return bool(np.sqrt(_dot(res, res)) <= 1e-10 * bnorm)
+
+    # Start from the given guess or from b, the first term of the Neumann series of M^-1.
+    x = _bicgstab(M, b, b.copy() if x0 is None else x0.copy(), 1e-12, min(10 * n, 5_000))
+    if ok(x):
+        return x
+    if n > LU_FALLBACK_MAX_STATES:
+        x, info = spla.gmres(M, b, rtol=1e-12, atol=0.0, maxiter=min(10 * n, 5_000))
+        if info == 0 and ok(x):
             return x
     return _spsolve(M, b)
 
@@ -211,7 +269,7 @@ def advantages(mdp: FiniteMDP, policy: Any, *, solver: Solver = "auto") -> np.nd
 
 
 def greedy_policy(q: np.ndarray, *, current: np.ndarray | None = None, atol: float = 0.0) -> np.ndarray:
-    """``pi(s) = argmax_a Q[s, a]``, int ``[S]``.
+    """``pi(s) = argmax_a Q[s, a]`` (the first maximal action), int ``[S]``.
 
     Args:
         q: action values ``[S, A]``.
@@ -219,11 +277,27 @@ def greedy_policy(q: np.ndarray, *, current: np.ndarray | None = None, atol: flo
             best; policy iteration needs this so that round-off ties cannot make it cycle.
         atol: tie tolerance used with ``current``.
     """
-    best = np.argmax(q, axis=1)
+    q_am = np.ascontiguousarray(np.asarray(q, dtype=np.float64).T)  # free for Q's from this module
+    return _greedy_am(q_am, current, atol)
+
+
+def _greedy_am(q_am: np.ndarray, current: np.ndarray | None, atol: float) -> np.ndarray:
+    """Greedy policy from action-major ``Q [A, S]``.
+
+    ``np.argmax(axis=0)`` costs about as much as a whole sparse mat-vec (it loops over S short
+    rows), so the first maximal action is found with vectorised passes over ``[A, S]`` instead:
+    weight the indicator ``Q == max`` by ``A - a`` and take the max over actions.
+    """
+    A, S = q_am.shape
+    m = q_am.max(axis=0)
+    if A < 256:
+        weights = np.arange(A, 0, -1, dtype=np.uint8)[:, None]
+        best = A - (np.equal(q_am, m).view(np.uint8) * weights).max(axis=0).astype(np.int64)
+    else:
+        best = np.argmax(q_am, axis=0)
     if current is None:
         return best
-    idx = np.arange(q.shape[0])
-    keep = q[idx, current] >= q[idx, best] - atol
+    keep = q_am[current, np.arange(S)] >= m - atol
     return np.where(keep, current, best)
 
 
@@ -273,19 +347,19 @@ def policy_iteration(
     for k in range(1, max_iterations + 1):
         # Evaluation: V = (I - gamma P_pi)^-1 R_pi.
         if evaluation == "exact":
-            V = evaluate_policy(mdp, pi, solver=solver)
+            V = evaluate_policy(mdp, pi, solver=solver, values=V if k > 1 else None)
         else:
             V = evaluate_policy_iterative(mdp, pi, tol=tol, values=V).values
         # Improvement: pi'(s) = argmax_a R(s, a) + gamma sum_s' P(s'|s, a) V(s').
-        Q = _backup(mdp, V).T
+        Q_am = _backup(mdp, V)
         # A looser tie tolerance than policy_improvement: Krylov/iterative evaluation errors
         # must not flip near-tied actions back and forth.
-        new_pi = greedy_policy(Q, current=pi if pi.ndim == 1 else None, atol=_tie_tol(Q, 1e-10))
+        new_pi = _greedy_am(Q_am, pi if pi.ndim == 1 else None, _tie_tol(Q_am, 1e-10))
         if pi.ndim == 1 and np.array_equal(new_pi, pi):
             converged = True  # V is now the fixed point of the Bellman optimality operator
             break
         pi = new_pi
-    return Solution(V, np.ascontiguousarray(Q), pi, k, converged, time.perf_counter() - t0)
+    return Solution(V, np.ascontiguousarray(Q_am.T), pi, k, converged, time.perf_counter() - t0)
 
 
 def value_iteration(
@@ -322,5 +396,6 @@ def value_iteration(
         if delta < tol:
             break
     # One more backup so that the returned V, Q and policy agree exactly: V = max_a Q, A <= 0.
-    Q = np.ascontiguousarray(_backup(mdp, V).T)
-    return Solution(Q.max(axis=1), Q, greedy_policy(Q), k, bool(delta < tol), time.perf_counter() - t0)
+    Q_am = _backup(mdp, V)
+    policy = _greedy_am(Q_am, None, 0.0)
+    return Solution(Q_am.max(axis=0), np.ascontiguousarray(Q_am.T), policy, k, bool(delta < tol), time.perf_counter() - t0)

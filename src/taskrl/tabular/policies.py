@@ -83,9 +83,19 @@ def policy_chain(mdp: FiniteMDP, policy: Any) -> tuple[sp.csr_matrix, np.ndarray
     gP, R = mdp.discounted_transitions, mdp.rewards_by_action  # [A*S, S], [A, S]
     if pi.ndim == 1:
         # Deterministic: pick row a * S + s for each s -- a row gather, no arithmetic.
-        return gP[pi * S + np.arange(S)].tocsr(), R[pi, np.arange(S)].copy()
+        return _gather_rows(gP, pi * S + np.arange(S)), R[pi, np.arange(S)].copy()
     # Stochastic: P_pi = sum_a diag(pi[:, a]) gP_a, written as one sparse product [S, A*S] @ [A*S, S].
     weights = sp.csr_matrix(
         (pi.T.ravel(), (np.tile(np.arange(S), A), np.arange(A * S))), shape=(S, A * S)
     )
     return (weights @ gP).tocsr(), np.einsum("as,sa->s", R, pi)
+
+
+def _gather_rows(M: sp.csr_matrix, rows: np.ndarray) -> sp.csr_matrix:
+    """``M[rows]`` for CSR ``M``, vectorised (scipy's fancy row indexing is ~20x slower here)."""
+    starts, ends = M.indptr[rows], M.indptr[rows + 1]
+    lengths = ends - starts
+    indptr = np.concatenate([[0], np.cumsum(lengths)])
+    # Position in M.data of each output entry: its row's start plus its offset within the row.
+    src = np.repeat(starts - indptr[:-1], lengths) + np.arange(indptr[-1])
+    return sp.csr_matrix((M.data[src], M.indices[src], indptr), shape=(len(rows), M.shape[1]))
