@@ -26,7 +26,7 @@ def flatten_state(tree: Any, prefix: str = "") -> tuple[dict[str, torch.Tensor],
 
     def walk(node: Any, path: str) -> Any:
         if isinstance(node, torch.Tensor):
-            tensors[path] = node.detach().contiguous().clone()
+            tensors[path] = node.detach().cpu().contiguous().clone()
             return {_TENSOR: path}
         if isinstance(node, dict):
             if all(isinstance(k, str) for k in node):

@@ -1,0 +1,44 @@
+"""Running mean / standard-deviation normalisation of network inputs.
+
+As in the hindsight paper's implementation: statistics are accumulated from the inputs the
+learner trains on, inputs are standardised and then clipped to ``[-clip, clip]``. The statistics
+are buffers, so they travel with ``state_dict`` into checkpoints.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+
+class RunningNorm(nn.Module):
+    """``(x - mean) / max(std, eps)``, clipped; ``update(x)`` merges a batch into the statistics.
+
+    Args:
+        dim: input width.
+        clip: bound on the normalised values.
+        eps: floor on the standard deviation (constant inputs stay finite).
+    """
+
+    def __init__(self, dim: int, clip: float = 5.0, eps: float = 1e-2) -> None:
+        super().__init__()
+        self.clip, self.eps = clip, eps
+        self.register_buffer("mean", torch.zeros(dim))
+        self.register_buffer("var", torch.ones(dim))
+        self.register_buffer("count", torch.zeros((), dtype=torch.float64))
+
+    @torch.no_grad()
+    def update(self, x: torch.Tensor) -> None:
+        """Chan et al.'s parallel merge of batch moments into the running moments."""
+        n = x.shape[0]
+        batch_mean, batch_var = x.mean(0), x.var(0, unbiased=False)
+        total = self.count + n
+        delta = batch_mean - self.mean
+        self.mean += delta * (n / total).float()
+        m2 = self.var * self.count.float() + batch_var * n + delta.square() * (self.count * n / total).float()
+        self.var.copy_(m2 / total.float())
+        self.count.copy_(total)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        std = self.var.sqrt().clamp(min=self.eps)
+        return ((x - self.mean) / std).clamp(-self.clip, self.clip)
