@@ -30,3 +30,14 @@ def test_evaluation_of_an_untrained_agent_is_near_chance(tmp_path):
                        eval_interval=500, seed=0, tensorboard=False)
     assert run.metrics["updates"] == 0
     assert run.metrics["success_rate"] < 0.3
+
+
+def test_the_same_seed_gives_the_same_run(tmp_path):
+    kwargs = dict(n_bits=5, num_envs=4, total_steps=1_500, eval_interval=500, eval_episodes=20,
+                  learning_starts=100, batch_size=32, tensorboard=False)
+    a = taskrl.train("bitflip-her", out=tmp_path / "a", seed=3, **kwargs)
+    b = taskrl.train("bitflip-her", out=tmp_path / "b", seed=3, **kwargs)
+    c = taskrl.train("bitflip-her", out=tmp_path / "c", seed=4, **kwargs)
+    keys = ("success_rate", "eval_return", "loss", "q_mean", "train_success")
+    assert [a.metrics[k] for k in keys] == [b.metrics[k] for k in keys]
+    assert [a.metrics[k] for k in keys] != [c.metrics[k] for k in keys]
