@@ -168,3 +168,17 @@ def test_krylov_falls_back_when_bicgstab_breaks_down():
     chill = constant_policy(mdp, CHILL)
     np.testing.assert_allclose(evaluate_policy(mdp, chill, solver="krylov"),
                                evaluate_policy(mdp, chill, solver="sparse"), atol=1e-12)
+
+
+def test_undiscounted_policy_iteration_starts_from_a_proper_policy():
+    from taskrl.tabular import proper_policy
+
+    cliff = FiniteMDP.from_gymnasium("CliffWalking-v1", gamma=1.0)
+    evaluate_policy(cliff, proper_policy(cliff))  # not singular: it terminates
+    pi = policy_iteration(cliff)  # action 0 ("up") everywhere would be singular
+    vi = value_iteration(cliff, tol=1e-12)
+    assert pi.converged
+    np.testing.assert_allclose(pi.values, vi.values, atol=1e-9)
+    assert pi.values[36] == pytest.approx(-13.0)  # 13 steps along the cliff edge
+    with pytest.raises(ValueError, match="state 0 .* cannot reach a terminal state"):
+        proper_policy(grid_world(layout=["S#G"], gamma=1.0))

@@ -114,3 +114,9 @@ def test_fitted_q_dataset_formats_and_validation():
         fitted_q_iteration([(0, 3, 0.0, 1, False)], n_states=2, n_actions=2, gamma=0.9)
     with pytest.raises(ValueError, match="5-tuples"):
         fitted_q_iteration([(0, 1, 0.0)], n_states=2, n_actions=2, gamma=0.9)
+
+
+def test_a_tuple_of_five_transitions_is_not_mistaken_for_columns():
+    data = tuple((0, 0, float(i), 1, True) for i in range(5))  # five transitions of (0, 0)
+    res = fitted_q_iteration(data, n_states=2, n_actions=1, gamma=0.9)
+    assert res.counts[0, 0] == 5 and res.q_values[0, 0] == pytest.approx(2.0)  # mean reward

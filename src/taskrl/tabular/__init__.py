@@ -31,7 +31,14 @@ from taskrl.tabular.learning import (
     sample_transitions,
 )
 from taskrl.tabular.mdp import FiniteMDP, GridLayout
-from taskrl.tabular.policies import as_stochastic, check_policy, constant_policy, policy_chain, uniform_policy
+from taskrl.tabular.policies import (
+    as_stochastic,
+    check_policy,
+    constant_policy,
+    policy_chain,
+    proper_policy,
+    uniform_policy,
+)
 from taskrl.tabular.render import render_grid
 
 __all__ = [
@@ -58,6 +65,7 @@ __all__ = [
     "as_stochastic",
     "uniform_policy",
     "constant_policy",
+    "proper_policy",
     "policy_chain",
     "drummer",
     "drummer_state",

@@ -16,7 +16,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from taskrl.tabular.mdp import FiniteMDP
-from taskrl.tabular.policies import check_policy, policy_chain
+from taskrl.tabular.policies import check_policy, policy_chain, proper_policy
 
 __all__ = [
     "Solution",
@@ -88,6 +88,13 @@ class PolicyEvaluation:
     residual: float
 
 
+def _as_values(mdp: FiniteMDP, values: Any, field: str = "values") -> np.ndarray:
+    v = np.array(values, dtype=np.float64)  # a copy: callers may update it in place
+    if v.shape != (mdp.n_states,):
+        raise ValueError(f"{field} has shape {v.shape}; expected ({mdp.n_states},)")
+    return v
+
+
 def bellman_backup(mdp: FiniteMDP, values: np.ndarray) -> np.ndarray:
     """One Bellman backup ``Q[s, a] = R[s, a] + gamma * sum_s' P[s, a, s'] V[s']``, shape ``[S, A]``.
 
@@ -95,10 +102,7 @@ def bellman_backup(mdp: FiniteMDP, values: np.ndarray) -> np.ndarray:
         mdp: the MDP.
         values: any value function ``V``, shape ``[S]`` (terminal entries are ignored).
     """
-    v = np.asarray(values, dtype=np.float64)
-    if v.shape != (mdp.n_states,):
-        raise ValueError(f"values has shape {v.shape}; expected ({mdp.n_states},)")
-    return _backup(mdp, v).T.copy()
+    return _backup(mdp, _as_values(mdp, values)).T.copy()
 
 
 def _backup(mdp: FiniteMDP, v: np.ndarray) -> np.ndarray:
@@ -140,7 +144,7 @@ def evaluate_policy(
     elif solver == "sparse":
         V = _spsolve(M, R_pi)
     elif solver == "krylov":
-        V = _krylov(M, R_pi, None if values is None else np.asarray(values, dtype=np.float64))
+        V = _krylov(M, R_pi, None if values is None else _as_values(mdp, values))
     else:
         raise ValueError(f"solver={solver!r} is not one of 'auto', 'dense', 'sparse', 'krylov'")
     scale = max(1.0, float(np.abs(R_pi).max(initial=0.0)))
@@ -243,7 +247,7 @@ def evaluate_policy_iterative(
             policy iteration.
     """
     gP_pi, R_pi = policy_chain(mdp, policy)
-    V = np.zeros(mdp.n_states) if values is None else np.array(values, dtype=np.float64)
+    V = np.zeros(mdp.n_states) if values is None else _as_values(mdp, values)
     delta, k = np.inf, 0
     for k in range(1, max_iterations + 1):
         V_new = R_pi + gP_pi @ V  # Bellman expectation operator T_pi
@@ -326,7 +330,9 @@ def policy_iteration(
 
     Args:
         mdp: the MDP.
-        policy: initial policy (default: action 0 everywhere); deterministic or stochastic.
+        policy: initial policy; deterministic or stochastic. Default: action 0 everywhere, or
+            for ``gamma = 1`` a :func:`~taskrl.tabular.policies.proper_policy` (one that
+            terminates), without which the first evaluation could be singular.
         evaluation: ``"exact"`` solves the linear system each round; ``"iterative"`` runs
             Bellman expectation sweeps to ``tol``, warm-started from the previous values
             (modified policy iteration).
@@ -341,7 +347,12 @@ def policy_iteration(
     if evaluation not in ("exact", "iterative"):
         raise ValueError(f"evaluation={evaluation!r} is not one of 'exact', 'iterative'")
     t0 = time.perf_counter()
-    pi = np.zeros(mdp.n_states, dtype=np.int64) if policy is None else check_policy(mdp, policy)
+    if policy is not None:
+        pi = check_policy(mdp, policy)
+    elif mdp.gamma < 1.0:
+        pi = np.zeros(mdp.n_states, dtype=np.int64)
+    else:  # undiscounted: start from a policy that terminates, or its values are infinite
+        pi = proper_policy(mdp)
     V = np.zeros(mdp.n_states)
     converged, k = False, 0
     for k in range(1, max_iterations + 1):
@@ -385,7 +396,7 @@ def value_iteration(
     t0 = time.perf_counter()
     gP, R = mdp.discounted_transitions, mdp.rewards_by_action.ravel()
     S, A = mdp.n_states, mdp.n_actions
-    V = np.zeros(S) if values is None else np.array(values, dtype=np.float64)
+    V = np.zeros(S) if values is None else _as_values(mdp, values)
     delta, k = np.inf, 0
     for k in range(1, max_iterations + 1):
         Q = gP @ V  # gamma * sum_s' P(s'|s, a) V(s'), action-major [A * S]

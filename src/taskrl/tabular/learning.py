@@ -263,8 +263,8 @@ def sample_transitions(mdp: FiniteMDP, n: int, *, seed: int = 0) -> Transitions:
 def _as_transitions(dataset: Any) -> Transitions:
     if isinstance(dataset, Transitions):
         return dataset
-    if isinstance(dataset, tuple) and len(dataset) == 5 and all(np.ndim(x) == 1 for x in dataset):
-        cols = dataset  # five parallel arrays
+    if isinstance(dataset, tuple) and len(dataset) == 5 and all(isinstance(x, np.ndarray) and x.ndim == 1 for x in dataset):
+        cols = dataset  # five parallel numpy arrays (a tuple of five 5-tuples is five transitions)
     else:
         rows = list(dataset)
         if rows and any(len(t) != 5 for t in rows):
@@ -295,8 +295,8 @@ def fitted_q_iteration(
     sparse mat-vec; this is value iteration on the empirical MDP.
 
     Args:
-        dataset: :class:`Transitions`, a tuple of five arrays ``(s, a, r, s', done)``, or a
-            sequence of 5-tuples.
+        dataset: :class:`Transitions`, a tuple of five 1-D numpy arrays ``(s, a, r, s', done)``,
+            or a sequence of 5-tuples.
         n_states: number of states ``S`` (state indices must be in ``[0, S)``).
         n_actions: number of actions ``A``.
         gamma: discount factor in ``[0, 1]``.

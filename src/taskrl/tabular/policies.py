@@ -13,7 +13,14 @@ import scipy.sparse as sp
 
 from taskrl.tabular.mdp import FiniteMDP
 
-__all__ = ["check_policy", "uniform_policy", "constant_policy", "policy_chain", "as_stochastic"]
+__all__ = [
+    "check_policy",
+    "uniform_policy",
+    "constant_policy",
+    "proper_policy",
+    "policy_chain",
+    "as_stochastic",
+]
 
 
 def check_policy(mdp: FiniteMDP, policy: Any) -> np.ndarray:
@@ -60,6 +67,38 @@ def constant_policy(mdp: FiniteMDP, action: int) -> np.ndarray:
     if not 0 <= action < mdp.n_actions:
         raise ValueError(f"action={action} is not an action in [0, {mdp.n_actions})")
     return np.full(mdp.n_states, action, dtype=np.int64)
+
+
+def proper_policy(mdp: FiniteMDP) -> np.ndarray:
+    """A deterministic policy that reaches a terminal state with probability 1 from every state.
+
+    Backward breadth-first search from the terminal states: each state takes an action with a
+    positive probability of moving one step closer (in the support graph of ``P``) to a terminal
+    state, so from every state some positive-probability path ends in a terminal state. With
+    ``gamma = 1`` policy iteration must start from such a policy, or evaluation is singular.
+
+    Raises:
+        ValueError: if some state cannot reach any terminal state whatever the actions.
+    """
+    S, A = mdp.n_states, mdp.n_actions
+    into = mdp.P.tocsc()  # column s' lists the rows s * A + a that can move to s'
+    policy = np.zeros(S, dtype=np.int64)
+    reached = mdp.terminal.copy()
+    frontier = np.flatnonzero(reached)
+    while frontier.size:
+        rows = np.concatenate([into.indices[into.indptr[c]:into.indptr[c + 1]] for c in frontier])
+        states, first = np.unique(rows // A, return_index=True)
+        new = ~reached[states]
+        policy[states[new]] = rows[first[new]] % A
+        reached[states[new]] = True
+        frontier = states[new]
+    if not reached.all():
+        s = int(np.flatnonzero(~reached)[0])
+        raise ValueError(
+            f"state {s} ({mdp.state_names[s]}) cannot reach a terminal state under any policy; "
+            "with gamma = 1 its value is undefined"
+        )
+    return policy
 
 
 def as_stochastic(mdp: FiniteMDP, policy: Any) -> np.ndarray:
