@@ -32,4 +32,7 @@ class ObsConcat(nn.Module):
         self.keys = tuple(keys)
 
     def forward(self, obs: Obs) -> torch.Tensor:
-        return torch.cat([obs[k].flatten(1).float() for k in self.keys], dim=1)
+        parts = [obs[k].flatten(1) for k in self.keys]
+        if len({p.dtype for p in parts}) == 1:  # one cast after the concat: fewer small ops
+            return torch.cat(parts, dim=1).float()
+        return torch.cat([p.float() for p in parts], dim=1)

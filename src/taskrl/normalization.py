@@ -26,19 +26,27 @@ class RunningNorm(nn.Module):
         self.register_buffer("mean", torch.zeros(dim))
         self.register_buffer("var", torch.ones(dim))
         self.register_buffer("count", torch.zeros((), dtype=torch.float64))
+        self.register_buffer("inv_std", torch.ones(dim), persistent=False)
 
     @torch.no_grad()
     def update(self, x: torch.Tensor) -> None:
         """Chan et al.'s parallel merge of batch moments into the running moments."""
         n = x.shape[0]
-        batch_mean, batch_var = x.mean(0), x.var(0, unbiased=False)
+        batch_var, batch_mean = torch.var_mean(x, dim=0, unbiased=False)
         total = self.count + n
         delta = batch_mean - self.mean
         self.mean += delta * (n / total).float()
         m2 = self.var * self.count.float() + batch_var * n + delta.square() * (self.count * n / total).float()
         self.var.copy_(m2 / total.float())
         self.count.copy_(total)
+        self._refresh()
+
+    def _refresh(self) -> None:
+        torch.reciprocal(self.var.sqrt().clamp(min=self.eps), out=self.inv_std)
+
+    def _load_from_state_dict(self, *args, **kwargs) -> None:
+        super()._load_from_state_dict(*args, **kwargs)
+        self._refresh()
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        std = self.var.sqrt().clamp(min=self.eps)
-        return ((x - self.mean) / std).clamp(-self.clip, self.clip)
+        return ((x - self.mean) * self.inv_std).clamp_(-self.clip, self.clip)

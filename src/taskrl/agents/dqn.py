@@ -87,8 +87,10 @@ class DQNAgent:
         self.q_target = QNetwork(input_dim, n_actions, config.hidden_sizes).to(self.device)
         self.q_target.load_state_dict(self.q.state_dict())
         self.q_target.requires_grad_(False)
+        # Parameter lists cached once: walking the module tree every update costs more than the math.
+        self._params, self._target_params = list(self.q.parameters()), list(self.q_target.parameters())
         # fused Adam: one kernel for all parameters (CPU and CUDA), ~15% faster updates on small nets.
-        self.optimizer = torch.optim.Adam(self.q.parameters(), lr=config.lr, fused=True)
+        self.optimizer = torch.optim.Adam(self._params, lr=config.lr, fused=True)
         self.updates = 0
 
     # ---------------------------------------------------------------- acting
@@ -143,7 +145,7 @@ class DQNAgent:
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         if cfg.max_grad_norm > 0:
-            nn.utils.clip_grad_norm_(self.q.parameters(), cfg.max_grad_norm, foreach=True)
+            nn.utils.clip_grad_norm_(self._params, cfg.max_grad_norm, foreach=True)
         self.optimizer.step()
 
         self.updates += 1
@@ -154,11 +156,10 @@ class DQNAgent:
     @torch.no_grad()
     def update_target(self) -> None:
         """theta_target <- tau * theta + (1 - tau) * theta_target (tau = 1: hard copy)."""
-        online, target = list(self.q.parameters()), list(self.q_target.parameters())
         if self.config.tau >= 1.0:
-            torch._foreach_copy_(target, online)
+            torch._foreach_copy_(self._target_params, self._params)
         else:
-            torch._foreach_lerp_(target, online, self.config.tau)
+            torch._foreach_lerp_(self._target_params, self._params, self.config.tau)
 
     # ---------------------------------------------------------------- checkpointing
     def state_dict(self) -> dict[str, Any]:
