@@ -14,7 +14,7 @@ learning_starts 100, final epsilon 0.02, target update every 500 steps; goal str
 Reported: median wall-clock and env steps to 90% success over seeds, and the ratio; raw
 training throughput (env steps/s) and gradient updates/s at equal batch size and network.
 
-    .venv/bin/python benchmarks/her_bitflip.py --n-bits 15 25 --seeds 0 1 2 --write
+    .venv/bin/python benchmarks/her_bitflip.py --n-bits 15 20 25 --seeds 0 1 2 --write
 """
 
 from __future__ import annotations
@@ -141,9 +141,28 @@ def updates_per_second(batch_size: int, hidden: tuple[int, ...], n_bits: int = 1
     return {"batch_size": batch_size, "hidden": list(hidden), "sb3_updates_per_s": sb3, "taskrl_updates_per_s": ours, "ratio": ours / sb3}
 
 
+def collection_steps_per_second(n_bits: int = 15, steps: int = 30_000) -> dict:
+    """Acting + environment stepping + storing, no learning, with each library's own collector."""
+    model = sb3_model(n_bits, 0, 10**9)
+    model.learning_starts = 10**9  # never train: SB3's collection loop alone
+    model.learn(total_timesteps=1_000)
+    start = time.perf_counter()
+    model.learn(total_timesteps=steps, reset_num_timesteps=False)
+    sb3 = steps / (time.perf_counter() - start)
+
+    out = {"n_bits": n_bits, "sb3_env_steps_per_s": sb3}
+    for num_envs in (16, 256):
+        with tempfile.TemporaryDirectory() as tmp:
+            run = taskrl.train("bitflip-her", out=Path(tmp) / "run", n_bits=n_bits, num_envs=num_envs,
+                               total_steps=steps * 4, learning_starts=10**12, eval_interval=10**12,
+                               tensorboard=False, checkpoint_interval=10**12, save_replay=False)
+        out[f"taskrl_env_steps_per_s_{num_envs}_envs"] = run.metrics["env_steps"] / run.metrics["wall_seconds"]
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--n-bits", type=int, nargs="+", default=[15, 25])
+    parser.add_argument("--n-bits", type=int, nargs="+", default=[15, 20, 25])
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--libs", nargs="+", default=["taskrl", "sb3"], choices=["taskrl", "sb3"])
     parser.add_argument("--budget", type=int, nargs="+", default=None,
@@ -172,6 +191,8 @@ def main() -> None:
             t = updates_per_second(batch, hidden)
             results["throughput"].append(t)
             print(json.dumps(t), flush=True)
+        results["collection"] = collection_steps_per_second()
+        print(json.dumps(results["collection"]), flush=True)
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(results, indent=2))
 
@@ -189,15 +210,23 @@ def main() -> None:
             medians[(n, lib)] = (steps, secs, sps, len(solved) == len(rs))
             lines.append(f"| {n} | {lib} | {len(solved)}/{len(rs)} | {steps:,.0f} | {secs:.1f} | {sps:,.0f} |")
     if set(args.libs) == {"taskrl", "sb3"}:
-        lines += ["", "| n bits | wall-clock ratio (SB3 / taskrl) | env-step ratio (SB3 / taskrl) | env steps/s ratio (taskrl / SB3) |", "|---|---|---|---|"]
+        lines += ["", "Ratios of medians (training env steps/s: each library with its own settings, learning included):", "",
+                  "| n bits | wall-clock ratio (SB3 / taskrl) | env-step ratio (SB3 / taskrl) | env steps/s ratio (taskrl / SB3) |", "|---|---|---|---|"]
         for n in args.n_bits:
             t, s = medians[(n, "taskrl")], medians[(n, "sb3")]
             note = "" if s[3] else " (SB3 did not solve every seed: its time is the budget, so the ratio is a lower bound)"
             lines.append(f"| {n} | {s[1] / t[1]:.1f}x{note} | {s[0] / t[0]:.1f}x | {t[2] / s[2]:.1f}x |")
     if results["throughput"]:
-        lines += ["", "| batch | hidden | SB3 updates/s | taskrl updates/s | ratio |", "|---|---|---|---|---|"]
+        lines += ["", "Gradient updates/s (sampling + relabelling + one update), equal batch size and network:", "",
+                  "| batch | hidden | SB3 updates/s | taskrl updates/s | ratio |", "|---|---|---|---|---|"]
         for t in results["throughput"]:
             lines.append(f"| {t['batch_size']} | {t['hidden']} | {t['sb3_updates_per_s']:,.0f} | {t['taskrl_updates_per_s']:,.0f} | {t['ratio']:.1f}x |")
+        c = results["collection"]
+        lines += ["", "Collection only (act + env step + store, no learning), n = 15:", "",
+                  "| SB3 (2 envs, DummyVecEnv) | taskrl (16 envs) | taskrl (256 envs) | ratio (16 envs) | ratio (256 envs) |",
+                  "|---|---|---|---|---|",
+                  f"| {c['sb3_env_steps_per_s']:,.0f} | {c['taskrl_env_steps_per_s_16_envs']:,.0f} | {c['taskrl_env_steps_per_s_256_envs']:,.0f} | "
+                  f"{c['taskrl_env_steps_per_s_16_envs'] / c['sb3_env_steps_per_s']:.0f}x | {c['taskrl_env_steps_per_s_256_envs'] / c['sb3_env_steps_per_s']:.0f}x |"]
     table = "\n".join(lines)
     print(table)
     if args.write:
