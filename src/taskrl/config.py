@@ -64,7 +64,7 @@ class TrainConfig:
     terminate_on_success: bool = True
     algo: Literal["dqn"] = "dqn"
     total_steps: int = 100_000
-    num_envs: int = 16
+    num_envs: int = 32
     seed: int = 0
     device: str = "cpu"
     buffer_size: int = 1_000_000
@@ -72,7 +72,7 @@ class TrainConfig:
     her_k: int = 4
     batch_size: int = 256
     learning_starts: int = 1_000
-    updates_per_step: float = 0.25
+    updates_per_step: float = 0.1
     epsilon_start: float = 0.5
     epsilon_end: float = 0.05
     epsilon_decay_steps: int = 20_000
