@@ -97,3 +97,11 @@ def test_a_killed_run_resumes_from_its_last_checkpoint(tmp_path):
     steps = [r["env_steps"] for r in read_metrics(out / "metrics.csv")]
     assert steps == sorted(set(steps))  # rows written after the last checkpoint were dropped
     assert Path(out / "learning_curve.png").stat().st_size > 1000
+
+
+def test_metrics_csv_gains_the_agents_columns_after_the_first_updates(tmp_path):
+    run = taskrl.train("bitflip-her", out=tmp_path / "cols", total_steps=600, eval_interval=200, **TINY)
+    rows = read_metrics(tmp_path / "cols" / "metrics.csv")
+    assert {"loss", "q_mean", "success_rate", "wall_seconds"} <= set(rows[0])
+    assert rows[0]["loss"] is None and rows[-1]["loss"] is not None  # no updates before the first row
+    assert run.metrics["updates"] > 0

@@ -1,6 +1,7 @@
 """Metrics of a run: ``metrics.csv`` (one row per evaluation) and TensorBoard events.
 
-Columns of ``metrics.csv``:
+Columns of ``metrics.csv`` (the first ones always; then the scalars the agent's ``update``
+returns, averaged over the updates since the previous row, e.g. DQN's ``loss`` and ``q_mean``):
     env_steps        environment steps so far (all parallel environments)
     updates          gradient updates so far
     wall_seconds     training wall-clock, summed across resumes
@@ -8,11 +9,10 @@ Columns of ``metrics.csv``:
     eval_return      mean undiscounted evaluation return
     eval_length      mean evaluation episode length
     train_success    success rate of training episodes finished since the last row
-    loss             mean TD loss since the last row
-    q_mean           mean Q(s, a) of the sampled batches since the last row
     epsilon          exploration rate at this point
     env_steps_per_s  collection + learning throughput since the last row
     updates_per_s    gradient updates per second since the last row
+    loss, q_mean     (DQN) mean TD loss and mean Q(s, a) of the sampled batches
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from typing import Any
 
 COLUMNS = [
     "env_steps", "updates", "wall_seconds", "success_rate", "eval_return", "eval_length",
-    "train_success", "loss", "q_mean", "epsilon", "env_steps_per_s", "updates_per_s",
+    "train_success", "epsilon", "env_steps_per_s", "updates_per_s",
 ]
 
 
@@ -39,11 +39,14 @@ class RunLogger:
 
     def __init__(self, run_dir: Path, tensorboard: bool = True, resume_from_step: int | None = None) -> None:
         self.path = Path(run_dir) / "metrics.csv"
+        self.columns: list[str] | None = None
         if resume_from_step is not None and self.path.exists():
+            with self.path.open() as f:
+                self.columns = next(csv.reader(f), None)
             rows = [r for r in read_metrics(self.path) if float(r["env_steps"]) <= resume_from_step]
             self._write_rows(rows)
-        elif not self.path.exists() or resume_from_step is None:
-            self._write_rows([])
+        elif self.path.exists():
+            self.path.unlink()
         self.writer = None
         if tensorboard:
             from torch.utils.tensorboard import SummaryWriter
@@ -52,16 +55,23 @@ class RunLogger:
 
     def _write_rows(self, rows: list[dict[str, Any]]) -> None:
         with self.path.open("w", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=COLUMNS)
+            writer = csv.DictWriter(f, fieldnames=self.columns)
             writer.writeheader()
             writer.writerows(rows)
 
     def log(self, row: dict[str, Any]) -> None:
+        if self.columns is None:  # fixed columns first, then the agent's metrics in their order
+            self.columns = COLUMNS + [k for k in row if k not in COLUMNS]
+            self._write_rows([])
+        elif any(k not in self.columns for k in row):  # first row with the agent's metrics: widen once
+            rows = read_metrics(self.path)
+            self.columns += [k for k in row if k not in self.columns]
+            self._write_rows(rows)
         with self.path.open("a", newline="") as f:
-            csv.DictWriter(f, fieldnames=COLUMNS).writerow({k: row.get(k, "") for k in COLUMNS})
+            csv.DictWriter(f, fieldnames=self.columns).writerow({k: row.get(k, "") for k in self.columns})
         if self.writer is not None:
             step = int(row["env_steps"])
-            for k in COLUMNS[1:]:
+            for k in self.columns[1:]:
                 if isinstance(row.get(k), (int, float)):
                     self.writer.add_scalar(f"taskrl/{k}", row[k], step)
             self.writer.flush()

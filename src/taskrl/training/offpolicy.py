@@ -120,9 +120,9 @@ class OffPolicyLoop:
         s, env, agent, replay = self.schedule, self.env, self.agent, self.replay
         obs = env.reset(seed=env_seed)
         replay.start(obs)
-        # Sums kept as tensors between log rows: no host sync inside the hot loop.
-        loss_sum = torch.zeros((), device=replay.device)
-        q_sum = torch.zeros((), device=replay.device)
+        # Sums of the agent's update metrics, kept as tensors between log rows: no host sync
+        # inside the hot loop.
+        metric_sums: dict[str, torch.Tensor] = {}
         episodes_done = torch.zeros((), device=env.device)
         episodes_success = torch.zeros((), device=env.device)
         row_updates, row_steps = 0, 0
@@ -146,9 +146,8 @@ class OffPolicyLoop:
                 n_updates = int(state.update_credit)
                 state.update_credit -= n_updates
                 for _ in range(n_updates):
-                    metrics = agent.update(self.sample_batch())
-                    loss_sum += metrics["loss"]
-                    q_sum += metrics["q_mean"]
+                    for name, value in agent.update(self.sample_batch()).items():
+                        metric_sums[name] = metric_sums[name] + value if name in metric_sums else value.clone()
                 state.updates += n_updates
                 row_updates += n_updates
 
@@ -163,8 +162,7 @@ class OffPolicyLoop:
                     "wall_seconds": round(state.wall_seconds, 3),
                     **result,
                     "train_success": (episodes_success / episodes_done.clamp(min=1)).item(),
-                    "loss": (loss_sum / max(row_updates, 1)).item(),
-                    "q_mean": (q_sum / max(row_updates, 1)).item(),
+                    **{name: (total / max(row_updates, 1)).item() for name, total in metric_sums.items()},
                     "epsilon": epsilon,
                     "env_steps_per_s": row_steps / elapsed,
                     "updates_per_s": row_updates / elapsed,
@@ -173,7 +171,7 @@ class OffPolicyLoop:
                 state.last_success = result["success_rate"]
                 state.best_success = max(state.best_success, result["success_rate"])
                 state.next_eval += s.eval_interval
-                loss_sum.zero_(), q_sum.zero_(), episodes_done.zero_(), episodes_success.zero_()
+                metric_sums.clear(), episodes_done.zero_(), episodes_success.zero_()
                 row_updates, row_steps, row_start = 0, 0, state.wall_seconds
                 clock.resume()
                 if s.stop_at_success > 0 and result["success_rate"] >= s.stop_at_success:
