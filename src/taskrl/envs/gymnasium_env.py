@@ -1,8 +1,8 @@
 """Single-copy gymnasium views of the native environments, so other libraries can use them.
 
-``gymnasium.make("taskrl/BitFlip-v0", n_bits=15)`` gives a standard ``gymnasium.Env`` with
-numpy observations and a numpy ``compute_reward`` that accepts batches (the goal-env API that
-hindsight replay buffers of other libraries call).
+``gymnasium.make("taskrl/BitFlip-v0", n_bits=15)`` (or ``"taskrl/PointReach-v0"``) gives a
+standard ``gymnasium.Env`` with numpy observations and a numpy ``compute_reward`` that accepts
+batches (the goal-env API that hindsight replay buffers of other libraries call).
 """
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ import numpy as np
 import torch
 
 from taskrl.envs.bitflip import BitFlip
+from taskrl.envs.point_reach import PointReach, RewardType
 
 
 class BitFlipGymEnv(gym.Env):
@@ -53,7 +54,77 @@ class BitFlipGymEnv(gym.Env):
         return (achieved == desired).all(axis=-1).astype(np.float32) - 1.0
 
 
+class PointReachGymEnv(gym.Env):
+    """Gymnasium wrapper around one copy of :class:`PointReach` (random start and random goal).
+
+    The episode length is gymnasium's time limit (``max_episode_steps``, registered as 50, the
+    native default); the wrapped copy never truncates by itself.
+
+    Args:
+        reward: ``"sparse"`` or ``"dense"`` (see :class:`PointReach`).
+        max_speed: largest move per step along each axis.
+        distance_threshold: success radius around the goal.
+        terminate_on_success: end the episode when the goal is reached.
+    """
+
+    metadata = {"render_modes": []}
+
+    def __init__(
+        self,
+        reward: RewardType = "sparse",
+        max_speed: float = 0.1,
+        distance_threshold: float = 0.05,
+        terminate_on_success: bool = False,
+    ) -> None:
+        self._env = PointReach(
+            num_envs=1,
+            horizon=2**62,
+            reward=reward,
+            max_speed=max_speed,
+            distance_threshold=distance_threshold,
+            terminate_on_success=terminate_on_success,
+            seed=0,
+        )
+        self.observation_space = self._env.single_observation_space
+        self.action_space = self._env.single_action_space
+
+    @staticmethod
+    def _to_numpy(obs: dict[str, torch.Tensor]) -> dict[str, np.ndarray]:
+        return {k: v[0].numpy().copy() for k, v in obs.items()}
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        if seed is None:
+            seed = int(self.np_random.integers(2**62))
+        return self._to_numpy(self._env.reset(seed=seed)), {}
+
+    def step(self, action):
+        action = torch.as_tensor(np.asarray(action, dtype=np.float32).reshape(1, 2))
+        obs, reward, terminated, truncated, info = self._env.step(action)
+        final = self._to_numpy(info["final_obs"])
+        return final, float(reward[0]), bool(terminated[0]), bool(truncated[0]), {"is_success": bool(info["is_success"][0])}
+
+    def compute_reward(self, achieved_goal: np.ndarray, desired_goal: np.ndarray, info: Any = None) -> np.ndarray:
+        """Vectorised over leading dimensions, like gymnasium-robotics' goal envs."""
+        diff = np.asarray(achieved_goal, dtype=np.float32) - np.asarray(desired_goal, dtype=np.float32)
+        distance = np.linalg.norm(diff, axis=-1)
+        if self._env.reward_type == "dense":
+            return (-distance).astype(np.float32)
+        return (distance <= self._env.distance_threshold).astype(np.float32) - 1.0
+
+    def compute_terminated(self, achieved_goal: np.ndarray, desired_goal: np.ndarray, info: Any = None) -> np.ndarray:
+        diff = np.asarray(achieved_goal, dtype=np.float32) - np.asarray(desired_goal, dtype=np.float32)
+        reached = np.linalg.norm(diff, axis=-1) <= self._env.distance_threshold
+        return reached if self._env.terminate_on_success else np.zeros_like(reached)
+
+
 def register_gymnasium_envs() -> None:
     """Register the native environments under the ``taskrl/`` namespace (idempotent)."""
     if "taskrl/BitFlip-v0" not in gym.registry:
         gym.register(id="taskrl/BitFlip-v0", entry_point="taskrl.envs.gymnasium_env:BitFlipGymEnv")
+    if "taskrl/PointReach-v0" not in gym.registry:
+        gym.register(
+            id="taskrl/PointReach-v0",
+            entry_point="taskrl.envs.gymnasium_env:PointReachGymEnv",
+            max_episode_steps=50,
+        )

@@ -1,0 +1,304 @@
+"""Gymnasium goal environments (Fetch, Meta-World, ``taskrl/PointReach-v0``, ...) as batched envs.
+
+:class:`GymnasiumGoalEnv` runs ``num_envs`` copies through gymnasium's vector API (sync or async)
+with same-step autoreset and is the only place where gymnasium's numpy data becomes torch tensors:
+
+- observations: dict of numpy batches -> dict of tensors on ``device`` (float64 keys become
+  float32 by default, and ``single_observation_space`` says so, so replay storage agrees);
+- autoreset: gymnasium puts the final observation of each finished episode in
+  ``info["final_obs"]`` (an object array of per-env dicts, masked by ``info["_final_obs"]``) and
+  the finished step's info in ``info["final_info"]``; the adapter returns ``info["final_obs"]``
+  as a dict of tensors for every env (equal to the returned observation where nothing ended);
+- success: ``info["is_success"]`` is a bool tensor read from the env's ``success_key`` of the
+  step that was taken (from ``final_info`` where the episode ended, never from the reset info);
+- goal functions: ``compute_reward`` / ``compute_terminated`` take torch batches, call the
+  single env's numpy function (vectorised in gymnasium-robotics) and convert back.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import Any, Callable, Literal
+
+import gymnasium as gym
+import numpy as np
+import torch
+
+from taskrl.envs.base import BatchedEnv, GoalEnvMixin, Obs, StepResult
+
+VectorStrategy = Literal["sync", "async"]
+VECTOR_STRATEGIES = ("sync", "async")
+
+
+def _ensure_registered(env_id: str) -> None:
+    """Make ``env_id`` known to gymnasium: taskrl's own ids and gymnasium-robotics' (if installed)."""
+    if env_id in gym.registry or ":" in env_id:
+        return
+    if env_id.startswith("taskrl/"):
+        from taskrl.envs.gymnasium_env import register_gymnasium_envs
+
+        register_gymnasium_envs()
+        return
+    try:
+        import gymnasium_robotics
+    except ImportError:
+        return
+    gym.register_envs(gymnasium_robotics)
+
+
+def _make_env(env_id: str, env_kwargs: dict[str, Any], max_episode_steps: int | None) -> gym.Env:
+    """Module-level (picklable) factory, so async workers started by spawn can build the env."""
+    _ensure_registered(env_id)
+    if max_episode_steps is not None:
+        return gym.make(env_id, max_episode_steps=max_episode_steps, **env_kwargs)
+    return gym.make(env_id, **env_kwargs)
+
+
+def _with_time_limit(factory: Callable[[], gym.Env], max_episode_steps: int) -> gym.Env:
+    return gym.wrappers.TimeLimit(factory(), max_episode_steps=max_episode_steps)
+
+
+def _convert_space(space: gym.spaces.Space, dtype: torch.dtype | None) -> gym.spaces.Space:
+    """A floating ``Box`` in the observation dtype; every other space unchanged."""
+    if dtype is None or not isinstance(space, gym.spaces.Box) or not np.issubdtype(space.dtype, np.floating):
+        return space
+    np_dtype = torch.empty((), dtype=dtype).numpy().dtype
+    return gym.spaces.Box(space.low.astype(np_dtype), space.high.astype(np_dtype), shape=space.shape, dtype=np_dtype)
+
+
+def _never_terminates(env: gym.Env) -> bool:
+    """True for gymnasium-robotics' robot envs (Fetch, Shadow hand), whose ``compute_terminated``
+    is the library's constant ``False`` (continuing tasks): no need to call it row by row."""
+    try:
+        from gymnasium_robotics.envs.robot_env import BaseRobotEnv
+    except ImportError:
+        return False
+    return getattr(type(env), "compute_terminated", None) is BaseRobotEnv.compute_terminated
+
+
+def _torch_dtype(space: gym.spaces.Space) -> torch.dtype:
+    return torch.from_numpy(np.zeros((), dtype=space.dtype)).dtype
+
+
+class GymnasiumGoalEnv(GoalEnvMixin, BatchedEnv):
+    """``num_envs`` copies of a gymnasium goal env behind the batched contract.
+
+    Args:
+        env: a registered id (``"FetchReach-v4"``, ``"taskrl/PointReach-v0"``; gymnasium-robotics
+            ids are registered on demand when it is installed) or a zero-argument factory
+            returning a ``gymnasium.Env``.
+        num_envs: copies stepped in parallel.
+        device: torch device of every returned tensor.
+        vector_strategy: ``"sync"`` (one process, ``SyncVectorEnv``) or ``"async"``
+            (a worker process per copy, ``AsyncVectorEnv``).
+        success_key: info key of per-step success (``"is_success"`` for Fetch and taskrl,
+            ``"success"`` for Meta-World); ``None`` reports no success (always False).
+        max_episode_steps: time limit; default the env spec's ``max_episode_steps``. It is
+            also ``horizon``.
+        observation_dtype: floating observation keys are converted to this dtype (``None``
+            keeps the env's, e.g. float64 for Fetch).
+        env_kwargs: keyword arguments of ``gymnasium.make`` (only with a registered id).
+        vector_kwargs: extra keyword arguments of the vector env (e.g. ``context="spawn"``).
+
+    Seeding: ``reset(seed)`` seeds copy ``i`` with ``seed + i`` (gymnasium's convention).
+    Actions are passed to the env as given (no clipping), in the action space's dtype.
+    With ``"sync"``, the goal functions are those of copy 0; with ``"async"``, of one extra
+    local instance.
+    """
+
+    def __init__(
+        self,
+        env: str | Callable[[], gym.Env],
+        num_envs: int = 1,
+        device: str | torch.device = "cpu",
+        vector_strategy: VectorStrategy = "sync",
+        success_key: str | None = "is_success",
+        max_episode_steps: int | None = None,
+        observation_dtype: torch.dtype | None = torch.float32,
+        env_kwargs: dict[str, Any] | None = None,
+        vector_kwargs: dict[str, Any] | None = None,
+    ) -> None:
+        if not isinstance(num_envs, int) or num_envs < 1:
+            raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
+        if vector_strategy not in VECTOR_STRATEGIES:
+            raise ValueError(f"vector_strategy must be one of {', '.join(VECTOR_STRATEGIES)}; got {vector_strategy!r}")
+        if max_episode_steps is not None and (not isinstance(max_episode_steps, int) or max_episode_steps < 1):
+            raise ValueError(f"max_episode_steps must be an integer >= 1, got {max_episode_steps!r}")
+        if observation_dtype is not None and not observation_dtype.is_floating_point:
+            raise ValueError(f"observation_dtype must be a floating torch dtype or None, got {observation_dtype!r}")
+        autoreset = getattr(gym.vector, "AutoresetMode", None)
+        if autoreset is None:
+            raise RuntimeError(f"GymnasiumGoalEnv needs gymnasium >= 1.1 (same-step autoreset); found {gym.__version__}")
+
+        if isinstance(env, str):
+            _ensure_registered(env)
+            if ":" not in env and env not in gym.registry:
+                raise ValueError(
+                    f"env {env!r} is not registered with gymnasium; Fetch tasks need gymnasium-robotics "
+                    f"(pip install 'taskrl[robotics]')"
+                )
+            self.env_id = env
+            factory: Callable[[], gym.Env] = functools.partial(_make_env, env, dict(env_kwargs or {}), max_episode_steps)
+        elif callable(env):
+            if env_kwargs:
+                raise ValueError("env_kwargs applies to a registered env id, not to an env factory")
+            self.env_id = getattr(env, "__name__", repr(env))
+            factory = env if max_episode_steps is None else functools.partial(_with_time_limit, env, max_episode_steps)
+        else:
+            raise ValueError(f"env must be a registered gymnasium id or a factory of gymnasium.Env, got {env!r}")
+
+        self.num_envs = num_envs
+        self.device = torch.device(device)
+        self.success_key = success_key
+        self.vector_strategy = vector_strategy
+        vector_cls = gym.vector.SyncVectorEnv if vector_strategy == "sync" else gym.vector.AsyncVectorEnv
+        # The goal functions' env: copy 0 in-process, or one local instance beside async workers.
+        self._local: gym.Env | None = None
+        if vector_strategy == "async":
+            self._local = factory()
+            try:
+                self._check_goal_env(self._local.observation_space, self._local.unwrapped)
+            except ValueError:
+                self._local.close()
+                raise
+        self.vector_env = vector_cls([factory] * num_envs, autoreset_mode=autoreset.SAME_STEP, **(vector_kwargs or {}))
+        first = self._local if self._local is not None else self.vector_env.envs[0]
+        self.goal_env = first.unwrapped
+        self._never_terminates = _never_terminates(self.goal_env)
+        try:
+            self._check_goal_env(self.vector_env.single_observation_space, self.goal_env)
+            if self.vector_env.metadata.get("autoreset_mode") != autoreset.SAME_STEP:
+                raise RuntimeError(f"the vector env does not use same-step autoreset: {self.vector_env.metadata!r}")
+            spec_steps = first.spec.max_episode_steps if first.spec is not None else None
+            self.horizon = max_episode_steps if max_episode_steps is not None else spec_steps
+            if self.horizon is None:
+                raise ValueError(
+                    f"env {self.env_id!r} has no max_episode_steps in its spec; pass max_episode_steps"
+                )
+        except Exception:
+            self.close()
+            raise
+
+        raw_space = self.vector_env.single_observation_space
+        self.single_observation_space = gym.spaces.Dict(
+            {k: _convert_space(s, observation_dtype) for k, s in raw_space.spaces.items()}
+        )
+        self.single_action_space = self.vector_env.single_action_space
+        self._obs_dtypes = {k: _torch_dtype(s) for k, s in self.single_observation_space.spaces.items()}
+        self._action_shape = self.vector_env.action_space.shape
+        self._action_dtype = self.single_action_space.dtype
+
+    def _check_goal_env(self, space: gym.spaces.Space, unwrapped: gym.Env) -> None:
+        keys = list(space.spaces) if isinstance(space, gym.spaces.Dict) else None
+        if keys is None or not {"achieved_goal", "desired_goal"} <= set(keys):
+            found = f"Dict keys {keys}" if keys is not None else f"{type(space).__name__} space"
+            raise ValueError(
+                f"env {self.env_id!r} is not a goal env: its observation space must be a Dict with "
+                f"'achieved_goal' and 'desired_goal'; found {found}"
+            )
+        if not callable(getattr(unwrapped, "compute_reward", None)):
+            raise ValueError(
+                f"env {self.env_id!r} is not a goal env: it has no compute_reward(achieved_goal, desired_goal, info)"
+            )
+
+    # ---------------------------------------------------------------- conversion
+    def _to_torch(self, obs: dict[str, np.ndarray]) -> Obs:
+        # torch.tensor copies: returned tensors never alias gymnasium's buffers or each other.
+        return {k: torch.tensor(obs[k], dtype=dtype, device=self.device) for k, dtype in self._obs_dtypes.items()}
+
+    def _to_numpy(self, x: torch.Tensor | np.ndarray) -> np.ndarray:
+        return x.detach().cpu().numpy() if isinstance(x, torch.Tensor) else np.asarray(x)
+
+    def _final_obs(self, obs: dict[str, np.ndarray], info: dict[str, Any]) -> dict[str, np.ndarray]:
+        """The returned observations with each finished env's row replaced by its final one."""
+        ended = info.get("_final_obs")
+        if ended is None or not ended.any():
+            return obs
+        final = {k: np.array(obs[k], copy=True) for k in self._obs_dtypes}
+        for i in np.flatnonzero(ended):
+            last = info["final_obs"][i]
+            for k in final:
+                final[k][i] = last[k]
+        return final
+
+    def _success(self, info: dict[str, Any], ended: np.ndarray) -> np.ndarray:
+        success = np.zeros(self.num_envs, dtype=bool)
+        key = self.success_key
+        if key is None:
+            return success
+        seen = np.zeros(self.num_envs, dtype=bool)
+        if key in info:  # envs that did not end: this step's info (ended envs: the reset info, skipped)
+            mask = info.get(f"_{key}", np.ones(self.num_envs, dtype=bool)) & ~ended
+            success[mask] = np.asarray(info[key])[mask].astype(bool)
+            seen |= mask
+        final_info = info.get("final_info")
+        if final_info is not None and key in final_info:  # envs that ended: their last step's info
+            mask = final_info.get(f"_{key}", np.ones(self.num_envs, dtype=bool)) & info["_final_info"]
+            success[mask] = np.asarray(final_info[key])[mask].astype(bool)
+            seen |= mask
+        if not seen.any():
+            found = sorted(k for k in info if not k.startswith("_"))
+            raise ValueError(
+                f"success_key={key!r} is not in the step info of {self.env_id!r} (keys: {found}); "
+                f"set success_key (Meta-World: 'success') or None"
+            )
+        return success
+
+    # ---------------------------------------------------------------- batched contract
+    def reset(self, seed: int | None = None) -> Obs:
+        obs, _ = self.vector_env.reset(seed=seed)
+        return self._to_torch(obs)
+
+    def step(self, action: torch.Tensor) -> StepResult:
+        action_np = np.asarray(self._to_numpy(action), dtype=self._action_dtype).reshape(self._action_shape)
+        obs, reward, terminated, truncated, info = self.vector_env.step(action_np)
+        ended = np.logical_or(terminated, truncated)
+        out = {
+            "final_obs": self._to_torch(self._final_obs(obs, info)),
+            "is_success": torch.from_numpy(self._success(info, ended)).to(self.device),
+        }
+        return (
+            self._to_torch(obs),
+            torch.as_tensor(reward, dtype=torch.float32).to(self.device),
+            torch.as_tensor(terminated, dtype=torch.bool).to(self.device),
+            torch.as_tensor(truncated, dtype=torch.bool).to(self.device),
+            out,
+        )
+
+    def _goal_fn(self, fn: Callable, achieved_goal: Any, desired_goal: Any, info: Any) -> np.ndarray:
+        """``fn`` on numpy batches; a per-row loop when ``fn`` is not vectorised (scalar result)."""
+        a, d = self._to_numpy(achieved_goal), self._to_numpy(desired_goal)
+        batch_shape = a.shape[:-1]
+        result = np.asarray(fn(a, d, info))
+        if result.shape != batch_shape:
+            flat_a, flat_d = a.reshape(-1, a.shape[-1]), d.reshape(-1, d.shape[-1])
+            rows = [np.asarray(fn(flat_a[i], flat_d[i], info)) for i in range(flat_a.shape[0])]
+            result = np.stack(rows).reshape(batch_shape) if rows else np.zeros(batch_shape)
+        return result
+
+    def compute_reward(self, achieved_goal: torch.Tensor, desired_goal: torch.Tensor, info: Any = None) -> torch.Tensor:
+        """The env's own ``compute_reward`` on a batch, as a float32 tensor on ``device``."""
+        r = self._goal_fn(self.goal_env.compute_reward, achieved_goal, desired_goal, info)
+        return torch.as_tensor(r, dtype=torch.float32).to(self.device)
+
+    def compute_terminated(self, achieved_goal: torch.Tensor, desired_goal: torch.Tensor, info: Any = None) -> torch.Tensor:
+        """The env's own ``compute_terminated`` (False where it has none), one bool per row."""
+        fn = getattr(self.goal_env, "compute_terminated", None)
+        if not callable(fn) or self._never_terminates:
+            return super().compute_terminated(achieved_goal, desired_goal, info)
+        t = self._goal_fn(fn, achieved_goal, desired_goal, info)
+        return torch.as_tensor(t.astype(bool)).to(self.device)
+
+    def close(self) -> None:
+        vector_env = getattr(self, "vector_env", None)
+        if vector_env is not None:
+            vector_env.close()
+        if self._local is not None:
+            self._local.close()
+            self._local = None
+
+    def __enter__(self) -> GymnasiumGoalEnv:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
