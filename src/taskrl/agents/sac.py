@@ -1,0 +1,273 @@
+"""Soft actor-critic (Haarnoja et al., 2018), with twin critics and a learned temperature.
+
+Policy: a tanh-squashed Gaussian. For a state s the actor outputs mu(s) and log sigma(s), and
+
+    u ~ N(mu, sigma^2),   a = tanh(u) in [-1, 1]^A,   action in the box = centre + half-width * a
+    log pi(a|s) = sum_j [ log N(u_j; mu_j, sigma_j^2) - log(1 - tanh(u_j)^2) ]      (change of variables)
+
+with log(1 - tanh(u)^2) = 2 (log 2 - u - softplus(-2u)), which stays finite where tanh(u) = +-1
+in float32. Log-probabilities and entropies are those of the [-1, 1] action (the constant
+-sum log half-width of the box is left out), so the default target entropy -|A| means the
+same thing whatever the bounds.
+
+Losses, for a batch (s, a, r, s', terminated) and alpha = exp(log_alpha):
+
+    y          = r + gamma (1 - terminated) (min_i Q_target_i(s', a') - alpha log pi(a'|s')),  a' ~ pi(.|s')
+    J_Q        = sum_i 1/2 (Q_i(s, a) - y)^2
+    J_pi       = alpha log pi(a~|s) - min_i Q_i(s, a~),  a~ ~ pi(.|s) (reparameterised)
+    J_alpha    = -log_alpha (log pi(a~|s) + target_entropy)
+
+Q_target_i follow Q_i by Polyak averaging. ``terminated`` stops bootstrapping; time-limit
+truncation still bootstraps. With rewards in {-1, 0}, targets may be clipped to [-1/(1-gamma), 0].
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from taskrl.agents.cem import action_bounds
+from taskrl.agents.qtopt import StateActionQ
+from taskrl.nets import ObsConcat, mlp
+from taskrl.normalization import RunningNorm
+from taskrl.replay.batch import Batch, Obs
+
+_LOG_2PI = math.log(2 * math.pi)
+_LOG_2 = math.log(2.0)
+
+
+@dataclasses.dataclass
+class SACConfig:
+    """SAC hyperparameters.
+
+    Attributes:
+        lr: Adam learning rate of the actor, the critics and the temperature.
+        gamma: discount factor.
+        hidden_sizes: widths of the hidden layers of the actor and of each critic.
+        tau: Polyak factor of the target critics at every update.
+        init_alpha: initial entropy temperature.
+        learn_alpha: adapt the temperature towards the target entropy.
+        target_entropy_per_dim: target entropy per action dimension (-1 gives the usual -|A|).
+        clip_target: clip targets to [-1/(1-gamma), 0] (for rewards in {-1, 0}).
+        max_grad_norm: gradient-norm clip of the actor and critics (0 disables).
+        normalize_inputs: standardise observation inputs with running mean/std (clipped to +-5).
+        log_std_min, log_std_max: range of the policy's log standard deviation.
+    """
+
+    lr: float = 3e-4
+    gamma: float = 0.99
+    hidden_sizes: tuple[int, ...] = (256, 256)
+    tau: float = 0.005
+    init_alpha: float = 1.0
+    learn_alpha: bool = True
+    target_entropy_per_dim: float = -1.0
+    clip_target: bool = False
+    max_grad_norm: float = 0.0
+    normalize_inputs: bool = True
+    log_std_min: float = -5.0
+    log_std_max: float = 2.0
+
+
+def squashed_gaussian_log_prob(u: torch.Tensor, mean: torch.Tensor, log_std: torch.Tensor) -> torch.Tensor:
+    """log density of a = tanh(u), u ~ N(mean, exp(log_std)^2), summed over the last dimension."""
+    gaussian = -0.5 * ((u - mean) * torch.exp(-log_std)).square() - log_std - 0.5 * _LOG_2PI
+    log_det = 2.0 * (_LOG_2 - u - F.softplus(-2.0 * u))          # log(1 - tanh(u)^2), stable
+    return (gaussian - log_det).sum(-1)
+
+
+class SquashedGaussianActor(nn.Module):
+    """pi(a|s): an MLP giving the mean and log std of u, and a = tanh(u) in [-1, 1]^A."""
+
+    def __init__(self, in_dim: int, action_dim: int, hidden_sizes: tuple[int, ...], log_std_min: float, log_std_max: float) -> None:
+        super().__init__()
+        self.body = mlp(in_dim, hidden_sizes, 2 * action_dim)
+        self.log_std_min, self.log_std_max = log_std_min, log_std_max
+
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(mean, log_std) of u; log_std squashed smoothly into [log_std_min, log_std_max]."""
+        mean, raw = self.body(x).chunk(2, dim=-1)
+        log_std = self.log_std_min + 0.5 * (self.log_std_max - self.log_std_min) * (torch.tanh(raw) + 1.0)
+        return mean, log_std
+
+    def sample(self, x: torch.Tensor, generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """A reparameterised sample ``a = tanh(mean + std * eps)`` in [-1, 1] and ``log pi(a|s)``."""
+        mean, log_std = self(x)
+        eps = torch.randn(mean.shape, generator=generator, device=mean.device, dtype=mean.dtype)
+        u = mean + log_std.exp() * eps
+        return torch.tanh(u), squashed_gaussian_log_prob(u, mean, log_std)
+
+    def mode(self, x: torch.Tensor) -> torch.Tensor:
+        """The deterministic action tanh(mean)."""
+        return torch.tanh(self(x)[0])
+
+
+class SACAgent:
+    """Soft actor-critic agent.
+
+    Args:
+        input_keys: observation keys the networks read (e.g. ``("observation", "desired_goal")``).
+        input_dim: total flattened size of those keys.
+        action_space: a gymnasium ``Box`` or a ``(low, high)`` pair of tensors / arrays.
+        config: hyperparameters, see :class:`SACConfig`.
+        device: torch device of the networks.
+    """
+
+    def __init__(self, input_keys: tuple[str, ...], input_dim: int, action_space: Any, config: SACConfig, device: str | torch.device = "cpu") -> None:
+        if not 0.0 < config.tau <= 1.0:
+            raise ValueError(f"tau: must be in (0, 1] (got {config.tau})")
+        if config.init_alpha <= 0:
+            raise ValueError(f"init_alpha: must be > 0 (got {config.init_alpha})")
+        self.config = config
+        self.device = torch.device(device)
+        self.low, self.high = action_bounds(action_space, self.device)
+        self.action_dim = self.low.numel()
+        self.action_center, self.action_half = (self.high + self.low) / 2, (self.high - self.low) / 2
+        self.target_entropy = config.target_entropy_per_dim * self.action_dim
+        self.encode = ObsConcat(input_keys).to(self.device)
+        self.normalize = (RunningNorm(input_dim) if config.normalize_inputs else nn.Identity()).to(self.device)
+        self.actor = SquashedGaussianActor(input_dim, self.action_dim, config.hidden_sizes, config.log_std_min, config.log_std_max).to(self.device)
+        self.critics = nn.ModuleList(StateActionQ(input_dim, self.action_dim, config.hidden_sizes) for _ in range(2)).to(self.device)
+        self.critics_target = nn.ModuleList(StateActionQ(input_dim, self.action_dim, config.hidden_sizes) for _ in range(2)).to(self.device)
+        self.critics_target.load_state_dict(self.critics.state_dict())
+        self.critics_target.requires_grad_(False)
+        self.log_alpha = torch.tensor(math.log(config.init_alpha), device=self.device, requires_grad=True)
+        self._actor_params, self._critic_params = list(self.actor.parameters()), list(self.critics.parameters())
+        self._target_params = list(self.critics_target.parameters())
+        self.actor_optimizer = torch.optim.Adam(self._actor_params, lr=config.lr, fused=True)
+        self.critic_optimizer = torch.optim.Adam(self._critic_params, lr=config.lr, fused=True)
+        self.alpha_optimizer = torch.optim.Adam([self.log_alpha], lr=config.lr, fused=True)
+        self.updates = 0
+
+    # ---------------------------------------------------------------- helpers
+    def inputs(self, obs: Obs) -> torch.Tensor:
+        """The state input: chosen observation keys, concatenated and normalised."""
+        return self.normalize(self.encode(obs))
+
+    def unit_action(self, action: torch.Tensor) -> torch.Tensor:
+        """Box [low, high] -> [-1, 1] (what the critics see)."""
+        return (action.float() - self.action_center) / self.action_half
+
+    def env_action(self, unit: torch.Tensor) -> torch.Tensor:
+        """[-1, 1] -> box [low, high]."""
+        return self.action_center + self.action_half * unit
+
+    @property
+    def alpha(self) -> torch.Tensor:
+        return self.log_alpha.detach().exp()
+
+    # ---------------------------------------------------------------- acting
+    @torch.no_grad()
+    def act(self, obs: Obs | dict[str, Any], exploration: float = 0.0, generator: torch.Generator | None = None):
+        """Actions [B, A] in the action box: the deterministic tanh(mean) when ``exploration`` is 0
+        (evaluation), a sample of the policy when it is > 0 (its value is otherwise unused: SAC
+        explores through its own entropy, so the training loop passes any positive value while
+        collecting).
+
+        Accepts batched tensors, or one numpy observation of a gymnasium environment (then
+        returns a numpy action of shape [A]).
+        """
+        single = any(isinstance(v, np.ndarray) for v in obs.values())
+        if single:
+            obs = {k: torch.as_tensor(np.asarray(v), device=self.device).unsqueeze(0) for k, v in obs.items()}
+        x = self.inputs(obs)
+        unit = self.actor.sample(x, generator)[0] if exploration > 0.0 else self.actor.mode(x)
+        action = self.env_action(unit)
+        return action[0].cpu().numpy() if single else action
+
+    # ---------------------------------------------------------------- learning
+    def bellman_target(self, batch: Batch, generator: torch.Generator | None = None) -> torch.Tensor:
+        """y = r + gamma (1 - terminated) (min_i Q_target_i(s', a') - alpha log pi(a'|s')), a' ~ pi(.|s')."""
+        cfg = self.config
+        with torch.no_grad():
+            next_x = self.inputs(batch.next_obs)
+            next_action, next_log_prob = self.actor.sample(next_x, generator)
+            next_q = torch.minimum(*(q(next_x, next_action) for q in self.critics_target))
+            soft_value = next_q - self.alpha * next_log_prob
+            target = batch.reward.float() + cfg.gamma * (~batch.terminated).float() * soft_value
+            if cfg.clip_target:
+                target = target.clamp(-1.0 / (1.0 - cfg.gamma), 0.0)
+        return target
+
+    def update(self, batch: Batch, generator: torch.Generator | None = None) -> dict[str, torch.Tensor]:
+        """One critic, actor and temperature step; returns detached scalars
+        (``critic_loss``, ``actor_loss``, ``alpha``, ``entropy``, ``q_mean``)."""
+        cfg = self.config
+        if cfg.normalize_inputs:
+            self.normalize.update(self.encode(batch.obs))
+        alpha = self.alpha
+        target = self.bellman_target(batch, generator)
+        x, action = self.inputs(batch.obs), self.unit_action(batch.action)
+
+        # critics: J_Q = sum_i 1/2 (Q_i(s, a) - y)^2
+        q1, q2 = (q(x, action) for q in self.critics)
+        critic_loss = 0.5 * (F.mse_loss(q1, target) + F.mse_loss(q2, target))
+        self._step(self.critic_optimizer, critic_loss, self._critic_params)
+
+        # actor: J_pi = alpha log pi(a~|s) - min_i Q_i(s, a~); the critics are constants here
+        self._set_critic_grad(False)
+        new_action, log_prob = self.actor.sample(x, generator)
+        q_new = torch.minimum(*(q(x, new_action) for q in self.critics))
+        actor_loss = (alpha * log_prob - q_new).mean()
+        self._step(self.actor_optimizer, actor_loss, self._actor_params)
+        self._set_critic_grad(True)
+
+        # temperature: J_alpha = -log_alpha (log pi + target_entropy)
+        log_prob = log_prob.detach()
+        if cfg.learn_alpha:
+            alpha_loss = -(self.log_alpha * (log_prob + self.target_entropy)).mean()
+            self.alpha_optimizer.zero_grad(set_to_none=True)
+            alpha_loss.backward()
+            self.alpha_optimizer.step()
+
+        self.update_target()
+        self.updates += 1
+        return {"critic_loss": critic_loss.detach(), "actor_loss": actor_loss.detach(), "alpha": alpha,
+                "entropy": -log_prob.mean(), "q_mean": q1.detach().mean()}
+
+    def _set_critic_grad(self, enabled: bool) -> None:
+        for p in self._critic_params:
+            p.requires_grad_(enabled)
+
+    def _step(self, optimizer: torch.optim.Optimizer, loss: torch.Tensor, params: list[torch.Tensor]) -> None:
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        if self.config.max_grad_norm > 0:
+            nn.utils.clip_grad_norm_(params, self.config.max_grad_norm, foreach=True)
+        optimizer.step()
+
+    @torch.no_grad()
+    def update_target(self) -> None:
+        """theta_target_i <- tau * theta_i + (1 - tau) * theta_target_i."""
+        torch._foreach_lerp_(self._target_params, self._critic_params, self.config.tau)
+
+    # ---------------------------------------------------------------- checkpointing
+    def state_dict(self) -> dict[str, Any]:
+        return {
+            "actor": self.actor.state_dict(),
+            "critics": self.critics.state_dict(),
+            "critics_target": self.critics_target.state_dict(),
+            "log_alpha": self.log_alpha.detach().clone(),
+            "normalize": self.normalize.state_dict(),
+            "actor_optimizer": self.actor_optimizer.state_dict(),
+            "critic_optimizer": self.critic_optimizer.state_dict(),
+            "alpha_optimizer": self.alpha_optimizer.state_dict(),
+            "updates": self.updates,
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.actor.load_state_dict(state["actor"])
+        self.critics.load_state_dict(state["critics"])
+        self.critics_target.load_state_dict(state["critics_target"])
+        with torch.no_grad():
+            self.log_alpha.copy_(torch.as_tensor(state["log_alpha"]))
+        self.normalize.load_state_dict(state["normalize"])
+        self.actor_optimizer.load_state_dict(state["actor_optimizer"])
+        self.critic_optimizer.load_state_dict(state["critic_optimizer"])
+        self.alpha_optimizer.load_state_dict(state["alpha_optimizer"])
+        self.updates = int(state["updates"])

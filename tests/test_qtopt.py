@@ -1,0 +1,178 @@
+import numpy as np
+import pytest
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from taskrl.agents.cem import CEMConfig
+from taskrl.agents.qtopt import QTOptAgent, QTOptConfig, StateActionQ
+from taskrl.checkpoint import flatten_state, unflatten_state
+from taskrl.replay.batch import Batch
+
+
+class Stub(nn.Module):
+    """A Q-network given by a formula ``fn(x [B, D], actions [B, N, A]) -> [B, N]`` (actions in [-1, 1])."""
+
+    def __init__(self, fn):
+        super().__init__()
+        self.fn = fn
+
+    def forward(self, x, action):
+        return self.fn(x, action.unsqueeze(1)).squeeze(1)
+
+    def score_actions(self, x, actions):
+        return self.fn(x, actions)
+
+
+def make_agent(low=(-1.0,), high=(1.0,), **cfg):
+    torch.manual_seed(0)
+    cfg.setdefault("cem", CEMConfig(iterations=4, samples=128, elites=8))
+    return QTOptAgent(("observation",), 2, (torch.tensor(low), torch.tensor(high)),
+                      QTOptConfig(normalize_inputs=False, hidden_sizes=(8,), **cfg))
+
+
+def batch(reward, terminated, truncated, next_state, action=None):
+    n = len(reward)
+    onehot = F.one_hot(torch.tensor(next_state), 2).float()
+    return Batch(
+        obs={"observation": onehot}, action=torch.zeros(n, 1) if action is None else action, reward=torch.tensor(reward),
+        next_obs={"observation": onehot}, terminated=torch.tensor(terminated), truncated=torch.tensor(truncated),
+        episode=torch.zeros(n, dtype=torch.long), step=torch.zeros(n, dtype=torch.long),
+    )
+
+
+def constant(values):
+    """Q(s, a) = values[s] for every action (one-hot states)."""
+    v = torch.tensor(values)
+    return Stub(lambda x, actions: (x @ v).unsqueeze(1).expand(-1, actions.shape[1]))
+
+
+def test_target_is_the_min_of_both_targets_and_terminated_stops_bootstrapping():
+    agent = make_agent(gamma=0.5)
+    agent.q_target1, agent.q_target2 = constant([4.0, -1.0]), constant([2.0, 3.0])
+    b = batch([-1.0, -1.0, 0.0], [True, False, False], [False, True, False], [0, 0, 1])
+    # terminated: r; truncated still bootstraps: r + gamma * min(4, 2); s'=1: 0 + gamma * min(-1, 3).
+    assert agent.bellman_target(b).tolist() == [-1.0, -1.0 + 0.5 * 2.0, 0.5 * -1.0]
+
+
+def test_target_action_is_the_argmax_of_target1_evaluated_by_both():
+    # Q_target1(s, a) peaks at a = 0.4 (s0) / -0.6 (s1) with value 1; Q_target2(s, a) = 10 a.
+    # Box [0, 4]: unit action u maps to 2 + 2u, so the argmax is 2.8 / 0.8 in box units.
+    peaks = torch.tensor([0.4, -0.6])
+    agent = make_agent(low=(0.0,), high=(4.0,), gamma=1.0 - 1e-6)
+    agent.q_target1 = Stub(lambda x, a: 1.0 - (a[..., 0] - (x @ peaks).unsqueeze(1)).square())
+    agent.q_target2 = Stub(lambda x, a: 10.0 * a[..., 0])
+    y, a_star = agent.bellman_target(batch([0.0, 0.0], [False, False], [False, False], [0, 1]),
+                                     generator=torch.Generator().manual_seed(0), return_action=True)
+    assert a_star[:, 0].tolist() == pytest.approx([2.8, 0.8], abs=0.02)
+    # s0: min(1, 10 * 0.4) = 1 (target1); s1: min(1, 10 * -0.6) = -6 (target2).
+    assert y.tolist() == pytest.approx([1.0, -6.0], abs=0.1)
+
+
+def test_warm_started_target_searches_near_the_previous_argmax():
+    agent = make_agent(gamma=0.5, cem=CEMConfig(warm_std=0.02, warm_iterations=1))
+    agent.q_target1 = agent.q_target2 = Stub(lambda x, a: -(a[..., 0] - 0.3).square())
+    b = batch([0.0], [False], [False], [0])
+    _, a_star = agent.bellman_target(b, warm_start=torch.tensor([[0.25]]), return_action=True,
+                                     generator=torch.Generator().manual_seed(0))
+    assert a_star.item() == pytest.approx(0.3, abs=0.01)
+
+
+def test_targets_are_clipped_to_the_return_range_when_asked():
+    agent = make_agent(gamma=0.9, clip_target=True)
+    agent.q_target1 = agent.q_target2 = constant([50.0, -500.0])
+    assert agent.bellman_target(batch([0.0, -1.0], [False, False], [False, False], [0, 1])).tolist() == pytest.approx([0.0, -10.0])
+
+
+def test_cross_entropy_mode_uses_probabilities_clips_to_unit_interval_and_log_loss():
+    agent = make_agent(gamma=0.9, loss="cross_entropy")
+    # logits 0 -> Q = 0.5 (s0); logits 3 / 2 -> Q = sigmoid(2) (s1)
+    agent.q_target1, agent.q_target2 = constant([0.0, 3.0]), constant([5.0, 2.0])
+    b = batch([0.0, 1.0, 0.0], [False, False, False], [False, False, False], [0, 1, 1])
+    y = agent.bellman_target(b)
+    expected = [0.9 * 0.5, 1.0, 0.9 * torch.sigmoid(torch.tensor(2.0)).item()]   # 1 + 0.9 * 0.88 clipped to 1
+    assert y.tolist() == pytest.approx(expected, abs=1e-6)
+    with torch.no_grad():
+        logits = agent.q(agent.inputs(b.obs), agent.unit_action(b.action))
+    metrics = agent.regress(b, y)
+    expected_loss = -(y * F.logsigmoid(logits) + (1 - y) * F.logsigmoid(-logits)).mean()
+    assert metrics["loss"].item() == pytest.approx(expected_loss.item(), rel=1e-5)
+    assert 0.0 <= metrics["q_mean"].item() <= 1.0
+
+
+def test_score_actions_matches_the_plain_forward_pass():
+    torch.manual_seed(0)
+    net = StateActionQ(5, 3, (16, 16))
+    x, actions = torch.randn(4, 5), torch.rand(4, 7, 3) * 2 - 1
+    with torch.no_grad():
+        plain = net(x.unsqueeze(1).expand(-1, 7, -1).reshape(28, 5), actions.reshape(28, 3)).view(4, 7)
+        torch.testing.assert_close(net.score_actions(x, actions), plain)
+
+
+def test_target1_is_polyak_averaged_and_target2_lags_it():
+    agent = make_agent(tau=0.25, target2_interval=3)
+    agent.q_target1, agent.q_target2 = [StateActionQ(2, 1, (8,)) for _ in range(2)]
+    agent._target1_params, agent._target2_params = list(agent.q_target1.parameters()), list(agent.q_target2.parameters())
+    with torch.no_grad():
+        for p in agent._params:
+            p.fill_(1.0)
+        for p in agent._target1_params + agent._target2_params:
+            p.fill_(0.0)
+    values = []
+    for step in range(1, 7):
+        agent.updates = step
+        agent.update_targets()
+        values.append((agent._target1_params[0].flatten()[0].item(), agent._target2_params[0].flatten()[0].item()))
+    t1 = [1 - 0.75**k for k in range(1, 7)]
+    assert [v[0] for v in values] == pytest.approx(t1)
+    assert [v[1] for v in values] == pytest.approx([0.0, 0.0, t1[2], t1[2], t1[2], t1[5]])
+
+
+def test_acting_respects_the_bounds_and_explores_uniformly_at_the_requested_rate():
+    agent = make_agent(low=(-2.0, 0.5), high=(3.0, 1.0), cem=CEMConfig())
+    obs = {"observation": torch.rand(4000, 2)}
+    g = torch.Generator().manual_seed(0)
+    for eps in (0.0, 0.5, 1.0):
+        a = agent.act(obs, exploration=eps, generator=g)
+        assert a.shape == (4000, 2)
+        assert (a >= torch.tensor([-2.0, 0.5])).all() and (a <= torch.tensor([3.0, 1.0])).all()
+    # greedy actions all at the stub's optimum (0.5 in unit space -> 1.75 / 0.875 in the box)
+    agent.q = Stub(lambda x, a: -(a - 0.5).square().sum(-1))
+    a = agent.act(obs, exploration=0.3, generator=g)
+    # "far": more than 0.2 (unit space) from the optimum in some dimension; a uniform action is near w.p. 0.2 * 0.2
+    far = ((a - torch.tensor([1.75, 0.875])).abs() > torch.tensor([0.5, 0.05])).any(dim=1).float().mean().item()
+    assert far == pytest.approx(0.3 * (1 - 0.2 * 0.2), abs=0.025)
+    single = agent.act({"observation": np.array([1.0, 0.0], dtype=np.float32)})
+    assert isinstance(single, np.ndarray) and single.shape == (2,)
+
+
+def test_qtopt_learns_the_best_action_of_a_continuous_bandit():
+    # One-step bandit, two states with different best actions; reward in [0, 1] (log loss).
+    best = torch.tensor([-0.5, 0.6])
+    torch.manual_seed(0)
+    agent = QTOptAgent(("observation",), 2, (torch.tensor([-1.0]), torch.tensor([1.0])),
+                       QTOptConfig(lr=3e-3, hidden_sizes=(64, 64), loss="cross_entropy", normalize_inputs=False))
+    g = torch.Generator().manual_seed(0)
+    for _ in range(300):
+        s = torch.randint(0, 2, (128,), generator=g)
+        a = torch.rand(128, 1, generator=g) * 2 - 1
+        r = torch.exp(-4.0 * (a[:, 0] - best[s]).square())
+        done = torch.ones(128, dtype=torch.bool)
+        agent.update(Batch(obs={"observation": F.one_hot(s, 2).float()}, action=a, reward=r,
+                           next_obs={"observation": F.one_hot(s, 2).float()}, terminated=done,
+                           truncated=~done, episode=s, step=s), generator=g)
+    greedy = agent.act({"observation": torch.eye(2)}, generator=g)
+    assert greedy[:, 0].tolist() == pytest.approx(best.tolist(), abs=0.1)
+
+
+def test_state_dict_round_trips_through_the_checkpoint_format():
+    agent = make_agent()
+    b = batch([0.0, -1.0], [False, True], [False, False], [0, 1])
+    agent.update(b)
+    tensors, skeleton = flatten_state(agent.state_dict())
+    other = make_agent()
+    other.load_state_dict(unflatten_state(tensors, skeleton))
+    assert other.updates == 1
+    x, a = torch.eye(2), torch.zeros(2, 1)
+    for name in ("q", "q_target1", "q_target2"):
+        torch.testing.assert_close(getattr(other, name)(x, a), getattr(agent, name)(x, a))
