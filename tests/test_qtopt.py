@@ -107,6 +107,8 @@ def test_score_actions_matches_the_plain_forward_pass():
     with torch.no_grad():
         plain = net(x.unsqueeze(1).expand(-1, 7, -1).reshape(28, 5), actions.reshape(28, 3)).view(4, 7)
         torch.testing.assert_close(net.score_actions(x, actions), plain)
+        torch.testing.assert_close(net.score_actions(x, actions, chunk_rows=10), plain)   # 1 state a chunk
+        torch.testing.assert_close(net.score_actions(x, actions, chunk_rows=21), plain)   # 3 + 1 states
 
 
 def test_target1_is_polyak_averaged_and_target2_lags_it():
