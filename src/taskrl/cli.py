@@ -38,12 +38,11 @@ def _flag(name: str) -> str:
     return "--" + name.replace("_", "-")
 
 
-def _add_config_flags(parser: argparse.ArgumentParser) -> None:
-    from taskrl.agents.dqn import DQNConfig
-    from taskrl.config import TrainConfig, field_docs, leaf_fields
+def _add_config_flags(parser: argparse.ArgumentParser, algo: str) -> None:
+    from taskrl.config import field_help, leaf_fields
 
-    docs = {**field_docs(TrainConfig), **field_docs(DQNConfig)}
-    for path, field, tp in leaf_fields():
+    docs = field_help(algo)
+    for path, field, tp in leaf_fields(algo):
         name = path[-1]
         kwargs: dict[str, Any] = {"dest": name, "default": argparse.SUPPRESS, "help": docs.get(name, "")}
         origin = typing.get_origin(tp)
@@ -56,6 +55,31 @@ def _add_config_flags(parser: argparse.ArgumentParser) -> None:
         else:
             kwargs["type"] = tp
         parser.add_argument(_flag(name), **kwargs)
+
+
+def _active_algo(argv: Sequence[str]) -> str:
+    """The algorithm whose settings the flags address: --algo, else the preset's, else the resumed run's."""
+    from taskrl.config import ALGOS
+    from taskrl.presets import PRESETS, preset_config
+
+    peek = _Parser(add_help=False)
+    peek.add_argument("preset", nargs="?")
+    peek.add_argument("--algo")
+    peek.add_argument("--resume")
+    known, _ = peek.parse_known_args(argv)
+    if known.algo is not None:
+        if known.algo not in ALGOS:
+            raise UsageError(f"argument --algo: invalid choice: {known.algo!r} (choose from {', '.join(map(repr, ALGOS))})")
+        return known.algo
+    if known.preset in PRESETS:
+        return preset_config(known.preset).algo
+    if known.resume is not None:
+        from pathlib import Path
+
+        saved = Path(known.resume) / "config.json"
+        if saved.exists():
+            return json.loads(saved.read_text()).get("algo", "dqn")
+    return "dqn"
 
 
 def _parse(parser: argparse.ArgumentParser, argv: Sequence[str]) -> argparse.Namespace:
@@ -88,7 +112,7 @@ def cmd_train(argv: Sequence[str]) -> int:
     parser.add_argument("--resume", metavar="RUN_DIR", help="continue this run from its last checkpoint")
     parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=True, help="progress bar and final table")
     parser.add_argument("--tensorboard", action=argparse.BooleanOptionalAction, default=True, help="write TensorBoard events")
-    _add_config_flags(parser)
+    _add_config_flags(parser, _active_algo(argv))
     args = vars(_parse(parser, argv))
     preset, out, resume = args.pop("preset"), args.pop("out"), args.pop("resume")
     progress, tensorboard = args.pop("progress"), args.pop("tensorboard")

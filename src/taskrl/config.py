@@ -1,7 +1,9 @@
 """Typed run configuration: one dataclass, validated in one place, saved with every run.
 
-Agent hyperparameters live in the agent's own dataclass (``DQNConfig``) nested here, so every
-hyperparameter is declared once. The CLI turns each leaf field into a ``--kebab-case`` flag.
+Agent hyperparameters live in each agent's own dataclass (``DQNConfig``, ``QTOptConfig``,
+``SACConfig``) nested here, so every hyperparameter is declared once. The settings of a run are
+the top-level fields plus the section of its ``algo``; the CLI turns each of them into a flat
+``--kebab-case`` flag (``--lr`` means the active algorithm's learning rate).
 """
 
 from __future__ import annotations
@@ -12,10 +14,22 @@ import typing
 from pathlib import Path
 from typing import Any, Literal
 
+from taskrl.agents.cem import CEMConfig
 from taskrl.agents.dqn import DQNConfig
+from taskrl.agents.qtopt import QTOptConfig
+from taskrl.agents.sac import SACConfig
 
-ENVS = ("bitflip",)
-ALGOS = ("dqn",)
+ENVS = ("bitflip", "pointreach", "fetchreach", "fetchpush", "fetchpickandplace", "fetchslide")
+#: Environments that come from gymnasium (through the vector-env adapter), by taskrl name.
+GYMNASIUM_IDS = {
+    "fetchreach": "FetchReach-v4",
+    "fetchpush": "FetchPush-v4",
+    "fetchpickandplace": "FetchPickAndPlace-v4",
+    "fetchslide": "FetchSlide-v4",
+}
+#: Each algorithm's hyperparameters live in its own dataclass, a section of TrainConfig.
+ALGO_CONFIGS: dict[str, type] = {"dqn": DQNConfig, "qtopt": QTOptConfig, "sac": SACConfig}
+ALGOS = tuple(ALGO_CONFIGS)
 HER_STRATEGIES = ("future", "final", "episode", "random", "none")
 
 
@@ -33,10 +47,12 @@ class TrainConfig:
     """Everything a training run needs; saved as ``config.json`` in the run directory.
 
     Attributes:
-        env: environment name.
+        env: environment name (``fetch*`` need the ``robotics`` extra: gymnasium-robotics).
         n_bits: bit-string length for ``bitflip`` (also its horizon).
-        terminate_on_success: end an episode when its goal is reached.
-        algo: learning algorithm.
+        terminate_on_success: end an episode when its goal is reached (bitflip, pointreach).
+        reward: ``sparse`` (0 at the goal, else -1) or ``dense`` (-distance), for pointreach.
+        vector_strategy: ``sync`` or ``async`` (one process per copy) for gymnasium environments.
+        algo: learning algorithm; its section (``dqn``, ``qtopt``, ``sac``) holds its hyperparameters.
         total_steps: environment steps to train for (summed over parallel environments).
         num_envs: environments stepped in parallel while collecting.
         seed: seed for network initialisation, environments and sampling.
@@ -47,9 +63,11 @@ class TrainConfig:
         batch_size: transitions per gradient update.
         learning_starts: environment steps collected before the first update.
         updates_per_step: gradient updates per environment step (fractions accumulate).
-        epsilon_start: initial probability of a random action.
-        epsilon_end: final probability of a random action.
-        epsilon_decay_steps: environment steps over which epsilon decays linearly.
+        epsilon_start: initial exploration level passed to the agent while collecting: DQN's
+            epsilon, QT-Opt's probability of a uniformly random action; SAC samples its policy
+            whenever it is above 0.
+        epsilon_end: final exploration level.
+        epsilon_decay_steps: environment steps over which it decays linearly.
         eval_interval: environment steps between evaluations.
         eval_episodes: episodes per evaluation (greedy policy, fixed evaluation seeds).
         stop_at_success: stop once evaluation success reaches this (0 = train to total_steps).
@@ -57,12 +75,16 @@ class TrainConfig:
         save_replay: include the replay buffer in checkpoints so a resumed run loses no data.
         threads: torch CPU threads (0 = torch's default).
         dqn: DQN hyperparameters.
+        qtopt: QT-Opt hyperparameters.
+        sac: SAC hyperparameters.
     """
 
-    env: Literal["bitflip"] = "bitflip"
+    env: Literal["bitflip", "pointreach", "fetchreach", "fetchpush", "fetchpickandplace", "fetchslide"] = "bitflip"
     n_bits: int = 15
     terminate_on_success: bool = True
-    algo: Literal["dqn"] = "dqn"
+    reward: Literal["sparse", "dense"] = "sparse"
+    vector_strategy: Literal["sync", "async"] = "sync"
+    algo: Literal["dqn", "qtopt", "sac"] = "dqn"
     total_steps: int = 100_000
     num_envs: int = 32
     seed: int = 0
@@ -83,6 +105,8 @@ class TrainConfig:
     save_replay: bool = True
     threads: int = 0
     dqn: DQNConfig = dataclasses.field(default_factory=DQNConfig)
+    qtopt: QTOptConfig = dataclasses.field(default_factory=QTOptConfig)
+    sac: SACConfig = dataclasses.field(default_factory=SACConfig)
 
 
 def field_docs(cls: type) -> dict[str, str]:
@@ -110,10 +134,13 @@ def validate(config: TrainConfig) -> TrainConfig:
         if not ok:
             raise ConfigError(field, message)
 
-    c, d = config, config.dqn
+    c = config
     require(c.env in ENVS, "env", f"unknown env {c.env!r}; allowed: {', '.join(ENVS)}")
     require(c.algo in ALGOS, "algo", f"unknown algo {c.algo!r}; allowed: {', '.join(ALGOS)}")
     require(c.her in HER_STRATEGIES, "her", f"unknown strategy {c.her!r}; allowed: {', '.join(HER_STRATEGIES)}")
+    require(c.reward in ("sparse", "dense"), "reward", f"unknown reward {c.reward!r}; allowed: sparse, dense")
+    require(c.vector_strategy in ("sync", "async"), "vector_strategy",
+            f"unknown strategy {c.vector_strategy!r}; allowed: sync, async")
     require(c.n_bits >= 1, "n_bits", f"must be >= 1 (got {c.n_bits})")
     for name in ("total_steps", "num_envs", "batch_size", "eval_interval", "eval_episodes", "checkpoint_interval"):
         require(getattr(c, name) >= 1, name, f"must be >= 1 (got {getattr(c, name)})")
@@ -126,36 +153,71 @@ def validate(config: TrainConfig) -> TrainConfig:
     require(c.threads >= 0, "threads", f"must be >= 0 (got {c.threads})")
     require(c.device == "auto" or c.device == "cpu" or c.device.startswith("cuda"), "device",
             f"unknown device {c.device!r}; allowed: cpu, cuda, cuda:N, auto")
-    require(d.loss in ("huber", "mse"), "loss", f"unknown loss {d.loss!r}; allowed: huber, mse")
-    require(0.0 <= d.gamma < 1.0, "gamma", f"must be in [0, 1) (got {d.gamma})")
-    require(d.lr > 0, "lr", f"must be > 0 (got {d.lr})")
-    require(0.0 < d.tau <= 1.0, "tau", f"must be in (0, 1] (got {d.tau})")
-    require(d.target_update_interval >= 1, "target_update_interval", f"must be >= 1 (got {d.target_update_interval})")
-    require(len(d.hidden_sizes) >= 1 and all(h >= 1 for h in d.hidden_sizes), "hidden_sizes",
-            f"must be one or more positive widths (got {list(d.hidden_sizes)})")
-    require(d.max_grad_norm >= 0, "max_grad_norm", f"must be >= 0 (got {d.max_grad_norm})")
+
+    # The active algorithm's section: checks shared by every agent, then its own.
+    a = getattr(c, c.algo)
+    require(0.0 <= a.gamma < 1.0, "gamma", f"must be in [0, 1) (got {a.gamma})")
+    require(a.lr > 0, "lr", f"must be > 0 (got {a.lr})")
+    require(0.0 < a.tau <= 1.0, "tau", f"must be in (0, 1] (got {a.tau})")
+    require(len(a.hidden_sizes) >= 1 and all(h >= 1 for h in a.hidden_sizes), "hidden_sizes",
+            f"must be one or more positive widths (got {list(a.hidden_sizes)})")
+    require(a.max_grad_norm >= 0, "max_grad_norm", f"must be >= 0 (got {a.max_grad_norm})")
+    if c.algo == "dqn":
+        require(a.loss in ("huber", "mse"), "loss", f"unknown loss {a.loss!r}; allowed: huber, mse")
+        require(a.target_update_interval >= 1, "target_update_interval", f"must be >= 1 (got {a.target_update_interval})")
+    if c.algo == "qtopt":
+        require(a.loss in ("huber", "mse", "cross_entropy"), "loss",
+                f"unknown loss {a.loss!r}; allowed: huber, mse, cross_entropy")
+        require(a.target2_interval >= 1, "target2_interval", f"must be >= 1 (got {a.target2_interval})")
+        cem = a.cem
+        require(cem.iterations >= 1, "iterations", f"must be >= 1 (got {cem.iterations})")
+        require(1 <= cem.elites <= cem.samples, "elites", f"must be in [1, samples={cem.samples}] (got {cem.elites})")
+    if c.algo == "sac":
+        require(a.init_alpha > 0, "init_alpha", f"must be > 0 (got {a.init_alpha})")
     return config
 
 
-def leaf_fields(cls: type = TrainConfig, prefix: tuple[str, ...] = ()) -> list[tuple[tuple[str, ...], dataclasses.Field, type]]:
-    """Every non-dataclass field as ``(path, field, resolved type)``; nested configs are flattened."""
+def _leaves(cls: type, prefix: tuple[str, ...]) -> list[tuple[tuple[str, ...], dataclasses.Field, type]]:
     hints = typing.get_type_hints(cls)
     out = []
     for f in dataclasses.fields(cls):
         tp = hints[f.name]
         if dataclasses.is_dataclass(tp):
-            out += leaf_fields(tp, prefix + (f.name,))
+            out += _leaves(tp, prefix + (f.name,))
         else:
             out.append((prefix + (f.name,), f, tp))
     return out
 
 
+def leaf_fields(algo: str = "dqn") -> list[tuple[tuple[str, ...], dataclasses.Field, type]]:
+    """The settings of a run with ``algo``: ``(path, field, type)`` of every top-level field and of
+    every field of that algorithm's section (nested sections flattened)."""
+    top = [leaf for leaf in _leaves(TrainConfig, ()) if leaf[0][0] not in ALGO_CONFIGS]
+    return top + _leaves(ALGO_CONFIGS[algo], (algo,))
+
+
+def field_help(algo: str = "dqn") -> dict[str, str]:
+    """``{setting: description}`` for the CLI, from the dataclasses' docstrings."""
+    docs = field_docs(TrainConfig)
+    for cls in (ALGO_CONFIGS[algo], CEMConfig if algo == "qtopt" else None):
+        if cls is not None:
+            docs.update(field_docs(cls))
+    return docs
+
+
 def with_overrides(config: TrainConfig, overrides: dict[str, Any]) -> TrainConfig:
-    """A copy of ``config`` with leaf fields replaced by name (``{"n_bits": 30, "lr": 1e-3}``)."""
-    paths = {path[-1]: path for path, _, _ in leaf_fields()}
+    """A copy of ``config`` with settings replaced by name (``{"n_bits": 30, "lr": 1e-3}``).
+
+    Names are those of :func:`leaf_fields` for the resulting ``algo``: ``lr`` is the learning rate
+    of whichever algorithm the run uses.
+    """
+    algo = overrides.get("algo", config.algo)
+    if algo not in ALGO_CONFIGS:
+        raise ConfigError("algo", f"unknown algo {algo!r}; allowed: {', '.join(ALGOS)}")
+    paths = {path[-1]: path for path, _, _ in leaf_fields(algo)}
     unknown = sorted(set(overrides) - set(paths))
     if unknown:
-        raise ConfigError(unknown[0], f"unknown setting; allowed: {', '.join(sorted(paths))}")
+        raise ConfigError(unknown[0], f"unknown setting for algo {algo!r}; allowed: {', '.join(sorted(paths))}")
     data = to_dict(config)
     for name, value in overrides.items():
         node = data
@@ -170,13 +232,26 @@ def to_dict(config: TrainConfig) -> dict[str, Any]:
     return dataclasses.asdict(config)
 
 
+def _build(cls: type, data: dict[str, Any], where: str) -> Any:
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - names)
+    if unknown:
+        raise ConfigError(unknown[0], f"unknown setting in {where}; allowed: {', '.join(sorted(names))}")
+    kwargs = {}
+    for name, value in data.items():
+        tp = hints[name]
+        if dataclasses.is_dataclass(tp):
+            value = _build(tp, value, f"{where}.{name}")
+        elif typing.get_origin(tp) is tuple:
+            value = tuple(value)
+        kwargs[name] = value
+    return cls(**kwargs)
+
+
 def from_dict(data: dict[str, Any]) -> TrainConfig:
     """Rebuild a config from :func:`to_dict` output (e.g. a run's ``config.json``)."""
-    data = dict(data)
-    dqn = dict(data.pop("dqn", {}))
-    if "hidden_sizes" in dqn:
-        dqn["hidden_sizes"] = tuple(int(h) for h in dqn["hidden_sizes"])
-    return TrainConfig(**data, dqn=DQNConfig(**dqn))
+    return _build(TrainConfig, data, "config")
 
 
 def save(config: TrainConfig, path: Path) -> None:

@@ -24,10 +24,12 @@ from rich.console import Console
 
 from taskrl import config as config_io
 from taskrl.agents.dqn import DQNAgent
+from taskrl.agents.qtopt import QTOptAgent
+from taskrl.agents.sac import SACAgent
 from taskrl.checkpoint import load_checkpoint, save_checkpoint
-from taskrl.config import ConfigError, TrainConfig, validate, with_overrides
+from taskrl.config import GYMNASIUM_IDS, ConfigError, TrainConfig, validate, with_overrides
 from taskrl.console import ConsoleReporter, final_table
-from taskrl.envs import BitFlip, is_goal_env
+from taskrl.envs import BitFlip, GymnasiumGoalEnv, PointReach, is_goal_env
 from taskrl.envs.base import BatchedEnv
 from taskrl.logger import RunLogger
 from taskrl.plots import plot_learning_curve
@@ -37,6 +39,7 @@ from taskrl.training.evaluation import evaluate
 from taskrl.training.offpolicy import LoopSchedule, LoopState, OffPolicyLoop
 
 AGENT_INPUT_KEYS = ("observation", "desired_goal")
+Agent = DQNAgent | QTOptAgent | SACAgent
 EVAL_SEED_OFFSET = 1_000_003
 
 
@@ -47,7 +50,7 @@ class Run:
     run_dir: Path
     config: TrainConfig
     metrics: dict[str, Any]
-    agent: DQNAgent
+    agent: Agent
 
 
 # ---------------------------------------------------------------------- wiring
@@ -60,19 +63,34 @@ def resolve_device(name: str) -> torch.device:
 
 
 def make_env(config: TrainConfig, num_envs: int, seed: int, device: torch.device) -> BatchedEnv:
-    return BitFlip(config.n_bits, num_envs=num_envs, device=device,
-                   terminate_on_success=config.terminate_on_success, seed=seed)
+    """The run's batched environment: a native torch one, or gymnasium's through the adapter."""
+    if config.env == "bitflip":
+        return BitFlip(config.n_bits, num_envs=num_envs, device=device,
+                       terminate_on_success=config.terminate_on_success, seed=seed)
+    if config.env == "pointreach":
+        return PointReach(num_envs=num_envs, device=device, reward=config.reward,
+                          terminate_on_success=config.terminate_on_success, seed=seed)
+    return GymnasiumGoalEnv(GYMNASIUM_IDS[config.env], num_envs=num_envs, device=device,
+                            vector_strategy=config.vector_strategy, success_key="is_success")
 
 
-def make_agent(config: TrainConfig, env: BatchedEnv, device: torch.device) -> DQNAgent:
+def make_agent(config: TrainConfig, env: BatchedEnv, device: torch.device) -> Agent:
+    """The agent of ``config.algo`` for ``env``'s spaces; a mismatch is a ConfigError naming ``algo``."""
     space = env.single_observation_space
     missing = [k for k in AGENT_INPUT_KEYS if k not in space.spaces]
     if missing:
-        raise ConfigError("env", f"observations lack {missing}; DQN here needs keys {list(AGENT_INPUT_KEYS)}")
-    if not isinstance(env.single_action_space, gym.spaces.Discrete):
-        raise ConfigError("algo", f"dqn needs a discrete action space, got {env.single_action_space}")
+        raise ConfigError("env", f"observations lack {missing}; the agents here need keys {list(AGENT_INPUT_KEYS)}")
     input_dim = sum(int(torch.tensor(space[k].shape).prod()) for k in AGENT_INPUT_KEYS)
-    return DQNAgent(AGENT_INPUT_KEYS, input_dim, int(env.single_action_space.n), config.dqn, device)
+    action_space = env.single_action_space
+    discrete = isinstance(action_space, gym.spaces.Discrete)
+    if config.algo == "dqn":
+        if not discrete:
+            raise ConfigError("algo", f"dqn needs discrete actions but {config.env!r} has {action_space}; use qtopt or sac")
+        return DQNAgent(AGENT_INPUT_KEYS, input_dim, int(action_space.n), config.dqn, device)
+    if not isinstance(action_space, gym.spaces.Box):
+        raise ConfigError("algo", f"{config.algo} needs continuous (Box) actions but {config.env!r} has {action_space}; use dqn")
+    agent_cls, agent_config = {"qtopt": (QTOptAgent, config.qtopt), "sac": (SACAgent, config.sac)}[config.algo]
+    return agent_cls(AGENT_INPUT_KEYS, input_dim, action_space, agent_config, device)
 
 
 def make_relabeler(config: TrainConfig, env: BatchedEnv) -> HindsightRelabeler | None:
@@ -171,7 +189,7 @@ def train(
         epsilon_decay_steps=config.epsilon_decay_steps,
     )
     rows: list[dict[str, Any]] = []
-    title = f"{preset or run_dir.name} n={config.n_bits}"
+    title = preset or f"{config.env}-{config.algo}"
     with ConsoleReporter(title, config.total_steps, state.env_steps, enabled=progress) as reporter:
 
         def on_log(row: dict[str, Any]) -> None:
@@ -182,8 +200,12 @@ def train(
         loop = OffPolicyLoop(env, agent, replay, relabel, schedule,
                              evaluate=lambda: evaluate(lambda o: agent.act(o), eval_env, config.seed + EVAL_SEED_OFFSET),
                              on_log=on_log, on_checkpoint=checkpoint, generator=generator)
-        state = loop.run(state, env_seed=config.seed + state.env_steps)
-    logger.close()
+        try:
+            state = loop.run(state, env_seed=config.seed + state.env_steps)
+        finally:
+            logger.close()
+            for e in (env, eval_env):
+                getattr(e, "close", lambda: None)()
 
     curve = plot_learning_curve(logger.path, run_dir / "learning_curve.png", title=f"{title} ({run_dir.name})")
     final = rows[-1] if rows else {"env_steps": state.env_steps, "updates": state.updates,
@@ -194,7 +216,7 @@ def train(
 
 
 # ---------------------------------------------------------------------- loading
-def load(run_dir: str | Path, device: str = "cpu") -> DQNAgent:
+def load(run_dir: str | Path, device: str = "cpu") -> Agent:
     """The trained agent of a run directory; ``agent.act(obs)`` takes the environment's observations.
 
     Only safetensors and JSON are read: loading never executes code.
@@ -204,7 +226,9 @@ def load(run_dir: str | Path, device: str = "cpu") -> DQNAgent:
         raise ConfigError("run_dir", f"{run_dir} is not a run directory (no config.json)")
     config = config_io.load(run_dir / "config.json")
     dev = resolve_device(device)
-    agent = make_agent(config, make_env(config, 1, 0, dev), dev)
+    env = make_env(config, 1, 0, dev)
+    agent = make_agent(config, env, dev)
+    getattr(env, "close", lambda: None)()
     agent.load_state_dict(load_checkpoint(run_dir / "checkpoints", ("agent",), dev)["agent"])
     return agent
 
@@ -216,4 +240,7 @@ def evaluate_run(run_dir: str | Path, episodes: int = 100, seed: int | None = No
     config = config_io.load(run_dir / "config.json")
     seed = config.seed + EVAL_SEED_OFFSET if seed is None else seed
     env = make_env(config, episodes, seed, agent.device)
-    return {**evaluate(lambda o: agent.act(o), env, seed), "episodes": episodes}
+    try:
+        return {**evaluate(lambda o: agent.act(o), env, seed), "episodes": episodes}
+    finally:
+        getattr(env, "close", lambda: None)()
