@@ -1,0 +1,208 @@
+"""TD3 (Fujimoto et al., 2018): a deterministic actor with twin critics, target smoothing and
+delayed actor updates.
+
+    a'  = clip(mu_target(s') + clip(eps, -c, c), -1, 1),   eps ~ N(0, target_noise^2)   (target smoothing)
+    y   = r + gamma (1 - terminated) min_i Q_target_i(s', a')
+    J_Q = sum_i 1/2 (Q_i(s, a) - y)^2
+    every policy_delay updates:
+        J_mu = -Q_1(s, mu(s));   theta_target <- tau theta + (1 - tau) theta_target (actor and critics)
+
+Actions are in [-1, 1] inside the agent (mu = tanh(MLP)) and rescaled to the box outside.
+``terminated`` stops bootstrapping; time-limit truncation bootstraps.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from taskrl.agents.cem import action_bounds
+from taskrl.agents.qtopt import StateActionQ
+from taskrl.nets import ObsConcat, mlp
+from taskrl.normalization import RunningNorm
+from taskrl.replay.batch import Batch, Obs
+
+
+@dataclasses.dataclass
+class TD3Config:
+    """TD3 hyperparameters (the paper's defaults, on actions rescaled to [-1, 1]).
+
+    Attributes:
+        lr: Adam learning rate of the actor and the critics.
+        gamma: discount factor.
+        hidden_sizes: widths of the hidden layers of the actor and of each critic.
+        tau: Polyak factor of the target networks at each actor update.
+        policy_delay: critic updates per actor (and target) update.
+        target_noise: std of the Gaussian smoothing noise on target actions.
+        target_noise_clip: bound on that noise.
+        clip_target: clip targets to [-1/(1-gamma), 0] (for rewards in {-1, 0}).
+        max_grad_norm: gradient-norm clip (0 disables).
+        normalize_inputs: standardise observation inputs with running mean/std (clipped to +-5).
+    """
+
+    lr: float = 3e-4
+    gamma: float = 0.99
+    hidden_sizes: tuple[int, ...] = (256, 256)
+    tau: float = 0.005
+    policy_delay: int = 2
+    target_noise: float = 0.2
+    target_noise_clip: float = 0.5
+    clip_target: bool = False
+    max_grad_norm: float = 0.0
+    normalize_inputs: bool = True
+
+
+class DeterministicActor(nn.Module):
+    """mu(s) = tanh(MLP(s)) in [-1, 1]^A."""
+
+    def __init__(self, in_dim: int, action_dim: int, hidden_sizes: tuple[int, ...]) -> None:
+        super().__init__()
+        self.body = mlp(in_dim, hidden_sizes, action_dim)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return torch.tanh(self.body(x))
+
+
+class TD3Agent:
+    """TD3 agent.
+
+    Args:
+        input_keys: observation keys the networks read.
+        input_dim: total flattened size of those keys.
+        action_space: a gymnasium ``Box`` or a ``(low, high)`` pair of tensors / arrays.
+        config: hyperparameters, see :class:`TD3Config`.
+        device: torch device of the networks.
+    """
+
+    def __init__(self, input_keys: tuple[str, ...], input_dim: int, action_space: Any, config: TD3Config, device: str | torch.device = "cpu") -> None:
+        if not 0.0 < config.tau <= 1.0:
+            raise ValueError(f"tau: must be in (0, 1] (got {config.tau})")
+        if config.policy_delay < 1:
+            raise ValueError(f"policy_delay: must be >= 1 (got {config.policy_delay})")
+        self.config = config
+        self.device = torch.device(device)
+        self.low, self.high = action_bounds(action_space, self.device)
+        self.action_dim = self.low.numel()
+        self.action_center, self.action_half = (self.high + self.low) / 2, (self.high - self.low) / 2
+        self.encode = ObsConcat(input_keys).to(self.device)
+        self.normalize = (RunningNorm(input_dim) if config.normalize_inputs else nn.Identity()).to(self.device)
+        self.actor = DeterministicActor(input_dim, self.action_dim, config.hidden_sizes).to(self.device)
+        self.actor_target = DeterministicActor(input_dim, self.action_dim, config.hidden_sizes).to(self.device)
+        self.critics = nn.ModuleList(StateActionQ(input_dim, self.action_dim, config.hidden_sizes) for _ in range(2)).to(self.device)
+        self.critics_target = nn.ModuleList(StateActionQ(input_dim, self.action_dim, config.hidden_sizes) for _ in range(2)).to(self.device)
+        self.actor_target.load_state_dict(self.actor.state_dict())
+        self.critics_target.load_state_dict(self.critics.state_dict())
+        self.actor_target.requires_grad_(False)
+        self.critics_target.requires_grad_(False)
+        self._actor_params, self._critic_params = list(self.actor.parameters()), list(self.critics.parameters())
+        self._online_params = self._actor_params + self._critic_params
+        self._target_params = list(self.actor_target.parameters()) + list(self.critics_target.parameters())
+        self.actor_optimizer = torch.optim.Adam(self._actor_params, lr=config.lr, fused=True)
+        self.critic_optimizer = torch.optim.Adam(self._critic_params, lr=config.lr, fused=True)
+        self.updates = 0
+        self._last_actor_loss = torch.zeros((), device=self.device)
+
+    # ---------------------------------------------------------------- helpers
+    def inputs(self, obs: Obs) -> torch.Tensor:
+        return self.normalize(self.encode(obs))
+
+    def unit_action(self, action: torch.Tensor) -> torch.Tensor:
+        return (action.float() - self.action_center) / self.action_half
+
+    def env_action(self, unit: torch.Tensor) -> torch.Tensor:
+        return self.action_center + self.action_half * unit
+
+    # ---------------------------------------------------------------- acting
+    @torch.no_grad()
+    def act(self, obs: Obs | dict[str, Any], exploration: float = 0.0, generator: torch.Generator | None = None):
+        """mu(s) in the action box, plus Gaussian noise of std ``exploration`` x half-width (TD3's
+        0.1 while collecting), clipped to the box. Accepts one numpy observation (returns numpy [A])."""
+        single = any(isinstance(v, np.ndarray) for v in obs.values())
+        if single:
+            obs = {k: torch.as_tensor(np.asarray(v), device=self.device).unsqueeze(0) for k, v in obs.items()}
+        unit = self.actor(self.inputs(obs))
+        if exploration > 0.0:
+            noise = torch.randn(unit.shape, generator=generator, device=self.device) * exploration
+            unit = (unit + noise).clamp(-1.0, 1.0)
+        action = self.env_action(unit)
+        return action[0].cpu().numpy() if single else action
+
+    # ---------------------------------------------------------------- learning
+    def bellman_target(self, batch: Batch, generator: torch.Generator | None = None) -> torch.Tensor:
+        """y = r + gamma (1 - terminated) min_i Q_target_i(s', clip(mu_target(s') + clipped noise, -1, 1))."""
+        cfg = self.config
+        with torch.no_grad():
+            next_x = self.inputs(batch.next_obs)
+            next_action = self.actor_target(next_x)
+            if cfg.target_noise > 0:
+                eps = torch.randn(next_action.shape, generator=generator, device=self.device) * cfg.target_noise
+                next_action = (next_action + eps.clamp(-cfg.target_noise_clip, cfg.target_noise_clip)).clamp(-1.0, 1.0)
+            next_q = torch.minimum(*(q(next_x, next_action) for q in self.critics_target))
+            target = batch.reward.float() + cfg.gamma * (~batch.terminated).float() * next_q
+            if cfg.clip_target:
+                target = target.clamp(-1.0 / (1.0 - cfg.gamma), 0.0)
+        return target
+
+    def update(self, batch: Batch, generator: torch.Generator | None = None) -> dict[str, torch.Tensor]:
+        """A critic step; every ``policy_delay`` updates also an actor step and the target update.
+        Returns detached scalars ``critic_loss``, ``actor_loss`` (the latest), ``q_mean``."""
+        cfg = self.config
+        if cfg.normalize_inputs:
+            self.normalize.update(self.encode(batch.obs))
+        target = self.bellman_target(batch, generator)
+        x, action = self.inputs(batch.obs), self.unit_action(batch.action)
+        q1, q2 = (q(x, action) for q in self.critics)
+        critic_loss = 0.5 * (F.mse_loss(q1, target) + F.mse_loss(q2, target))
+        self._step(self.critic_optimizer, critic_loss, self._critic_params)
+
+        self.updates += 1
+        if self.updates % cfg.policy_delay == 0:
+            for p in self._critic_params:
+                p.requires_grad_(False)
+            actor_loss = -self.critics[0](x, self.actor(x)).mean()
+            self._step(self.actor_optimizer, actor_loss, self._actor_params)
+            for p in self._critic_params:
+                p.requires_grad_(True)
+            self._last_actor_loss = actor_loss.detach()
+            self.update_target()
+        return {"critic_loss": critic_loss.detach(), "actor_loss": self._last_actor_loss, "q_mean": q1.detach().mean()}
+
+    def _step(self, optimizer: torch.optim.Optimizer, loss: torch.Tensor, params: list[torch.Tensor]) -> None:
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        if self.config.max_grad_norm > 0:
+            nn.utils.clip_grad_norm_(params, self.config.max_grad_norm, foreach=True)
+        optimizer.step()
+
+    @torch.no_grad()
+    def update_target(self) -> None:
+        """theta_target <- tau * theta + (1 - tau) * theta_target, actor and critics."""
+        torch._foreach_lerp_(self._target_params, self._online_params, self.config.tau)
+
+    # ---------------------------------------------------------------- checkpointing
+    def state_dict(self) -> dict[str, Any]:
+        return {
+            "actor": self.actor.state_dict(),
+            "actor_target": self.actor_target.state_dict(),
+            "critics": self.critics.state_dict(),
+            "critics_target": self.critics_target.state_dict(),
+            "normalize": self.normalize.state_dict(),
+            "actor_optimizer": self.actor_optimizer.state_dict(),
+            "critic_optimizer": self.critic_optimizer.state_dict(),
+            "updates": self.updates,
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.actor.load_state_dict(state["actor"])
+        self.actor_target.load_state_dict(state["actor_target"])
+        self.critics.load_state_dict(state["critics"])
+        self.critics_target.load_state_dict(state["critics_target"])
+        self.normalize.load_state_dict(state["normalize"])
+        self.actor_optimizer.load_state_dict(state["actor_optimizer"])
+        self.critic_optimizer.load_state_dict(state["critic_optimizer"])
+        self.updates = int(state["updates"])
