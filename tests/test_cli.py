@@ -68,3 +68,10 @@ def test_train_then_eval_from_the_command_line(tmp_path):
     assert ev.returncode == 0, ev.stderr
     result = json.loads(ev.stdout)
     assert result["episodes"] == 50 and 0.0 <= result["success_rate"] <= 1.0
+
+
+def test_flags_follow_the_presets_algorithm(capsys):
+    code, _, err = run_cli(capsys, "train", "pointreach-sac-her", "--double-q")
+    assert code == 2 and "unknown option '--double-q'" in err  # a DQN flag, not SAC's
+    code, _, err = run_cli(capsys, "train", "bitflip-her", "--algo", "sac")
+    assert code == 2 and "needs continuous (Box) actions" in err

@@ -41,3 +41,15 @@ def test_the_same_seed_gives_the_same_run(tmp_path):
     keys = ("success_rate", "eval_return", "loss", "q_mean", "train_success")
     assert [a.metrics[k] for k in keys] == [b.metrics[k] for k in keys]
     assert [a.metrics[k] for k in keys] != [c.metrics[k] for k in keys]
+
+
+def test_sac_her_solves_pointreach(tmp_path):
+    run = taskrl.train("pointreach-sac-her", out=tmp_path / "sac", total_steps=21_000, stop_at_success=0.9,
+                       seed=0, threads=1, tensorboard=False, save_replay=False)
+    assert run.metrics["success_rate"] >= 0.9
+
+
+def test_qtopt_her_solves_pointreach(tmp_path):
+    run = taskrl.train("pointreach-qtopt-her", out=tmp_path / "qtopt", total_steps=21_000, stop_at_success=0.9,
+                       seed=0, threads=1, tensorboard=False, save_replay=False)
+    assert run.metrics["success_rate"] >= 0.9

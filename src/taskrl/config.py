@@ -18,6 +18,7 @@ from taskrl.agents.cem import CEMConfig
 from taskrl.agents.dqn import DQNConfig
 from taskrl.agents.qtopt import QTOptConfig
 from taskrl.agents.sac import SACConfig
+from taskrl.agents.td3 import TD3Config
 
 ENVS = ("bitflip", "pointreach", "fetchreach", "fetchpush", "fetchpickandplace", "fetchslide")
 #: Environments that come from gymnasium (through the vector-env adapter), by taskrl name.
@@ -28,7 +29,7 @@ GYMNASIUM_IDS = {
     "fetchslide": "FetchSlide-v4",
 }
 #: Each algorithm's hyperparameters live in its own dataclass, a section of TrainConfig.
-ALGO_CONFIGS: dict[str, type] = {"dqn": DQNConfig, "qtopt": QTOptConfig, "sac": SACConfig}
+ALGO_CONFIGS: dict[str, type] = {"dqn": DQNConfig, "qtopt": QTOptConfig, "sac": SACConfig, "td3": TD3Config}
 ALGOS = tuple(ALGO_CONFIGS)
 HER_STRATEGIES = ("future", "final", "episode", "random", "none")
 
@@ -52,7 +53,7 @@ class TrainConfig:
         terminate_on_success: end an episode when its goal is reached (bitflip, pointreach).
         reward: ``sparse`` (0 at the goal, else -1) or ``dense`` (-distance), for pointreach.
         vector_strategy: ``sync`` or ``async`` (one process per copy) for gymnasium environments.
-        algo: learning algorithm; its section (``dqn``, ``qtopt``, ``sac``) holds its hyperparameters.
+        algo: learning algorithm; its section (``dqn``, ``qtopt``, ``sac``, ``td3``) holds its hyperparameters.
         total_steps: environment steps to train for (summed over parallel environments).
         num_envs: environments stepped in parallel while collecting.
         seed: seed for network initialisation, environments and sampling.
@@ -64,8 +65,8 @@ class TrainConfig:
         learning_starts: environment steps collected before the first update.
         updates_per_step: gradient updates per environment step (fractions accumulate).
         epsilon_start: initial exploration level passed to the agent while collecting: DQN's
-            epsilon, QT-Opt's probability of a uniformly random action; SAC samples its policy
-            whenever it is above 0.
+            epsilon, QT-Opt's probability of a uniformly random action, TD3's Gaussian noise std
+            (fraction of the action half-width); SAC samples its policy whenever it is above 0.
         epsilon_end: final exploration level.
         epsilon_decay_steps: environment steps over which it decays linearly.
         eval_interval: environment steps between evaluations.
@@ -77,6 +78,7 @@ class TrainConfig:
         dqn: DQN hyperparameters.
         qtopt: QT-Opt hyperparameters.
         sac: SAC hyperparameters.
+        td3: TD3 hyperparameters.
     """
 
     env: Literal["bitflip", "pointreach", "fetchreach", "fetchpush", "fetchpickandplace", "fetchslide"] = "bitflip"
@@ -84,7 +86,7 @@ class TrainConfig:
     terminate_on_success: bool = True
     reward: Literal["sparse", "dense"] = "sparse"
     vector_strategy: Literal["sync", "async"] = "sync"
-    algo: Literal["dqn", "qtopt", "sac"] = "dqn"
+    algo: Literal["dqn", "qtopt", "sac", "td3"] = "dqn"
     total_steps: int = 100_000
     num_envs: int = 32
     seed: int = 0
@@ -107,6 +109,7 @@ class TrainConfig:
     dqn: DQNConfig = dataclasses.field(default_factory=DQNConfig)
     qtopt: QTOptConfig = dataclasses.field(default_factory=QTOptConfig)
     sac: SACConfig = dataclasses.field(default_factory=SACConfig)
+    td3: TD3Config = dataclasses.field(default_factory=TD3Config)
 
 
 def field_docs(cls: type) -> dict[str, str]:
@@ -172,8 +175,14 @@ def validate(config: TrainConfig) -> TrainConfig:
         cem = a.cem
         require(cem.iterations >= 1, "iterations", f"must be >= 1 (got {cem.iterations})")
         require(1 <= cem.elites <= cem.samples, "elites", f"must be in [1, samples={cem.samples}] (got {cem.elites})")
+        require(cem.first_samples == 0 or cem.first_samples >= cem.elites, "first_samples",
+                f"must be 0 (same as samples) or >= elites={cem.elites} (got {cem.first_samples})")
+        require(cem.warm_std > 0 and cem.warm_iterations >= 0, "warm_std",
+                f"warm_std must be > 0 and warm_iterations >= 0 (got {cem.warm_std}, {cem.warm_iterations})")
     if c.algo == "sac":
         require(a.init_alpha > 0, "init_alpha", f"must be > 0 (got {a.init_alpha})")
+    if c.algo == "td3":
+        require(a.policy_delay >= 1, "policy_delay", f"must be >= 1 (got {a.policy_delay})")
     return config
 
 

@@ -26,6 +26,7 @@ from taskrl import config as config_io
 from taskrl.agents.dqn import DQNAgent
 from taskrl.agents.qtopt import QTOptAgent
 from taskrl.agents.sac import SACAgent
+from taskrl.agents.td3 import TD3Agent
 from taskrl.checkpoint import load_checkpoint, save_checkpoint
 from taskrl.config import GYMNASIUM_IDS, ConfigError, TrainConfig, validate, with_overrides
 from taskrl.console import ConsoleReporter, final_table
@@ -39,7 +40,7 @@ from taskrl.training.evaluation import evaluate
 from taskrl.training.offpolicy import LoopSchedule, LoopState, OffPolicyLoop
 
 AGENT_INPUT_KEYS = ("observation", "desired_goal")
-Agent = DQNAgent | QTOptAgent | SACAgent
+Agent = DQNAgent | QTOptAgent | SACAgent | TD3Agent
 EVAL_SEED_OFFSET = 1_000_003
 
 
@@ -89,7 +90,8 @@ def make_agent(config: TrainConfig, env: BatchedEnv, device: torch.device) -> Ag
         return DQNAgent(AGENT_INPUT_KEYS, input_dim, int(action_space.n), config.dqn, device)
     if not isinstance(action_space, gym.spaces.Box):
         raise ConfigError("algo", f"{config.algo} needs continuous (Box) actions but {config.env!r} has {action_space}; use dqn")
-    agent_cls, agent_config = {"qtopt": (QTOptAgent, config.qtopt), "sac": (SACAgent, config.sac)}[config.algo]
+    agent_cls = {"qtopt": QTOptAgent, "sac": SACAgent, "td3": TD3Agent}[config.algo]
+    agent_config = getattr(config, config.algo)
     return agent_cls(AGENT_INPUT_KEYS, input_dim, action_space, agent_config, device)
 
 
