@@ -43,3 +43,62 @@ def append_results(title: str, body: str) -> None:
         RESULTS.write_text("# Benchmark results\n\nEach section was appended by the script named in its command.\n")
     with RESULTS.open("a") as f:
         f.write(text)
+
+
+def sb3_learn_until(model, evaluate_fn, eval_interval: int, target: float, budget: int) -> dict:
+    """Train a Stable-Baselines3 model, evaluating every ``eval_interval`` env steps with
+    ``evaluate_fn(model) -> success rate``; stop at ``target``. The clock excludes evaluation,
+    as taskrl's ``wall_seconds`` does."""
+    import time
+
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    result = {"solved": False, "final_success": 0.0, "env_steps": 0, "seconds": 0.0}
+
+    class EvalAndClock(BaseCallback):
+        def _on_training_start(self) -> None:
+            self.train_seconds, self.started, self.next_eval = 0.0, time.perf_counter(), eval_interval
+
+        def _on_step(self) -> bool:
+            if self.num_timesteps < self.next_eval:
+                return True
+            self.train_seconds += time.perf_counter() - self.started
+            self.next_eval += eval_interval
+            success = evaluate_fn(self.model)
+            result.update(env_steps=self.num_timesteps, seconds=self.train_seconds, final_success=success)
+            self.started = time.perf_counter()
+            if success >= target:
+                result["solved"] = True
+                return False
+            return True
+
+    model.learn(total_timesteps=budget, callback=EvalAndClock())
+    result["env_steps_per_s"] = result["env_steps"] / max(result["seconds"], 1e-9)
+    return result
+
+
+def median_table(runs: list[dict], keys: list, libs: list[str], key_name: str) -> tuple[str, dict]:
+    """Markdown table of medians per (key, library); unsolved runs count at their budget."""
+    import statistics
+
+    lines = [f"| {key_name} | library | solved (seeds) | median env steps to 90% | median seconds to 90% | median env steps/s |",
+             "|---|---|---|---|---|---|"]
+    medians = {}
+    for key in keys:
+        for lib in libs:
+            rs = [r for r in runs if r["key"] == key and r["lib"] == lib]
+            solved = sum(r["solved"] for r in rs)
+            steps = statistics.median(r["env_steps"] for r in rs)
+            secs = statistics.median(r["seconds"] for r in rs)
+            sps = statistics.median(r["env_steps_per_s"] for r in rs)
+            medians[(key, lib)] = (steps, secs, sps, solved == len(rs))
+            lines.append(f"| {key} | {lib} | {solved}/{len(rs)} | {steps:,.0f} | {secs:.1f} | {sps:,.0f} |")
+    if set(libs) == {"taskrl", "sb3"}:
+        lines += ["", "Ratios of medians (training env steps/s: each library with its own settings, learning included):", "",
+                  f"| {key_name} | wall-clock ratio (SB3 / taskrl) | env-step ratio (SB3 / taskrl) | env steps/s ratio (taskrl / SB3) |",
+                  "|---|---|---|---|"]
+        for key in keys:
+            t, s = medians[(key, "taskrl")], medians[(key, "sb3")]
+            note = "" if s[3] else " (SB3 did not solve every seed: its time is the budget, so the ratio is a lower bound)"
+            lines.append(f"| {key} | {s[1] / t[1]:.1f}x{note} | {s[0] / t[0]:.1f}x | {t[2] / s[2]:.1f}x |")
+    return "\n".join(lines), medians

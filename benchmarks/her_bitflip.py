@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import statistics
 import tempfile
 import time
 from pathlib import Path
@@ -30,6 +29,7 @@ import numpy as np
 import torch
 
 import taskrl
+from common import append_results, median_table, sb3_learn_until
 from taskrl.envs import BitFlip
 from taskrl.run import EVAL_SEED_OFFSET
 from taskrl.training.evaluation import evaluate
@@ -71,34 +71,11 @@ def sb3_policy(model):
 
 
 def sb3_time_to_success(n_bits: int, seed: int, budget: int, eval_interval: int, target: float) -> dict:
-    from stable_baselines3.common.callbacks import BaseCallback
-
     model = sb3_model(n_bits, seed, budget)
     eval_seed = seed + EVAL_SEED_OFFSET  # the episodes taskrl evaluates on for this seed
     eval_env = BitFlip(n_bits, num_envs=100, seed=eval_seed)
-    result = {"solved": False, "final_success": 0.0}
-
-    class EvalAndClock(BaseCallback):
-        def _on_training_start(self) -> None:
-            self.train_seconds, self.started, self.next_eval = 0.0, time.perf_counter(), eval_interval
-
-        def _on_step(self) -> bool:
-            if self.num_timesteps < self.next_eval:
-                return True
-            self.train_seconds += time.perf_counter() - self.started
-            self.next_eval += eval_interval
-            success = evaluate(sb3_policy(self.model), eval_env, eval_seed)["success_rate"]
-            result.update(env_steps=self.num_timesteps, seconds=self.train_seconds, final_success=success)
-            self.started = time.perf_counter()
-            if success >= target:
-                result["solved"] = True
-                return False
-            return True
-
-    model.learn(total_timesteps=budget, callback=EvalAndClock())
-    result["env_steps_per_s"] = result["env_steps"] / max(result["seconds"], 1e-9)
-    return result
-
+    return sb3_learn_until(model, lambda m: evaluate(sb3_policy(m), eval_env, eval_seed)["success_rate"],
+                           eval_interval, target, budget)
 
 
 def updates_per_second(batch_size: int, hidden: tuple[int, ...], n_bits: int = 15, n_updates: int = 600) -> dict:
@@ -196,26 +173,10 @@ def main() -> None:
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(results, indent=2))
 
-    lines = ["| n bits | library | solved (seeds) | median env steps to 90% | median seconds to 90% | median env steps/s |",
-             "|---|---|---|---|---|---|"]
-    medians: dict = {}
-    for n in args.n_bits:
-        for lib in args.libs:
-            rs = [r for r in results["runs"] if r["n_bits"] == n and r["lib"] == lib]
-            solved = [r for r in rs if r["solved"]]
-            # Unsolved seeds count as the full budget / time (a lower bound on their true cost).
-            steps = statistics.median(r["env_steps"] for r in rs)
-            secs = statistics.median(r["seconds"] for r in rs)
-            sps = statistics.median(r["env_steps_per_s"] for r in rs)
-            medians[(n, lib)] = (steps, secs, sps, len(solved) == len(rs))
-            lines.append(f"| {n} | {lib} | {len(solved)}/{len(rs)} | {steps:,.0f} | {secs:.1f} | {sps:,.0f} |")
-    if set(args.libs) == {"taskrl", "sb3"}:
-        lines += ["", "Ratios of medians (training env steps/s: each library with its own settings, learning included):", "",
-                  "| n bits | wall-clock ratio (SB3 / taskrl) | env-step ratio (SB3 / taskrl) | env steps/s ratio (taskrl / SB3) |", "|---|---|---|---|"]
-        for n in args.n_bits:
-            t, s = medians[(n, "taskrl")], medians[(n, "sb3")]
-            note = "" if s[3] else " (SB3 did not solve every seed: its time is the budget, so the ratio is a lower bound)"
-            lines.append(f"| {n} | {s[1] / t[1]:.1f}x{note} | {s[0] / t[0]:.1f}x | {t[2] / s[2]:.1f}x |")
+    for r in results["runs"]:
+        r["key"] = r["n_bits"]
+    table, _ = median_table(results["runs"], args.n_bits, args.libs, "n bits")
+    lines = [table]
     if results["throughput"]:
         lines += ["", "Gradient updates/s (sampling + relabelling + one update), equal batch size and network:", "",
                   "| batch | hidden | SB3 updates/s | taskrl updates/s | ratio |", "|---|---|---|---|---|"]
@@ -230,8 +191,6 @@ def main() -> None:
     table = "\n".join(lines)
     print(table)
     if args.write:
-        from common import append_results
-
         append_results("DQN + hindsight relabelling vs Stable-Baselines3 (random-goal bit flipping)",
                        f"Seeds {args.seeds}, eval every {args.eval_interval} env steps on 100 fixed episodes, "
                        f"torch threads = {args.threads} for both, evaluation excluded from both clocks.\n\n{table}")

@@ -1,0 +1,100 @@
+"""taskrl against Stable-Baselines3: SAC + hindsight relabelling on FetchReach-v4.
+
+Both libraries train on gymnasium-robotics' ``FetchReach-v4`` with the same network (64x64 for
+the actor and each critic), batch 256, lr 1e-3, relabelling ``future`` with k = 4 and 1000
+random-start steps. SB3 uses its zoo-style FetchReach settings (1 env, one update per env step,
+gamma 0.95); taskrl uses its ``fetchreach-sac-her`` preset (2 envs, one update per two env steps,
+gamma 0.98), with ``--hidden-sizes 64 64``. Both are evaluated every ``--eval-interval`` env
+steps by taskrl's batched evaluator on the same 100 episodes (final-step ``is_success``, greedy
+policy); evaluation time is excluded from both clocks. Reported: median wall-clock and env steps
+to 90% success over seeds, and the ratio.
+
+    .venv/bin/python benchmarks/her_fetch.py --seeds 0 1 2 --write
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import tempfile
+from pathlib import Path
+
+import torch
+
+import taskrl
+from common import append_results, median_table, sb3_learn_until
+from taskrl.envs import GymnasiumGoalEnv
+from taskrl.run import EVAL_SEED_OFFSET
+from taskrl.training.evaluation import evaluate
+
+ENV_ID = "FetchReach-v4"
+
+
+def taskrl_time_to_success(seed: int, budget: int, eval_interval: int, target: float) -> dict:
+    with tempfile.TemporaryDirectory() as tmp:
+        run = taskrl.train("fetchreach-sac-her", out=Path(tmp) / "run", seed=seed, total_steps=budget,
+                           hidden_sizes=(64, 64), eval_interval=eval_interval, stop_at_success=target,
+                           tensorboard=False, checkpoint_interval=10**12, save_replay=False)
+    m = run.metrics
+    return {"solved": m["success_rate"] >= target, "env_steps": m["env_steps"], "seconds": m["wall_seconds"],
+            "env_steps_per_s": m["env_steps"] / max(m["wall_seconds"], 1e-9), "final_success": m["success_rate"]}
+
+
+def sb3_time_to_success(seed: int, budget: int, eval_interval: int, target: float) -> dict:
+    import gymnasium as gym
+    import gymnasium_robotics
+    from stable_baselines3 import SAC, HerReplayBuffer
+
+    gym.register_envs(gymnasium_robotics)
+    model = SAC("MultiInputPolicy", gym.make(ENV_ID), replay_buffer_class=HerReplayBuffer,
+                replay_buffer_kwargs=dict(n_sampled_goal=4, goal_selection_strategy="future"),
+                learning_rate=1e-3, batch_size=256, gamma=0.95, learning_starts=1000, buffer_size=int(1e6),
+                policy_kwargs=dict(net_arch=[64, 64]), seed=seed, verbose=0)
+    eval_seed = seed + EVAL_SEED_OFFSET
+    eval_env = GymnasiumGoalEnv(ENV_ID, num_envs=100)
+
+    def success(m) -> float:
+        def act(obs):
+            np_obs = {k: v.cpu().numpy() for k, v in obs.items()}
+            return torch.as_tensor(m.predict(np_obs, deterministic=True)[0])
+        return evaluate(act, eval_env, eval_seed)["success_rate"]
+
+    try:
+        return sb3_learn_until(model, success, eval_interval, target, budget)
+    finally:
+        eval_env.close()
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    parser.add_argument("--libs", nargs="+", default=["taskrl", "sb3"], choices=["taskrl", "sb3"])
+    parser.add_argument("--budget", type=int, default=20_000)
+    parser.add_argument("--eval-interval", type=int, default=1_000)
+    parser.add_argument("--target", type=float, default=0.9)
+    parser.add_argument("--threads", type=int, default=1, help="torch threads for both libraries")
+    parser.add_argument("--write", action="store_true", help="append the results to benchmarks/RESULTS.md")
+    parser.add_argument("--json", type=Path, default=Path("benchmarks/out/her_fetch.json"))
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+
+    runners = {"taskrl": taskrl_time_to_success, "sb3": sb3_time_to_success}
+    runs = []
+    for lib in args.libs:
+        for seed in args.seeds:
+            r = runners[lib](seed, args.budget, args.eval_interval, args.target)
+            r.update(lib=lib, seed=seed, key=ENV_ID, budget=args.budget)
+            runs.append(r)
+            print(json.dumps(r), flush=True)
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps(runs, indent=2))
+    table, _ = median_table(runs, [ENV_ID], args.libs, "env")
+    print(table)
+    if args.write:
+        append_results("SAC + hindsight relabelling vs Stable-Baselines3 (FetchReach-v4)",
+                       f"Seeds {args.seeds}, eval every {args.eval_interval} env steps on 100 fixed episodes, "
+                       f"torch threads = {args.threads} for both, evaluation excluded from both clocks.\n\n{table}")
+
+
+if __name__ == "__main__":
+    main()
