@@ -206,8 +206,8 @@ def train(
             state = loop.run(state, env_seed=config.seed + state.env_steps)
         finally:
             logger.close()
-            for e in (env, eval_env):
-                getattr(e, "close", lambda: None)()
+            env.close()
+            eval_env.close()
 
     curve = plot_learning_curve(logger.path, run_dir / "learning_curve.png", title=f"{title} ({run_dir.name})")
     final = rows[-1] if rows else {"env_steps": state.env_steps, "updates": state.updates,
@@ -230,7 +230,7 @@ def load(run_dir: str | Path, device: str = "cpu") -> Agent:
     dev = resolve_device(device)
     env = make_env(config, 1, 0, dev)
     agent = make_agent(config, env, dev)
-    getattr(env, "close", lambda: None)()
+    env.close()
     agent.load_state_dict(load_checkpoint(run_dir / "checkpoints", ("agent",), dev)["agent"])
     return agent
 
@@ -245,4 +245,4 @@ def evaluate_run(run_dir: str | Path, episodes: int = 100, seed: int | None = No
     try:
         return {**evaluate(lambda o: agent.act(o), env, seed), "episodes": episodes}
     finally:
-        getattr(env, "close", lambda: None)()
+        env.close()

@@ -41,6 +41,9 @@ class BatchedEnv:
         """Advance every copy by one step; returns ``obs, reward, terminated, truncated, info``."""
         raise NotImplementedError
 
+    def close(self) -> None:
+        """Release what the environment holds (worker processes of gymnasium vector envs)."""
+
 
 class GoalEnvMixin:
     """Goal-conditioned environments: observations carry ``achieved_goal`` and ``desired_goal``.
