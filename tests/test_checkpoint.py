@@ -18,7 +18,7 @@ TINY = dict(n_bits=5, num_envs=4, eval_episodes=20, tensorboard=False, learning_
 
 def test_state_round_trip_keeps_optimizer_state_and_int_keys(tmp_path):
     agent = DQNAgent(("observation",), 3, 2, DQNConfig(hidden_sizes=(8,)))
-    agent.normalize.update(torch.randn(5, 3))
+    agent.inputs.normalize.update(torch.randn(5, 3))
     agent.q(agent.inputs({"observation": torch.ones(1, 3)})).sum().backward()
     agent.optimizer.step()
     state = agent.state_dict()
@@ -27,7 +27,7 @@ def test_state_round_trip_keeps_optimizer_state_and_int_keys(tmp_path):
     assert list(loaded["optimizer"]["state"]) == list(state["optimizer"]["state"])  # int keys survive
     for k, v in state["q"].items():
         assert torch.equal(loaded["q"][k], v)
-    assert torch.equal(loaded["normalize"]["mean"], agent.normalize.mean)  # input statistics travel too
+    assert torch.equal(loaded["normalize"]["mean"], agent.inputs.normalize.mean)  # input statistics travel too
     other = DQNAgent(("observation",), 3, 2, DQNConfig(hidden_sizes=(8,)))
     other.load_state_dict(loaded)
     assert other.updates == agent.updates

@@ -93,7 +93,7 @@ def test_cross_entropy_mode_uses_probabilities_clips_to_unit_interval_and_log_lo
     expected = [0.9 * 0.5, 1.0, 0.9 * torch.sigmoid(torch.tensor(2.0)).item()]   # 1 + 0.9 * 0.88 clipped to 1
     assert y.tolist() == pytest.approx(expected, abs=1e-6)
     with torch.no_grad():
-        logits = agent.q(agent.inputs(b.obs), agent.unit_action(b.action))
+        logits = agent.q(agent.inputs(b.obs), agent.box.to_unit(b.action))
     metrics = agent.regress(b, y)
     expected_loss = -(y * F.logsigmoid(logits) + (1 - y) * F.logsigmoid(-logits)).mean()
     assert metrics["loss"].item() == pytest.approx(expected_loss.item(), rel=1e-5)

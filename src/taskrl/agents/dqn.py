@@ -14,13 +14,12 @@ from __future__ import annotations
 import dataclasses
 from typing import Any, Literal
 
-import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
 
-from taskrl.nets import ObsConcat, mlp
-from taskrl.normalization import RunningNorm
+from taskrl.agents.parts import ObservationInput, as_batch, gradient_step
+from taskrl.nets import mlp
 from taskrl.replay.batch import Batch, Obs
 
 
@@ -81,8 +80,7 @@ class DQNAgent:
         self.device = torch.device(device)
         self.n_actions = n_actions
         # The online and target networks read the same (normalised) input.
-        self.encode = ObsConcat(input_keys).to(self.device)
-        self.normalize = (RunningNorm(input_dim) if config.normalize_inputs else nn.Identity()).to(self.device)
+        self.inputs = ObservationInput(input_keys, input_dim, config.normalize_inputs).to(self.device)
         self.q = QNetwork(input_dim, n_actions, config.hidden_sizes).to(self.device)
         self.q_target = QNetwork(input_dim, n_actions, config.hidden_sizes).to(self.device)
         self.q_target.load_state_dict(self.q.state_dict())
@@ -101,9 +99,7 @@ class DQNAgent:
         Accepts the batched tensors of a native environment, or one numpy observation of a
         gymnasium environment (then returns a Python int).
         """
-        single = any(isinstance(v, np.ndarray) for v in obs.values())
-        if single:
-            obs = {k: torch.as_tensor(np.asarray(v), device=self.device).unsqueeze(0) for k, v in obs.items()}
+        obs, single = as_batch(obs, self.device)
         greedy = self.q(self.inputs(obs)).argmax(dim=1)
         if epsilon > 0.0:
             n = greedy.shape[0]
@@ -111,10 +107,6 @@ class DQNAgent:
             random_actions = torch.randint(0, self.n_actions, (n,), generator=generator, device=self.device)
             greedy = torch.where(explore, random_actions, greedy)
         return int(greedy[0]) if single else greedy
-
-    def inputs(self, obs: Obs) -> torch.Tensor:
-        """The network input: chosen observation keys, concatenated and normalised."""
-        return self.normalize(self.encode(obs))
 
     # ---------------------------------------------------------------- learning
     def bellman_target(self, batch: Batch) -> torch.Tensor:
@@ -136,17 +128,12 @@ class DQNAgent:
     def update(self, batch: Batch) -> dict[str, torch.Tensor]:
         """One gradient step on the TD error; returns detached scalars (``loss``, ``q_mean``)."""
         cfg = self.config
-        if cfg.normalize_inputs:
-            self.normalize.update(self.encode(batch.obs))
+        self.inputs.update_statistics(batch.obs)
         target = self.bellman_target(batch)
         q_taken = self.q(self.inputs(batch.obs)).gather(1, batch.action.long().view(-1, 1)).squeeze(1)
         loss = F.smooth_l1_loss(q_taken, target) if cfg.loss == "huber" else F.mse_loss(q_taken, target)
 
-        self.optimizer.zero_grad(set_to_none=True)
-        loss.backward()
-        if cfg.max_grad_norm > 0:
-            nn.utils.clip_grad_norm_(self._params, cfg.max_grad_norm, foreach=True)
-        self.optimizer.step()
+        gradient_step(self.optimizer, loss, self._params, cfg.max_grad_norm)
 
         self.updates += 1
         if self.updates % cfg.target_update_interval == 0:
@@ -166,7 +153,7 @@ class DQNAgent:
         return {
             "q": self.q.state_dict(),
             "q_target": self.q_target.state_dict(),
-            "normalize": self.normalize.state_dict(),
+            "normalize": self.inputs.normalize.state_dict(),
             "optimizer": self.optimizer.state_dict(),
             "updates": self.updates,
         }
@@ -174,6 +161,6 @@ class DQNAgent:
     def load_state_dict(self, state: dict[str, Any]) -> None:
         self.q.load_state_dict(state["q"])
         self.q_target.load_state_dict(state["q_target"])
-        self.normalize.load_state_dict(state["normalize"])
+        self.inputs.normalize.load_state_dict(state["normalize"])
         self.optimizer.load_state_dict(state["optimizer"])
         self.updates = int(state["updates"])

@@ -29,14 +29,13 @@ from __future__ import annotations
 import dataclasses
 from typing import Any, Literal
 
-import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
 
-from taskrl.agents.cem import CEMConfig, CrossEntropyMethod, action_bounds
-from taskrl.nets import ObsConcat, mlp
-from taskrl.normalization import RunningNorm
+from taskrl.agents.cem import CEMConfig, CrossEntropyMethod
+from taskrl.agents.parts import ActionBox, ObservationInput, as_batch, gradient_step
+from taskrl.nets import mlp
 from taskrl.replay.batch import Batch, Obs
 
 
@@ -135,12 +134,10 @@ class QTOptAgent:
             raise ValueError(f"target2_interval: must be >= 1 (got {config.target2_interval})")
         self.config = config
         self.device = torch.device(device)
-        self.low, self.high = action_bounds(action_space, self.device)
-        self.action_dim = self.low.numel()
-        self.action_center, self.action_half = (self.high + self.low) / 2, (self.high - self.low) / 2
-        self.unit_low, self.unit_high = -torch.ones_like(self.low), torch.ones_like(self.high)
-        self.encode = ObsConcat(input_keys).to(self.device)
-        self.normalize = (RunningNorm(input_dim) if config.normalize_inputs else nn.Identity()).to(self.device)
+        self.box = ActionBox(action_space, self.device)
+        self.action_dim = self.box.dim
+        self.unit_low, self.unit_high = -torch.ones_like(self.box.low), torch.ones_like(self.box.high)
+        self.inputs = ObservationInput(input_keys, input_dim, config.normalize_inputs).to(self.device)
         self.q = StateActionQ(input_dim, self.action_dim, config.hidden_sizes).to(self.device)
         self.q_target1 = StateActionQ(input_dim, self.action_dim, config.hidden_sizes).to(self.device)
         self.q_target2 = StateActionQ(input_dim, self.action_dim, config.hidden_sizes).to(self.device)
@@ -154,18 +151,6 @@ class QTOptAgent:
         self.updates = 0
 
     # ---------------------------------------------------------------- helpers
-    def inputs(self, obs: Obs) -> torch.Tensor:
-        """The state input: chosen observation keys, concatenated and normalised."""
-        return self.normalize(self.encode(obs))
-
-    def unit_action(self, action: torch.Tensor) -> torch.Tensor:
-        """Box [low, high] -> [-1, 1] (what the networks see)."""
-        return (action.float() - self.action_center) / self.action_half
-
-    def env_action(self, unit: torch.Tensor) -> torch.Tensor:
-        """[-1, 1] -> box [low, high]."""
-        return self.action_center + self.action_half * unit
-
     def q_value(self, out: torch.Tensor) -> torch.Tensor:
         """Network output -> Q: a probability sigmoid(logit) for the cross-entropy loss."""
         return torch.sigmoid(out) if self.config.loss == "cross_entropy" else out
@@ -188,9 +173,7 @@ class QTOptAgent:
         Accepts batched tensors, or one numpy observation of a gymnasium environment (then
         returns a numpy action of shape [A]).
         """
-        single = any(isinstance(v, np.ndarray) for v in obs.values())
-        if single:
-            obs = {k: torch.as_tensor(np.asarray(v), device=self.device).unsqueeze(0) for k, v in obs.items()}
+        obs, single = as_batch(obs, self.device)
         x = self.inputs(obs)
         unit, _ = self.argmax(self.q, x, generator)
         if exploration > 0.0:
@@ -198,7 +181,7 @@ class QTOptAgent:
             explore = torch.rand(n, 1, generator=generator, device=self.device) < exploration
             uniform = torch.rand(n, self.action_dim, generator=generator, device=self.device) * 2 - 1
             unit = torch.where(explore, uniform, unit)
-        action = self.env_action(unit)
+        action = self.box.from_unit(unit)
         return action[0].cpu().numpy() if single else action
 
     # ---------------------------------------------------------------- learning
@@ -214,7 +197,7 @@ class QTOptAgent:
         cfg = self.config
         with torch.no_grad():
             next_x = self.inputs(batch.next_obs)
-            warm = None if warm_start is None else self.unit_action(warm_start)
+            warm = None if warm_start is None else self.box.to_unit(warm_start)
             next_action, out1 = self.argmax(self.q_target1, next_x, generator, warm)  # out1 = Q_target1(s', a*), from CEM
             out2 = self.q_target2(next_x, next_action)
             next_value = self.q_value(torch.minimum(out1, out2))                       # sigmoid is monotone
@@ -223,7 +206,7 @@ class QTOptAgent:
                 target = target.clamp(0.0, 1.0)
             elif cfg.clip_target:
                 target = target.clamp(-1.0 / (1.0 - cfg.gamma), 0.0)
-        return (target, self.env_action(next_action)) if return_action else target
+        return (target, self.box.from_unit(next_action)) if return_action else target
 
     def regress(self, batch: Batch, target: torch.Tensor) -> dict[str, torch.Tensor]:
         """One gradient step of Q(s, a) towards ``target`` (the trainer's step); refreshes the targets.
@@ -231,9 +214,8 @@ class QTOptAgent:
         Returns detached scalars: ``loss``, ``q_mean`` (Q of the batch's actions), ``target_mean``.
         """
         cfg = self.config
-        if cfg.normalize_inputs:
-            self.normalize.update(self.encode(batch.obs))
-        out = self.q(self.inputs(batch.obs), self.unit_action(batch.action))
+        self.inputs.update_statistics(batch.obs)
+        out = self.q(self.inputs(batch.obs), self.box.to_unit(batch.action))
         if cfg.loss == "cross_entropy":
             loss = F.binary_cross_entropy_with_logits(out, target)
         elif cfg.loss == "huber":
@@ -241,11 +223,7 @@ class QTOptAgent:
         else:
             loss = F.mse_loss(out, target)
 
-        self.optimizer.zero_grad(set_to_none=True)
-        loss.backward()
-        if cfg.max_grad_norm > 0:
-            nn.utils.clip_grad_norm_(self._params, cfg.max_grad_norm, foreach=True)
-        self.optimizer.step()
+        gradient_step(self.optimizer, loss, self._params, cfg.max_grad_norm)
 
         self.updates += 1
         self.update_targets()
@@ -268,7 +246,7 @@ class QTOptAgent:
             "q": self.q.state_dict(),
             "q_target1": self.q_target1.state_dict(),
             "q_target2": self.q_target2.state_dict(),
-            "normalize": self.normalize.state_dict(),
+            "normalize": self.inputs.normalize.state_dict(),
             "optimizer": self.optimizer.state_dict(),
             "updates": self.updates,
         }
@@ -277,6 +255,6 @@ class QTOptAgent:
         self.q.load_state_dict(state["q"])
         self.q_target1.load_state_dict(state["q_target1"])
         self.q_target2.load_state_dict(state["q_target2"])
-        self.normalize.load_state_dict(state["normalize"])
+        self.inputs.normalize.load_state_dict(state["normalize"])
         self.optimizer.load_state_dict(state["optimizer"])
         self.updates = int(state["updates"])

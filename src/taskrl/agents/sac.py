@@ -27,15 +27,13 @@ import dataclasses
 import math
 from typing import Any
 
-import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
 
-from taskrl.agents.cem import action_bounds
 from taskrl.agents.qtopt import StateActionQ
-from taskrl.nets import ObsConcat, mlp
-from taskrl.normalization import RunningNorm
+from taskrl.agents.parts import ActionBox, ObservationInput, as_batch, gradient_step
+from taskrl.nets import mlp
 from taskrl.replay.batch import Batch, Obs
 
 _LOG_2PI = math.log(2 * math.pi)
@@ -125,12 +123,10 @@ class SACAgent:
             raise ValueError(f"init_alpha: must be > 0 (got {config.init_alpha})")
         self.config = config
         self.device = torch.device(device)
-        self.low, self.high = action_bounds(action_space, self.device)
-        self.action_dim = self.low.numel()
-        self.action_center, self.action_half = (self.high + self.low) / 2, (self.high - self.low) / 2
+        self.box = ActionBox(action_space, self.device)
+        self.action_dim = self.box.dim
         self.target_entropy = config.target_entropy_per_dim * self.action_dim
-        self.encode = ObsConcat(input_keys).to(self.device)
-        self.normalize = (RunningNorm(input_dim) if config.normalize_inputs else nn.Identity()).to(self.device)
+        self.inputs = ObservationInput(input_keys, input_dim, config.normalize_inputs).to(self.device)
         self.actor = SquashedGaussianActor(input_dim, self.action_dim, config.hidden_sizes, config.log_std_min, config.log_std_max).to(self.device)
         self.critics = nn.ModuleList(StateActionQ(input_dim, self.action_dim, config.hidden_sizes) for _ in range(2)).to(self.device)
         self.critics_target = nn.ModuleList(StateActionQ(input_dim, self.action_dim, config.hidden_sizes) for _ in range(2)).to(self.device)
@@ -145,18 +141,6 @@ class SACAgent:
         self.updates = 0
 
     # ---------------------------------------------------------------- helpers
-    def inputs(self, obs: Obs) -> torch.Tensor:
-        """The state input: chosen observation keys, concatenated and normalised."""
-        return self.normalize(self.encode(obs))
-
-    def unit_action(self, action: torch.Tensor) -> torch.Tensor:
-        """Box [low, high] -> [-1, 1] (what the critics see)."""
-        return (action.float() - self.action_center) / self.action_half
-
-    def env_action(self, unit: torch.Tensor) -> torch.Tensor:
-        """[-1, 1] -> box [low, high]."""
-        return self.action_center + self.action_half * unit
-
     @property
     def alpha(self) -> torch.Tensor:
         return self.log_alpha.detach().exp()
@@ -172,12 +156,10 @@ class SACAgent:
         Accepts batched tensors, or one numpy observation of a gymnasium environment (then
         returns a numpy action of shape [A]).
         """
-        single = any(isinstance(v, np.ndarray) for v in obs.values())
-        if single:
-            obs = {k: torch.as_tensor(np.asarray(v), device=self.device).unsqueeze(0) for k, v in obs.items()}
+        obs, single = as_batch(obs, self.device)
         x = self.inputs(obs)
         unit = self.actor.sample(x, generator)[0] if exploration > 0.0 else self.actor.mode(x)
-        action = self.env_action(unit)
+        action = self.box.from_unit(unit)
         return action[0].cpu().numpy() if single else action
 
     # ---------------------------------------------------------------- learning
@@ -198,23 +180,22 @@ class SACAgent:
         """One critic, actor and temperature step; returns detached scalars
         (``critic_loss``, ``actor_loss``, ``alpha``, ``entropy``, ``q_mean``)."""
         cfg = self.config
-        if cfg.normalize_inputs:
-            self.normalize.update(self.encode(batch.obs))
+        self.inputs.update_statistics(batch.obs)
         alpha = self.alpha
         target = self.bellman_target(batch, generator)
-        x, action = self.inputs(batch.obs), self.unit_action(batch.action)
+        x, action = self.inputs(batch.obs), self.box.to_unit(batch.action)
 
         # critics: J_Q = sum_i 1/2 (Q_i(s, a) - y)^2
         q1, q2 = (q(x, action) for q in self.critics)
         critic_loss = 0.5 * (F.mse_loss(q1, target) + F.mse_loss(q2, target))
-        self._step(self.critic_optimizer, critic_loss, self._critic_params)
+        gradient_step(self.critic_optimizer, critic_loss, self._critic_params, self.config.max_grad_norm)
 
         # actor: J_pi = alpha log pi(a~|s) - min_i Q_i(s, a~); the critics are constants here
         self._set_critic_grad(False)
         new_action, log_prob = self.actor.sample(x, generator)
         q_new = torch.minimum(*(q(x, new_action) for q in self.critics))
         actor_loss = (alpha * log_prob - q_new).mean()
-        self._step(self.actor_optimizer, actor_loss, self._actor_params)
+        gradient_step(self.actor_optimizer, actor_loss, self._actor_params, self.config.max_grad_norm)
         self._set_critic_grad(True)
 
         # temperature: J_alpha = -log_alpha (log pi + target_entropy)
@@ -234,13 +215,6 @@ class SACAgent:
         for p in self._critic_params:
             p.requires_grad_(enabled)
 
-    def _step(self, optimizer: torch.optim.Optimizer, loss: torch.Tensor, params: list[torch.Tensor]) -> None:
-        optimizer.zero_grad(set_to_none=True)
-        loss.backward()
-        if self.config.max_grad_norm > 0:
-            nn.utils.clip_grad_norm_(params, self.config.max_grad_norm, foreach=True)
-        optimizer.step()
-
     @torch.no_grad()
     def update_target(self) -> None:
         """theta_target_i <- tau * theta_i + (1 - tau) * theta_target_i."""
@@ -253,7 +227,7 @@ class SACAgent:
             "critics": self.critics.state_dict(),
             "critics_target": self.critics_target.state_dict(),
             "log_alpha": self.log_alpha.detach().clone(),
-            "normalize": self.normalize.state_dict(),
+            "normalize": self.inputs.normalize.state_dict(),
             "actor_optimizer": self.actor_optimizer.state_dict(),
             "critic_optimizer": self.critic_optimizer.state_dict(),
             "alpha_optimizer": self.alpha_optimizer.state_dict(),
@@ -266,7 +240,7 @@ class SACAgent:
         self.critics_target.load_state_dict(state["critics_target"])
         with torch.no_grad():
             self.log_alpha.copy_(torch.as_tensor(state["log_alpha"]))
-        self.normalize.load_state_dict(state["normalize"])
+        self.inputs.normalize.load_state_dict(state["normalize"])
         self.actor_optimizer.load_state_dict(state["actor_optimizer"])
         self.critic_optimizer.load_state_dict(state["critic_optimizer"])
         self.alpha_optimizer.load_state_dict(state["alpha_optimizer"])

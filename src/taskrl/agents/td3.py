@@ -16,15 +16,13 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
 
-from taskrl.agents.cem import action_bounds
 from taskrl.agents.qtopt import StateActionQ
-from taskrl.nets import ObsConcat, mlp
-from taskrl.normalization import RunningNorm
+from taskrl.agents.parts import ActionBox, ObservationInput, as_batch, gradient_step
+from taskrl.nets import mlp
 from taskrl.replay.batch import Batch, Obs
 
 
@@ -86,11 +84,9 @@ class TD3Agent:
             raise ValueError(f"policy_delay: must be >= 1 (got {config.policy_delay})")
         self.config = config
         self.device = torch.device(device)
-        self.low, self.high = action_bounds(action_space, self.device)
-        self.action_dim = self.low.numel()
-        self.action_center, self.action_half = (self.high + self.low) / 2, (self.high - self.low) / 2
-        self.encode = ObsConcat(input_keys).to(self.device)
-        self.normalize = (RunningNorm(input_dim) if config.normalize_inputs else nn.Identity()).to(self.device)
+        self.box = ActionBox(action_space, self.device)
+        self.action_dim = self.box.dim
+        self.inputs = ObservationInput(input_keys, input_dim, config.normalize_inputs).to(self.device)
         self.actor = DeterministicActor(input_dim, self.action_dim, config.hidden_sizes).to(self.device)
         self.actor_target = DeterministicActor(input_dim, self.action_dim, config.hidden_sizes).to(self.device)
         self.critics = nn.ModuleList(StateActionQ(input_dim, self.action_dim, config.hidden_sizes) for _ in range(2)).to(self.device)
@@ -108,28 +104,17 @@ class TD3Agent:
         self._last_actor_loss = torch.zeros((), device=self.device)
 
     # ---------------------------------------------------------------- helpers
-    def inputs(self, obs: Obs) -> torch.Tensor:
-        return self.normalize(self.encode(obs))
-
-    def unit_action(self, action: torch.Tensor) -> torch.Tensor:
-        return (action.float() - self.action_center) / self.action_half
-
-    def env_action(self, unit: torch.Tensor) -> torch.Tensor:
-        return self.action_center + self.action_half * unit
-
     # ---------------------------------------------------------------- acting
     @torch.no_grad()
     def act(self, obs: Obs | dict[str, Any], exploration: float = 0.0, generator: torch.Generator | None = None):
         """mu(s) in the action box, plus Gaussian noise of std ``exploration`` x half-width (TD3's
         0.1 while collecting), clipped to the box. Accepts one numpy observation (returns numpy [A])."""
-        single = any(isinstance(v, np.ndarray) for v in obs.values())
-        if single:
-            obs = {k: torch.as_tensor(np.asarray(v), device=self.device).unsqueeze(0) for k, v in obs.items()}
+        obs, single = as_batch(obs, self.device)
         unit = self.actor(self.inputs(obs))
         if exploration > 0.0:
             noise = torch.randn(unit.shape, generator=generator, device=self.device) * exploration
             unit = (unit + noise).clamp(-1.0, 1.0)
-        action = self.env_action(unit)
+        action = self.box.from_unit(unit)
         return action[0].cpu().numpy() if single else action
 
     # ---------------------------------------------------------------- learning
@@ -152,32 +137,24 @@ class TD3Agent:
         """A critic step; every ``policy_delay`` updates also an actor step and the target update.
         Returns detached scalars ``critic_loss``, ``actor_loss`` (the latest), ``q_mean``."""
         cfg = self.config
-        if cfg.normalize_inputs:
-            self.normalize.update(self.encode(batch.obs))
+        self.inputs.update_statistics(batch.obs)
         target = self.bellman_target(batch, generator)
-        x, action = self.inputs(batch.obs), self.unit_action(batch.action)
+        x, action = self.inputs(batch.obs), self.box.to_unit(batch.action)
         q1, q2 = (q(x, action) for q in self.critics)
         critic_loss = 0.5 * (F.mse_loss(q1, target) + F.mse_loss(q2, target))
-        self._step(self.critic_optimizer, critic_loss, self._critic_params)
+        gradient_step(self.critic_optimizer, critic_loss, self._critic_params, self.config.max_grad_norm)
 
         self.updates += 1
         if self.updates % cfg.policy_delay == 0:
             for p in self._critic_params:
                 p.requires_grad_(False)
             actor_loss = -self.critics[0](x, self.actor(x)).mean()
-            self._step(self.actor_optimizer, actor_loss, self._actor_params)
+            gradient_step(self.actor_optimizer, actor_loss, self._actor_params, self.config.max_grad_norm)
             for p in self._critic_params:
                 p.requires_grad_(True)
             self._last_actor_loss = actor_loss.detach()
             self.update_target()
         return {"critic_loss": critic_loss.detach(), "actor_loss": self._last_actor_loss, "q_mean": q1.detach().mean()}
-
-    def _step(self, optimizer: torch.optim.Optimizer, loss: torch.Tensor, params: list[torch.Tensor]) -> None:
-        optimizer.zero_grad(set_to_none=True)
-        loss.backward()
-        if self.config.max_grad_norm > 0:
-            nn.utils.clip_grad_norm_(params, self.config.max_grad_norm, foreach=True)
-        optimizer.step()
 
     @torch.no_grad()
     def update_target(self) -> None:
@@ -191,7 +168,7 @@ class TD3Agent:
             "actor_target": self.actor_target.state_dict(),
             "critics": self.critics.state_dict(),
             "critics_target": self.critics_target.state_dict(),
-            "normalize": self.normalize.state_dict(),
+            "normalize": self.inputs.normalize.state_dict(),
             "actor_optimizer": self.actor_optimizer.state_dict(),
             "critic_optimizer": self.critic_optimizer.state_dict(),
             "updates": self.updates,
@@ -202,7 +179,7 @@ class TD3Agent:
         self.actor_target.load_state_dict(state["actor_target"])
         self.critics.load_state_dict(state["critics"])
         self.critics_target.load_state_dict(state["critics_target"])
-        self.normalize.load_state_dict(state["normalize"])
+        self.inputs.normalize.load_state_dict(state["normalize"])
         self.actor_optimizer.load_state_dict(state["actor_optimizer"])
         self.critic_optimizer.load_state_dict(state["critic_optimizer"])
         self.updates = int(state["updates"])
