@@ -1,7 +1,9 @@
-"""Gymnasium goal environments (Fetch, Meta-World, ``taskrl/PointReach-v0``, ...) as batched envs.
+"""Gymnasium environments (Fetch, Meta-World, ``taskrl/PointReach-v0``, ...) as batched envs.
 
-:class:`GymnasiumGoalEnv` runs ``num_envs`` copies through gymnasium's vector API (sync or async)
-with same-step autoreset and is the only place where gymnasium's numpy data becomes torch tensors:
+:class:`GymnasiumVectorEnv` runs ``num_envs`` copies of any gymnasium env with ``Dict``
+observations through gymnasium's vector API (sync or async) with same-step autoreset, and is the
+only place where gymnasium's numpy data becomes torch tensors. :class:`GymnasiumGoalEnv` adds the
+goal-env part (``achieved_goal`` / ``desired_goal`` and the goal functions).
 
 - observations: dict of numpy batches -> dict of tensors on ``device`` (float64 keys become
   float32 by default, and ``single_observation_space`` says so, so replay storage agrees);
@@ -18,6 +20,7 @@ with same-step autoreset and is the only place where gymnasium's numpy data beco
 from __future__ import annotations
 
 import functools
+from collections.abc import Sequence
 from typing import Any, Callable, Literal
 
 import gymnasium as gym
@@ -80,14 +83,18 @@ def _torch_dtype(space: gym.spaces.Space) -> torch.dtype:
     return torch.from_numpy(np.zeros((), dtype=space.dtype)).dtype
 
 
-class GymnasiumGoalEnv(GoalEnvMixin, BatchedEnv):
-    """``num_envs`` copies of a gymnasium goal env behind the batched contract.
+EnvFactory = Callable[[], gym.Env]
+
+
+class GymnasiumVectorEnv(BatchedEnv):
+    """``num_envs`` copies of a gymnasium env with ``Dict`` observations behind the batched contract.
 
     Args:
         env: a registered id (``"FetchReach-v4"``, ``"taskrl/PointReach-v0"``; gymnasium-robotics
-            ids are registered on demand when it is installed) or a zero-argument factory
-            returning a ``gymnasium.Env``.
-        num_envs: copies stepped in parallel.
+            ids are registered on demand when it is installed), a zero-argument factory
+            returning a ``gymnasium.Env``, or a sequence of such factories, one per copy (copies
+            may then differ, e.g. one Meta-World task per copy).
+        num_envs: copies stepped in parallel (default 1, or one per factory of a sequence).
         device: torch device of every returned tensor.
         vector_strategy: ``"sync"`` (one process, ``SyncVectorEnv``) or ``"async"``
             (a worker process per copy, ``AsyncVectorEnv``).
@@ -102,14 +109,15 @@ class GymnasiumGoalEnv(GoalEnvMixin, BatchedEnv):
 
     Seeding: ``reset(seed)`` seeds copy ``i`` with ``seed + i`` (gymnasium's convention).
     Actions are passed to the env as given (no clipping), in the action space's dtype.
-    With ``"sync"``, the goal functions are those of copy 0; with ``"async"``, of one extra
-    local instance.
     """
+
+    # Goal envs keep one local instance beside async workers (their goal functions run here).
+    _needs_local_env = False
 
     def __init__(
         self,
-        env: str | Callable[[], gym.Env],
-        num_envs: int = 1,
+        env: str | EnvFactory | Sequence[EnvFactory],
+        num_envs: int | None = None,
         device: str | torch.device = "cpu",
         vector_strategy: VectorStrategy = "sync",
         success_key: str | None = "is_success",
@@ -118,7 +126,7 @@ class GymnasiumGoalEnv(GoalEnvMixin, BatchedEnv):
         env_kwargs: dict[str, Any] | None = None,
         vector_kwargs: dict[str, Any] | None = None,
     ) -> None:
-        if not isinstance(num_envs, int) or num_envs < 1:
+        if num_envs is not None and (not isinstance(num_envs, int) or num_envs < 1):
             raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
         if vector_strategy not in VECTOR_STRATEGIES:
             raise ValueError(f"vector_strategy must be one of {', '.join(VECTOR_STRATEGIES)}; got {vector_strategy!r}")
@@ -128,8 +136,9 @@ class GymnasiumGoalEnv(GoalEnvMixin, BatchedEnv):
             raise ValueError(f"observation_dtype must be a floating torch dtype or None, got {observation_dtype!r}")
         autoreset = getattr(gym.vector, "AutoresetMode", None)
         if autoreset is None:
-            raise RuntimeError(f"GymnasiumGoalEnv needs gymnasium >= 1.1 (same-step autoreset); found {gym.__version__}")
+            raise RuntimeError(f"{type(self).__name__} needs gymnasium >= 1.1 (same-step autoreset); found {gym.__version__}")
 
+        factories: list[EnvFactory]
         if isinstance(env, str):
             _ensure_registered(env)
             if ":" not in env and env not in gym.registry:
@@ -138,39 +147,48 @@ class GymnasiumGoalEnv(GoalEnvMixin, BatchedEnv):
                     f"(pip install 'taskrl[robotics]')"
                 )
             self.env_id = env
-            factory: Callable[[], gym.Env] = functools.partial(_make_env, env, dict(env_kwargs or {}), max_episode_steps)
-        elif callable(env):
+            num_envs = num_envs or 1
+            factories = [functools.partial(_make_env, env, dict(env_kwargs or {}), max_episode_steps)] * num_envs
+        elif callable(env) or (isinstance(env, Sequence) and len(env) > 0 and all(callable(f) for f in env)):
             if env_kwargs:
                 raise ValueError("env_kwargs applies to a registered env id, not to an env factory")
-            self.env_id = getattr(env, "__name__", repr(env))
-            factory = env if max_episode_steps is None else functools.partial(_with_time_limit, env, max_episode_steps)
+            if callable(env):
+                num_envs = num_envs or 1
+                factories = [env] * num_envs
+            else:
+                if num_envs is not None and num_envs != len(env):
+                    raise ValueError(f"num_envs ({num_envs}) must equal the number of env factories ({len(env)})")
+                num_envs, factories = len(env), list(env)
+            self.env_id = getattr(factories[0], "__name__", repr(factories[0]))
+            if max_episode_steps is not None:
+                factories = [functools.partial(_with_time_limit, f, max_episode_steps) for f in factories]
         else:
-            raise ValueError(f"env must be a registered gymnasium id or a factory of gymnasium.Env, got {env!r}")
+            raise ValueError(
+                f"env must be a registered gymnasium id, a factory of gymnasium.Env or a sequence of factories, got {env!r}"
+            )
 
         self.num_envs = num_envs
         self.device = torch.device(device)
         self.success_key = success_key
         self.vector_strategy = vector_strategy
         vector_cls = gym.vector.SyncVectorEnv if vector_strategy == "sync" else gym.vector.AsyncVectorEnv
-        # The goal functions' env: copy 0 in-process, or one local instance beside async workers.
+        # An in-process env: copy 0 with "sync"; with "async", one extra local instance if needed.
         self._local: gym.Env | None = None
-        if vector_strategy == "async":
-            self._local = factory()
+        if vector_strategy == "async" and self._needs_local_env:
+            self._local = factories[0]()
             try:
-                self._check_goal_env(self._local.observation_space, self._local.unwrapped)
+                self._check_env(self._local.observation_space, self._local.unwrapped)
             except ValueError:
                 self._local.close()
                 raise
-        self.vector_env = vector_cls([factory] * num_envs, autoreset_mode=autoreset.SAME_STEP, **(vector_kwargs or {}))
-        first = self._local if self._local is not None else self.vector_env.envs[0]
-        self.goal_env = first.unwrapped
-        self._never_terminates = _never_terminates(self.goal_env)
+        self.vector_env = vector_cls(factories, autoreset_mode=autoreset.SAME_STEP, **(vector_kwargs or {}))
+        first = self._local if self._local is not None else getattr(self.vector_env, "envs", [None])[0]
+        self.first_env: gym.Env | None = first.unwrapped if first is not None else None
         try:
-            self._check_goal_env(self.vector_env.single_observation_space, self.goal_env)
+            self._check_env(self.vector_env.single_observation_space, self.first_env)
             if self.vector_env.metadata.get("autoreset_mode") != autoreset.SAME_STEP:
                 raise RuntimeError(f"the vector env does not use same-step autoreset: {self.vector_env.metadata!r}")
-            spec_steps = first.spec.max_episode_steps if first.spec is not None else None
-            self.horizon = max_episode_steps if max_episode_steps is not None else spec_steps
+            self.horizon = max_episode_steps if max_episode_steps is not None else self._spec_steps(first)
             if self.horizon is None:
                 raise ValueError(
                     f"env {self.env_id!r} has no max_episode_steps in its spec; pass max_episode_steps"
@@ -188,17 +206,22 @@ class GymnasiumGoalEnv(GoalEnvMixin, BatchedEnv):
         self._action_shape = self.vector_env.action_space.shape
         self._action_dtype = self.single_action_space.dtype
 
-    def _check_goal_env(self, space: gym.spaces.Space, unwrapped: gym.Env) -> None:
-        keys = list(space.spaces) if isinstance(space, gym.spaces.Dict) else None
-        if keys is None or not {"achieved_goal", "desired_goal"} <= set(keys):
-            found = f"Dict keys {keys}" if keys is not None else f"{type(space).__name__} space"
+    def _spec_steps(self, first: gym.Env | None) -> int | None:
+        if first is not None:
+            spec = first.spec
+        else:  # async without a local instance: ask copy 0
+            try:
+                spec = self.vector_env.get_attr("spec")[0]
+            except Exception:
+                spec = None
+        return spec.max_episode_steps if spec is not None else None
+
+    def _check_env(self, space: gym.spaces.Space, unwrapped: gym.Env | None) -> None:
+        """Raise a ``ValueError`` when the env does not fit (here: a ``Dict`` observation space)."""
+        if not isinstance(space, gym.spaces.Dict):
             raise ValueError(
-                f"env {self.env_id!r} is not a goal env: its observation space must be a Dict with "
-                f"'achieved_goal' and 'desired_goal'; found {found}"
-            )
-        if not callable(getattr(unwrapped, "compute_reward", None)):
-            raise ValueError(
-                f"env {self.env_id!r} is not a goal env: it has no compute_reward(achieved_goal, desired_goal, info)"
+                f"env {self.env_id!r} must have a Dict observation space; found {type(space).__name__} "
+                f"(wrap it, e.g. with a gymnasium ObservationWrapper that returns a dict)"
             )
 
     # ---------------------------------------------------------------- conversion
@@ -265,6 +288,50 @@ class GymnasiumGoalEnv(GoalEnvMixin, BatchedEnv):
             out,
         )
 
+    def close(self) -> None:
+        vector_env = getattr(self, "vector_env", None)
+        if vector_env is not None:
+            vector_env.close()
+        if getattr(self, "_local", None) is not None:
+            self._local.close()
+            self._local = None
+
+    def __enter__(self) -> GymnasiumVectorEnv:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+
+class GymnasiumGoalEnv(GoalEnvMixin, GymnasiumVectorEnv):
+    """``num_envs`` copies of a gymnasium goal env behind the batched contract.
+
+    Arguments as :class:`GymnasiumVectorEnv`. The env must have a ``Dict`` observation space with
+    ``achieved_goal`` and ``desired_goal`` and a ``compute_reward(achieved_goal, desired_goal,
+    info)``. The goal functions are those of copy 0 with ``"sync"``, and of one extra local
+    instance with ``"async"`` (``goal_env``).
+    """
+
+    _needs_local_env = True
+
+    @property
+    def goal_env(self) -> gym.Env:
+        """The unwrapped in-process env whose goal functions are called."""
+        return self.first_env
+
+    def _check_env(self, space: gym.spaces.Space, unwrapped: gym.Env | None) -> None:
+        keys = list(space.spaces) if isinstance(space, gym.spaces.Dict) else None
+        if keys is None or not {"achieved_goal", "desired_goal"} <= set(keys):
+            found = f"Dict keys {keys}" if keys is not None else f"{type(space).__name__} space"
+            raise ValueError(
+                f"env {self.env_id!r} is not a goal env: its observation space must be a Dict with "
+                f"'achieved_goal' and 'desired_goal'; found {found}"
+            )
+        if not callable(getattr(unwrapped, "compute_reward", None)):
+            raise ValueError(
+                f"env {self.env_id!r} is not a goal env: it has no compute_reward(achieved_goal, desired_goal, info)"
+            )
+
     def _goal_fn(self, fn: Callable, achieved_goal: Any, desired_goal: Any, info: Any) -> np.ndarray:
         """``fn`` on numpy batches; a per-row loop when ``fn`` is not vectorised (scalar result)."""
         a, d = self._to_numpy(achieved_goal), self._to_numpy(desired_goal)
@@ -284,21 +351,10 @@ class GymnasiumGoalEnv(GoalEnvMixin, BatchedEnv):
     def compute_terminated(self, achieved_goal: torch.Tensor, desired_goal: torch.Tensor, info: Any = None) -> torch.Tensor:
         """The env's own ``compute_terminated`` (False where it has none), one bool per row."""
         fn = getattr(self.goal_env, "compute_terminated", None)
-        if not callable(fn) or self._never_terminates:
+        if not callable(fn) or _never_terminates(self.goal_env):
             return super().compute_terminated(achieved_goal, desired_goal, info)
         t = self._goal_fn(fn, achieved_goal, desired_goal, info)
         return torch.as_tensor(t.astype(bool)).to(self.device)
 
-    def close(self) -> None:
-        vector_env = getattr(self, "vector_env", None)
-        if vector_env is not None:
-            vector_env.close()
-        if self._local is not None:
-            self._local.close()
-            self._local = None
-
     def __enter__(self) -> GymnasiumGoalEnv:
         return self
-
-    def __exit__(self, *exc: Any) -> None:
-        self.close()

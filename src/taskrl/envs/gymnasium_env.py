@@ -128,3 +128,9 @@ def register_gymnasium_envs() -> None:
             entry_point="taskrl.envs.gymnasium_env:PointReachGymEnv",
             max_episode_steps=50,
         )
+    if "taskrl/MultiTaskPointReach-v0" not in gym.registry:
+        gym.register(
+            id="taskrl/MultiTaskPointReach-v0",
+            entry_point="taskrl.envs.multitask_point:MultiTaskPointReachGymEnv",
+            max_episode_steps=50,
+        )
