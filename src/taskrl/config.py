@@ -74,7 +74,9 @@ class TrainConfig:
         stop_at_success: stop once evaluation success reaches this (0 = train to total_steps).
         checkpoint_interval: environment steps between checkpoints (also one at the end).
         save_replay: include the replay buffer in checkpoints so a resumed run loses no data.
-        threads: torch CPU threads (0 = torch's default).
+        threads: torch CPU threads. 1 by default: the networks here are small, one thread is as
+            fast, and torch's multi-threaded kernels stall when another process holds a core
+            (measured 100x slower on a busy 2-core machine). 0 = torch's default.
         dqn: DQN hyperparameters.
         qtopt: QT-Opt hyperparameters.
         sac: SAC hyperparameters.
@@ -105,7 +107,7 @@ class TrainConfig:
     stop_at_success: float = 0.0
     checkpoint_interval: int = 50_000
     save_replay: bool = True
-    threads: int = 0
+    threads: int = 1
     dqn: DQNConfig = dataclasses.field(default_factory=DQNConfig)
     qtopt: QTOptConfig = dataclasses.field(default_factory=QTOptConfig)
     sac: SACConfig = dataclasses.field(default_factory=SACConfig)
