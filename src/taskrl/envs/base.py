@@ -45,6 +45,42 @@ class BatchedEnv:
         """Release what the environment holds (worker processes of gymnasium vector envs)."""
 
 
+class NativeEnv(BatchedEnv):
+    """A batched environment written in torch: the one place native environments end episodes.
+
+    Subclasses keep a step counter ``t`` (``[num_envs]``), a ``generator``, a
+    ``terminate_on_success`` flag, and implement ``_obs()`` (the current observation) and
+    ``_reset_where(mask)`` (new episodes in the masked copies); their ``step`` advances the state and
+    returns ``self._end_step(reward, success)``.
+    """
+
+    t: torch.Tensor
+    generator: torch.Generator
+    terminate_on_success: bool
+
+    def _obs(self) -> Obs:
+        raise NotImplementedError
+
+    def _reset_where(self, mask: torch.Tensor) -> None:
+        raise NotImplementedError
+
+    def reset(self, seed: int | None = None) -> Obs:
+        if seed is not None:
+            self.generator.manual_seed(seed)
+        self._reset_where(torch.ones(self.num_envs, dtype=torch.bool, device=self.device))
+        return self._obs()
+
+    def _end_step(self, reward: torch.Tensor, success: torch.Tensor) -> StepResult:
+        """Termination on success (if enabled), truncation at ``horizon``, same-step reset of the
+        copies that ended, and their final observation in ``info["final_obs"]``."""
+        terminated = success if self.terminate_on_success else torch.zeros_like(success)
+        truncated = (self.t >= self.horizon) & ~terminated
+        final_obs = self._obs()
+        self._reset_where(terminated | truncated)
+        info: dict[str, Any] = {"is_success": success, "final_obs": final_obs}
+        return self._obs(), reward, terminated, truncated, info
+
+
 class GoalEnvMixin:
     """Goal-conditioned environments: observations carry ``achieved_goal`` and ``desired_goal``.
 

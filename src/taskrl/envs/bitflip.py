@@ -14,10 +14,10 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-from taskrl.envs.base import BatchedEnv, GoalEnvMixin, Obs, StepResult
+from taskrl.envs.base import GoalEnvMixin, NativeEnv, Obs, StepResult
 
 
-class BitFlip(GoalEnvMixin, BatchedEnv):
+class BitFlip(GoalEnvMixin, NativeEnv):
     """``num_envs`` copies of ``n_bits``-bit flipping, stepped at once in torch.
 
     Args:
@@ -76,24 +76,13 @@ class BitFlip(GoalEnvMixin, BatchedEnv):
         state = self.state.clone()
         return {"observation": state, "achieved_goal": state, "desired_goal": self.goal.clone()}
 
-    def reset(self, seed: int | None = None) -> Obs:
-        if seed is not None:
-            self.generator.manual_seed(seed)
-        self._reset_where(torch.ones(self.num_envs, dtype=torch.bool, device=self.device))
-        return self._obs()
-
     def step(self, action: torch.Tensor) -> StepResult:
         action = torch.as_tensor(action, device=self.device).long().reshape(self.num_envs)
         self.state[self._arange, action] ^= 1
         self.t += 1
         success = (self.state == self.goal).all(dim=1)
         reward = self.compute_reward(self.state, self.goal)
-        terminated = success if self.terminate_on_success else torch.zeros_like(success)
-        truncated = (self.t >= self.horizon) & ~terminated
-        final_obs = self._obs()
-        self._reset_where(terminated | truncated)
-        info: dict[str, Any] = {"is_success": success, "final_obs": final_obs}
-        return self._obs(), reward, terminated, truncated, info
+        return self._end_step(reward, success)
 
     def compute_reward(self, achieved_goal: torch.Tensor, desired_goal: torch.Tensor, info: Any = None) -> torch.Tensor:
         """0 where ``achieved_goal == desired_goal`` (all bits), else -1."""

@@ -36,7 +36,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-from taskrl.envs.base import BatchedEnv, Obs, StepResult
+from taskrl.envs.base import NativeEnv, Obs, StepResult
 from taskrl.envs.point_reach import REWARD_TYPES, RewardType, _check_positive
 from taskrl.tasks import TaskSet
 
@@ -53,7 +53,7 @@ DEFAULT_REGIONS: tuple[tuple[str, str, tuple[float, float]], ...] = (
 )
 
 
-class MultiTaskPointReach(BatchedEnv):
+class MultiTaskPointReach(NativeEnv):
     """``num_envs`` copies of multi-task point reaching, stepped at once in torch.
 
     Args:
@@ -148,12 +148,6 @@ class MultiTaskPointReach(BatchedEnv):
     def _obs(self) -> Obs:
         return {"observation": self.position.clone(), "task": self.task.clone()}
 
-    def reset(self, seed: int | None = None) -> Obs:
-        if seed is not None:
-            self.generator.manual_seed(seed)
-        self._reset_where(torch.ones(self.num_envs, dtype=torch.bool, device=self.device))
-        return self._obs()
-
     def step(self, action: torch.Tensor) -> StepResult:
         action = torch.as_tensor(action, device=self.device, dtype=torch.float32).reshape(self.num_envs, 2)
         self.position = (self.position + action.clamp(-1.0, 1.0) * self.max_speed).clamp_(-1.0, 1.0)
@@ -161,12 +155,7 @@ class MultiTaskPointReach(BatchedEnv):
         distance = self.distance_to_region(self.position, self.task)
         success = distance <= self.radius
         reward = self._reward(distance)
-        terminated = success if self.terminate_on_success else torch.zeros_like(success)
-        truncated = (self.t >= self.horizon) & ~terminated
-        final_obs = self._obs()
-        self._reset_where(terminated | truncated)
-        info: dict[str, Any] = {"is_success": success, "final_obs": final_obs}
-        return self._obs(), reward, terminated, truncated, info
+        return self._end_step(reward, success)
 
     # ------------------------------------------------------------------ task functions
     def distance_to_region(self, position: torch.Tensor, task: torch.Tensor) -> torch.Tensor:

@@ -20,7 +20,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-from taskrl.envs.base import BatchedEnv, GoalEnvMixin, Obs, StepResult
+from taskrl.envs.base import GoalEnvMixin, NativeEnv, Obs, StepResult
 
 RewardType = Literal["sparse", "dense"]
 REWARD_TYPES = ("sparse", "dense")
@@ -31,7 +31,7 @@ def _check_positive(name: str, value: float) -> None:
         raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
 
 
-class PointReach(GoalEnvMixin, BatchedEnv):
+class PointReach(GoalEnvMixin, NativeEnv):
     """``num_envs`` copies of 2-D point reaching, stepped at once in torch.
 
     Args:
@@ -96,12 +96,6 @@ class PointReach(GoalEnvMixin, BatchedEnv):
         position = self.position.clone()
         return {"observation": position, "achieved_goal": position.clone(), "desired_goal": self.goal.clone()}
 
-    def reset(self, seed: int | None = None) -> Obs:
-        if seed is not None:
-            self.generator.manual_seed(seed)
-        self._reset_where(torch.ones(self.num_envs, dtype=torch.bool, device=self.device))
-        return self._obs()
-
     def step(self, action: torch.Tensor) -> StepResult:
         action = torch.as_tensor(action, device=self.device, dtype=torch.float32).reshape(self.num_envs, 2)
         self.position = (self.position + action.clamp(-1.0, 1.0) * self.max_speed).clamp_(-1.0, 1.0)
@@ -109,12 +103,7 @@ class PointReach(GoalEnvMixin, BatchedEnv):
         distance = self.distance(self.position, self.goal)
         success = distance <= self.distance_threshold
         reward = self._reward(distance)
-        terminated = success if self.terminate_on_success else torch.zeros_like(success)
-        truncated = (self.t >= self.horizon) & ~terminated
-        final_obs = self._obs()
-        self._reset_where(terminated | truncated)
-        info: dict[str, Any] = {"is_success": success, "final_obs": final_obs}
-        return self._obs(), reward, terminated, truncated, info
+        return self._end_step(reward, success)
 
     @staticmethod
     def distance(achieved_goal: torch.Tensor, desired_goal: torch.Tensor) -> torch.Tensor:
