@@ -17,7 +17,40 @@ from taskrl.envs.bitflip import BitFlip
 from taskrl.envs.point_reach import PointReach, RewardType
 
 
-class BitFlipGymEnv(gym.Env):
+class SingleCopyEnv(gym.Env):
+    """One copy of a native batched environment as a standard ``gymnasium.Env`` with numpy data.
+
+    Subclasses build the copy (``num_envs=1``) and pass it to :meth:`_wrap`. Auto-reset belongs
+    to gymnasium's wrappers here, so ``step`` returns the observation an episode ended in.
+    """
+
+    metadata = {"render_modes": []}
+
+    def _wrap(self, env: Any) -> None:
+        self._env = env
+        self.observation_space = env.single_observation_space
+        self.action_space = env.single_action_space
+
+    @staticmethod
+    def _to_numpy(obs: dict[str, torch.Tensor]) -> dict[str, Any]:
+        return {k: v[0].cpu().numpy().copy() for k, v in obs.items()}
+
+    def _action(self, action: Any) -> torch.Tensor:
+        if isinstance(self.action_space, gym.spaces.Discrete):
+            return torch.as_tensor([int(action)])
+        return torch.as_tensor(np.asarray(action, dtype=np.float32).reshape(1, -1))
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        return self._to_numpy(self._env.reset(seed=int(self.np_random.integers(2**62)))), {}
+
+    def step(self, action):
+        obs, reward, terminated, truncated, info = self._env.step(self._action(action))
+        final = self._to_numpy(info["final_obs"])
+        return final, float(reward[0]), bool(terminated[0]), bool(truncated[0]), {"is_success": bool(info["is_success"][0])}
+
+
+class BitFlipGymEnv(SingleCopyEnv):
     """Gymnasium wrapper around one copy of :class:`BitFlip` (random start and random target).
 
     Args:
@@ -25,36 +58,15 @@ class BitFlipGymEnv(gym.Env):
         terminate_on_success: end the episode when the target is reached.
     """
 
-    metadata = {"render_modes": []}
-
     def __init__(self, n_bits: int = 15, terminate_on_success: bool = True) -> None:
-        self._env = BitFlip(n_bits, num_envs=1, terminate_on_success=terminate_on_success, seed=0)
-        self.observation_space = self._env.single_observation_space
-        self.action_space = self._env.single_action_space
-        self._obs: dict[str, np.ndarray] | None = None
-
-    @staticmethod
-    def _to_numpy(obs: dict[str, torch.Tensor]) -> dict[str, np.ndarray]:
-        return {k: v[0].numpy().copy() for k, v in obs.items()}
-
-    def reset(self, *, seed: int | None = None, options: dict | None = None):
-        super().reset(seed=seed)
-        if seed is None:
-            seed = int(self.np_random.integers(2**62))
-        return self._to_numpy(self._env.reset(seed=seed)), {}
-
-    def step(self, action):
-        obs, reward, terminated, truncated, info = self._env.step(torch.as_tensor([int(action)]))
-        # Auto-reset belongs to gymnasium's wrappers here: hand back the final observation.
-        final = self._to_numpy(info["final_obs"])
-        return final, float(reward[0]), bool(terminated[0]), bool(truncated[0]), {"is_success": bool(info["is_success"][0])}
+        self._wrap(BitFlip(n_bits, num_envs=1, terminate_on_success=terminate_on_success, seed=0))
 
     def compute_reward(self, achieved_goal: np.ndarray, desired_goal: np.ndarray, info: Any = None) -> np.ndarray:
         achieved, desired = np.asarray(achieved_goal), np.asarray(desired_goal)
         return (achieved == desired).all(axis=-1).astype(np.float32) - 1.0
 
 
-class PointReachGymEnv(gym.Env):
+class PointReachGymEnv(SingleCopyEnv):
     """Gymnasium wrapper around one copy of :class:`PointReach` (random start and random goal).
 
     The episode length is gymnasium's time limit (``max_episode_steps``, registered as 50, the
@@ -76,7 +88,7 @@ class PointReachGymEnv(gym.Env):
         distance_threshold: float = 0.05,
         terminate_on_success: bool = False,
     ) -> None:
-        self._env = PointReach(
+        self._wrap(PointReach(
             num_envs=1,
             horizon=2**62,
             reward=reward,
@@ -84,25 +96,7 @@ class PointReachGymEnv(gym.Env):
             distance_threshold=distance_threshold,
             terminate_on_success=terminate_on_success,
             seed=0,
-        )
-        self.observation_space = self._env.single_observation_space
-        self.action_space = self._env.single_action_space
-
-    @staticmethod
-    def _to_numpy(obs: dict[str, torch.Tensor]) -> dict[str, np.ndarray]:
-        return {k: v[0].numpy().copy() for k, v in obs.items()}
-
-    def reset(self, *, seed: int | None = None, options: dict | None = None):
-        super().reset(seed=seed)
-        if seed is None:
-            seed = int(self.np_random.integers(2**62))
-        return self._to_numpy(self._env.reset(seed=seed)), {}
-
-    def step(self, action):
-        action = torch.as_tensor(np.asarray(action, dtype=np.float32).reshape(1, 2))
-        obs, reward, terminated, truncated, info = self._env.step(action)
-        final = self._to_numpy(info["final_obs"])
-        return final, float(reward[0]), bool(terminated[0]), bool(truncated[0]), {"is_success": bool(info["is_success"][0])}
+        ))
 
     def compute_reward(self, achieved_goal: np.ndarray, desired_goal: np.ndarray, info: Any = None) -> np.ndarray:
         """Vectorised over leading dimensions, like gymnasium-robotics' goal envs."""

@@ -37,6 +37,7 @@ import numpy as np
 import torch
 
 from taskrl.envs.base import NativeEnv, Obs, StepResult
+from taskrl.envs.gymnasium_env import SingleCopyEnv
 from taskrl.envs.point_reach import REWARD_TYPES, RewardType, _check_positive
 from taskrl.tasks import TaskSet
 
@@ -181,15 +182,13 @@ class MultiTaskPointReach(NativeEnv):
         return self.distance_to_region(observation, task) <= self.radius
 
 
-class MultiTaskPointReachGymEnv(gym.Env):
+class MultiTaskPointReachGymEnv(SingleCopyEnv):
     """Gymnasium view of one copy of :class:`MultiTaskPointReach` (``taskrl/MultiTaskPointReach-v0``).
 
     The task is drawn uniformly at every reset, or fixed by ``options={"task": i}`` (an index or a
     region name). The episode length is gymnasium's time limit (registered as 50); the wrapped
     copy never truncates by itself. ``info["is_success"]`` is reported every step.
     """
-
-    metadata = {"render_modes": []}
 
     def __init__(
         self,
@@ -199,7 +198,7 @@ class MultiTaskPointReachGymEnv(gym.Env):
         terminate_on_success: bool = False,
         regions: Sequence[tuple[str, str, Sequence[float]]] = DEFAULT_REGIONS,
     ) -> None:
-        self._env = MultiTaskPointReach(
+        self._wrap(MultiTaskPointReach(
             num_envs=1,
             regions=regions,
             horizon=2**62,
@@ -208,29 +207,20 @@ class MultiTaskPointReachGymEnv(gym.Env):
             max_speed=max_speed,
             terminate_on_success=terminate_on_success,
             seed=0,
-        )
+        ))
         self.task_set = self._env.task_set
-        self.observation_space = self._env.single_observation_space
-        self.action_space = self._env.single_action_space
 
     @staticmethod
     def _to_numpy(obs: Obs) -> dict[str, Any]:
         return {"observation": obs["observation"][0].numpy().copy(), "task": np.int64(obs["task"][0].item())}
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
-        super().reset(seed=seed)
-        obs = self._env.reset(seed=int(self.np_random.integers(2**62)))
+        obs, info = super().reset(seed=seed)
         task = (options or {}).get("task")
         if task is not None:
             index = self.task_set.index(task) if isinstance(task, str) else int(task)
             if not 0 <= index < len(self.task_set):
                 raise ValueError(f"options['task'] must be in 0..{len(self.task_set) - 1} or one of {self.task_set.names}; got {task!r}")
             self._env.task[0] = index
-            obs = self._env._obs()
-        return self._to_numpy(obs), {}
-
-    def step(self, action):
-        action = torch.as_tensor(np.asarray(action, dtype=np.float32).reshape(1, 2))
-        obs, reward, terminated, truncated, info = self._env.step(action)
-        final = self._to_numpy(info["final_obs"])
-        return final, float(reward[0]), bool(terminated[0]), bool(truncated[0]), {"is_success": bool(info["is_success"][0])}
+            obs = self._to_numpy(self._env._obs())
+        return obs, info
