@@ -4,6 +4,7 @@ import torch
 
 from taskrl.agents.dqn import DQNAgent, DQNConfig
 from taskrl.replay.batch import Batch
+from agent_batches import onehot_batch
 
 
 def make_agent(**cfg):
@@ -21,20 +22,10 @@ def set_q(net, values_per_state):
         layer_out.weight[:, :2] = torch.tensor(values_per_state, dtype=torch.float32).T
 
 
-def batch(reward, terminated, truncated, next_state):
-    n = len(reward)
-    onehot = torch.nn.functional.one_hot(torch.tensor(next_state), 2).float()
-    return Batch(
-        obs={"observation": onehot}, action=torch.zeros(n, dtype=torch.long), reward=torch.tensor(reward),
-        next_obs={"observation": onehot}, terminated=torch.tensor(terminated), truncated=torch.tensor(truncated),
-        episode=torch.zeros(n, dtype=torch.long), step=torch.zeros(n, dtype=torch.long),
-    )
-
-
 def test_bellman_target_terminated_stops_and_truncated_bootstraps():
     agent = make_agent(gamma=0.5, double_q=False, clip_target=False, hidden_sizes=(4,))
     set_q(agent.q_target, [[1.0, 4.0, 2.0], [-2.0, -1.0, -3.0]])
-    b = batch([-1.0, -1.0, 0.0], [True, False, False], [False, True, False], [0, 0, 1])
+    b = onehot_batch([-1.0, -1.0, 0.0], [True, False, False], [False, True, False], [0, 0, 1])
     # terminated: r; truncated: r + gamma * max Q_target(s'); plain: r + gamma * max.
     assert agent.bellman_target(b).tolist() == [-1.0, -1.0 + 0.5 * 4.0, 0.0 + 0.5 * -1.0]
 
@@ -43,14 +34,14 @@ def test_double_q_selects_with_online_and_evaluates_with_target():
     agent = make_agent(gamma=0.5, double_q=True, clip_target=False, hidden_sizes=(4,))
     set_q(agent.q, [[0.0, 0.0, 9.0], [9.0, 0.0, 0.0]])          # online argmax: 2 in s0, 0 in s1
     set_q(agent.q_target, [[1.0, 4.0, 2.0], [-2.0, -1.0, -3.0]])
-    b = batch([0.0, 0.0], [False, False], [False, False], [0, 1])
+    b = onehot_batch([0.0, 0.0], [False, False], [False, False], [0, 1])
     assert agent.bellman_target(b).tolist() == [0.5 * 2.0, 0.5 * -2.0]
 
 
 def test_targets_are_clipped_to_the_return_range():
     agent = make_agent(gamma=0.9, double_q=False, clip_target=True, hidden_sizes=(4,))
     set_q(agent.q_target, [[50.0, 0.0, 0.0], [-500.0, -500.0, -500.0]])
-    b = batch([0.0, -1.0], [False, False], [False, False], [0, 1])
+    b = onehot_batch([0.0, -1.0], [False, False], [False, False], [0, 1])
     assert agent.bellman_target(b).tolist() == pytest.approx([0.0, -10.0])
 
 

@@ -7,7 +7,7 @@ from torch import nn
 from taskrl.agents.cem import CEMConfig
 from taskrl.agents.qtopt import QTOptAgent, QTOptConfig, StateActionQ
 from taskrl.checkpoint import flatten_state, unflatten_state
-from taskrl.replay.batch import Batch
+from agent_batches import bandit_batch, onehot_batch
 
 
 class Stub(nn.Module):
@@ -31,16 +31,6 @@ def make_agent(low=(-1.0,), high=(1.0,), **cfg):
                       QTOptConfig(normalize_inputs=False, hidden_sizes=(8,), **cfg))
 
 
-def batch(reward, terminated, truncated, next_state, action=None):
-    n = len(reward)
-    onehot = F.one_hot(torch.tensor(next_state), 2).float()
-    return Batch(
-        obs={"observation": onehot}, action=torch.zeros(n, 1) if action is None else action, reward=torch.tensor(reward),
-        next_obs={"observation": onehot}, terminated=torch.tensor(terminated), truncated=torch.tensor(truncated),
-        episode=torch.zeros(n, dtype=torch.long), step=torch.zeros(n, dtype=torch.long),
-    )
-
-
 def constant(values):
     """Q(s, a) = values[s] for every action (one-hot states)."""
     v = torch.tensor(values)
@@ -50,7 +40,7 @@ def constant(values):
 def test_target_is_the_min_of_both_targets_and_terminated_stops_bootstrapping():
     agent = make_agent(gamma=0.5)
     agent.q_target1, agent.q_target2 = constant([4.0, -1.0]), constant([2.0, 3.0])
-    b = batch([-1.0, -1.0, 0.0], [True, False, False], [False, True, False], [0, 0, 1])
+    b = onehot_batch([-1.0, -1.0, 0.0], [True, False, False], [False, True, False], [0, 0, 1])
     # terminated: r; truncated still bootstraps: r + gamma * min(4, 2); s'=1: 0 + gamma * min(-1, 3).
     assert agent.bellman_target(b).tolist() == [-1.0, -1.0 + 0.5 * 2.0, 0.5 * -1.0]
 
@@ -62,7 +52,7 @@ def test_target_action_is_the_argmax_of_target1_evaluated_by_both():
     agent = make_agent(low=(0.0,), high=(4.0,), gamma=1.0 - 1e-6)
     agent.q_target1 = Stub(lambda x, a: 1.0 - (a[..., 0] - (x @ peaks).unsqueeze(1)).square())
     agent.q_target2 = Stub(lambda x, a: 10.0 * a[..., 0])
-    y, a_star = agent.bellman_target(batch([0.0, 0.0], [False, False], [False, False], [0, 1]),
+    y, a_star = agent.bellman_target(onehot_batch([0.0, 0.0], [False, False], [False, False], [0, 1]),
                                      generator=torch.Generator().manual_seed(0), return_action=True)
     assert a_star[:, 0].tolist() == pytest.approx([2.8, 0.8], abs=0.02)
     # s0: min(1, 10 * 0.4) = 1 (target1); s1: min(1, 10 * -0.6) = -6 (target2).
@@ -72,7 +62,7 @@ def test_target_action_is_the_argmax_of_target1_evaluated_by_both():
 def test_warm_started_target_searches_near_the_previous_argmax():
     agent = make_agent(gamma=0.5, cem=CEMConfig(warm_std=0.02, warm_iterations=1))
     agent.q_target1 = agent.q_target2 = Stub(lambda x, a: -(a[..., 0] - 0.3).square())
-    b = batch([0.0], [False], [False], [0])
+    b = onehot_batch([0.0], [False], [False], [0])
     _, a_star = agent.bellman_target(b, warm_start=torch.tensor([[0.25]]), return_action=True,
                                      generator=torch.Generator().manual_seed(0))
     assert a_star.item() == pytest.approx(0.3, abs=0.01)
@@ -81,14 +71,14 @@ def test_warm_started_target_searches_near_the_previous_argmax():
 def test_targets_are_clipped_to_the_return_range_when_asked():
     agent = make_agent(gamma=0.9, clip_target=True)
     agent.q_target1 = agent.q_target2 = constant([50.0, -500.0])
-    assert agent.bellman_target(batch([0.0, -1.0], [False, False], [False, False], [0, 1])).tolist() == pytest.approx([0.0, -10.0])
+    assert agent.bellman_target(onehot_batch([0.0, -1.0], [False, False], [False, False], [0, 1])).tolist() == pytest.approx([0.0, -10.0])
 
 
 def test_cross_entropy_mode_uses_probabilities_clips_to_unit_interval_and_log_loss():
     agent = make_agent(gamma=0.9, loss="cross_entropy")
     # logits 0 -> Q = 0.5 (s0); logits 3 / 2 -> Q = sigmoid(2) (s1)
     agent.q_target1, agent.q_target2 = constant([0.0, 3.0]), constant([5.0, 2.0])
-    b = batch([0.0, 1.0, 0.0], [False, False, False], [False, False, False], [0, 1, 1])
+    b = onehot_batch([0.0, 1.0, 0.0], [False, False, False], [False, False, False], [0, 1, 1])
     y = agent.bellman_target(b)
     expected = [0.9 * 0.5, 1.0, 0.9 * torch.sigmoid(torch.tensor(2.0)).item()]   # 1 + 0.9 * 0.88 clipped to 1
     assert y.tolist() == pytest.approx(expected, abs=1e-6)
@@ -156,20 +146,14 @@ def test_qtopt_learns_the_best_action_of_a_continuous_bandit():
                        QTOptConfig(lr=3e-3, hidden_sizes=(64, 64), loss="cross_entropy", normalize_inputs=False))
     g = torch.Generator().manual_seed(0)
     for _ in range(300):
-        s = torch.randint(0, 2, (128,), generator=g)
-        a = torch.rand(128, 1, generator=g) * 2 - 1
-        r = torch.exp(-4.0 * (a[:, 0] - best[s]).square())
-        done = torch.ones(128, dtype=torch.bool)
-        agent.update(Batch(obs={"observation": F.one_hot(s, 2).float()}, action=a, reward=r,
-                           next_obs={"observation": F.one_hot(s, 2).float()}, terminated=done,
-                           truncated=~done, episode=s, step=s), generator=g)
+        agent.update(bandit_batch(best, g, reward=lambda gap: torch.exp(-4.0 * gap.square())), generator=g)
     greedy = agent.act({"observation": torch.eye(2)}, generator=g)
     assert greedy[:, 0].tolist() == pytest.approx(best.tolist(), abs=0.1)
 
 
 def test_state_dict_round_trips_through_the_checkpoint_format():
     agent = make_agent()
-    b = batch([0.0, -1.0], [False, True], [False, False], [0, 1])
+    b = onehot_batch([0.0, -1.0], [False, True], [False, False], [0, 1])
     agent.update(b)
     tensors, skeleton = flatten_state(agent.state_dict())
     other = make_agent()

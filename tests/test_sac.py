@@ -9,6 +9,7 @@ from torch import nn
 from taskrl.agents.sac import SACAgent, SACConfig, SquashedGaussianActor, squashed_gaussian_log_prob
 from taskrl.checkpoint import flatten_state, unflatten_state
 from taskrl.replay.batch import Batch
+from agent_batches import bandit_batch, onehot_batch
 
 
 class ConstQ(nn.Module):
@@ -36,16 +37,6 @@ def make_agent(low=(-1.0,), high=(1.0,), **cfg):
     torch.manual_seed(0)
     cfg.setdefault("hidden_sizes", (16,))
     return SACAgent(("observation",), 2, (torch.tensor(low), torch.tensor(high)), SACConfig(normalize_inputs=False, **cfg))
-
-
-def batch(reward, terminated, truncated, next_state, action=None):
-    n = len(reward)
-    onehot = F.one_hot(torch.tensor(next_state), 2).float()
-    return Batch(
-        obs={"observation": onehot}, action=torch.zeros(n, 1) if action is None else action, reward=torch.tensor(reward),
-        next_obs={"observation": onehot}, terminated=torch.tensor(terminated), truncated=torch.tensor(truncated),
-        episode=torch.zeros(n, dtype=torch.long), step=torch.zeros(n, dtype=torch.long),
-    )
 
 
 def test_squashed_log_prob_matches_a_numerical_change_of_variables_in_one_dimension():
@@ -92,7 +83,7 @@ def test_bellman_target_on_hand_numbers():
     agent = make_agent(gamma=0.5, init_alpha=0.2)
     agent.actor = FixedActor([-1.0, 2.0])
     agent.critics_target = nn.ModuleList([ConstQ([4.0, -1.0]), ConstQ([3.0, 5.0])])
-    b = batch([-1.0, -1.0, 0.0], [True, False, False], [False, True, False], [0, 0, 1])
+    b = onehot_batch([-1.0, -1.0, 0.0], [True, False, False], [False, True, False], [0, 0, 1])
     # terminated: r; truncated bootstraps: r + 0.5 * (min(4, 3) - 0.2 * -1); s'=1: 0.5 * (min(-1, 5) - 0.2 * 2)
     assert agent.bellman_target(b).tolist() == pytest.approx([-1.0, -1.0 + 0.5 * 3.2, 0.5 * -1.4])
 
@@ -101,7 +92,7 @@ def test_bellman_target_clipping():
     agent = make_agent(gamma=0.9, init_alpha=1.0, clip_target=True)
     agent.actor = FixedActor([0.0, 0.0])
     agent.critics_target = nn.ModuleList([ConstQ([50.0, -500.0]), ConstQ([50.0, -500.0])])
-    assert agent.bellman_target(batch([0.0, -1.0], [False, False], [False, False], [0, 1])).tolist() == pytest.approx([0.0, -10.0])
+    assert agent.bellman_target(onehot_batch([0.0, -1.0], [False, False], [False, False], [0, 1])).tolist() == pytest.approx([0.0, -10.0])
 
 
 def random_batch(g, n=64):
@@ -140,12 +131,7 @@ def test_sac_learns_the_best_action_of_a_continuous_bandit():
                      SACConfig(lr=3e-3, hidden_sizes=(64, 64), init_alpha=0.05, normalize_inputs=False))
     g = torch.Generator().manual_seed(0)
     for _ in range(400):
-        s = torch.randint(0, 2, (128,), generator=g)
-        a = torch.rand(128, 1, generator=g) * 2 - 1
-        done = torch.ones(128, dtype=torch.bool)
-        onehot = F.one_hot(s, 2).float()
-        agent.update(Batch(obs={"observation": onehot}, action=a, reward=-4.0 * (a[:, 0] - best[s]).square(),
-                           next_obs={"observation": onehot}, terminated=done, truncated=~done, episode=s, step=s), generator=g)
+        agent.update(bandit_batch(best, g), generator=g)
     greedy = agent.act({"observation": torch.eye(2)})
     assert greedy[:, 0].tolist() == pytest.approx(best.tolist(), abs=0.1)
 

@@ -7,6 +7,7 @@ from torch import nn
 from taskrl.agents.td3 import TD3Agent, TD3Config
 from taskrl.checkpoint import flatten_state, unflatten_state
 from taskrl.replay.batch import Batch
+from agent_batches import bandit_batch
 
 
 class LinearQ(nn.Module):
@@ -82,12 +83,7 @@ def test_td3_learns_the_best_action_of_a_continuous_bandit():
                      TD3Config(lr=3e-3, hidden_sizes=(64, 64), normalize_inputs=False))
     g = torch.Generator().manual_seed(0)
     for _ in range(400):
-        s = torch.randint(0, 2, (128,), generator=g)
-        a = torch.rand(128, 1, generator=g) * 2 - 1
-        done = torch.ones(128, dtype=torch.bool)
-        onehot = F.one_hot(s, 2).float()
-        agent.update(Batch(obs={"observation": onehot}, action=a, reward=-4.0 * (a[:, 0] - best[s]).square(),
-                           next_obs={"observation": onehot}, terminated=done, truncated=~done, episode=s, step=s), generator=g)
+        agent.update(bandit_batch(best, g), generator=g)
     assert agent.act({"observation": torch.eye(2)})[:, 0].tolist() == pytest.approx(best.tolist(), abs=0.1)
 
 
