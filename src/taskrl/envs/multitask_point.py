@@ -38,7 +38,7 @@ import torch
 
 from taskrl.envs.base import NativeEnv, Obs, StepResult
 from taskrl.envs.gymnasium_env import SingleCopyEnv
-from taskrl.envs.point_reach import REWARD_TYPES, RewardType, _check_positive
+from taskrl.envs.point_reach import RewardType, _check_positive, check_point_env_args
 from taskrl.tasks import TaskSet
 
 TaskSampling = Literal["uniform", "fixed"]
@@ -93,12 +93,7 @@ class MultiTaskPointReach(NativeEnv):
         terminate_on_success: bool = False,
         seed: int | None = None,
     ) -> None:
-        if not isinstance(num_envs, int) or num_envs < 1:
-            raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
-        if not isinstance(horizon, int) or horizon < 1:
-            raise ValueError(f"horizon must be an integer >= 1, got {horizon!r}")
-        if reward not in REWARD_TYPES:
-            raise ValueError(f"reward must be one of {', '.join(REWARD_TYPES)}; got {reward!r}")
+        check_point_env_args(num_envs, horizon, reward)
         if task_sampling not in TASK_SAMPLINGS:
             raise ValueError(f"task_sampling must be one of {', '.join(TASK_SAMPLINGS)}; got {task_sampling!r}")
         _check_positive("radius", radius)

@@ -31,6 +31,16 @@ def _check_positive(name: str, value: float) -> None:
         raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
 
 
+def check_point_env_args(num_envs: int, horizon: int, reward: str) -> None:
+    """The arguments every point environment shares; a ValueError names the bad one."""
+    if not isinstance(num_envs, int) or num_envs < 1:
+        raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
+    if not isinstance(horizon, int) or horizon < 1:
+        raise ValueError(f"horizon must be an integer >= 1, got {horizon!r}")
+    if reward not in REWARD_TYPES:
+        raise ValueError(f"reward must be one of {', '.join(REWARD_TYPES)}; got {reward!r}")
+
+
 class PointReach(GoalEnvMixin, NativeEnv):
     """``num_envs`` copies of 2-D point reaching, stepped at once in torch.
 
@@ -57,12 +67,7 @@ class PointReach(GoalEnvMixin, NativeEnv):
         terminate_on_success: bool = False,
         seed: int | None = None,
     ) -> None:
-        if not isinstance(num_envs, int) or num_envs < 1:
-            raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
-        if not isinstance(horizon, int) or horizon < 1:
-            raise ValueError(f"horizon must be an integer >= 1, got {horizon!r}")
-        if reward not in REWARD_TYPES:
-            raise ValueError(f"reward must be one of {', '.join(REWARD_TYPES)}; got {reward!r}")
+        check_point_env_args(num_envs, horizon, reward)
         _check_positive("max_speed", max_speed)
         _check_positive("distance_threshold", distance_threshold)
         self.num_envs = num_envs
