@@ -19,7 +19,7 @@ class ConstQ(nn.Module):
         super().__init__()
         self.values = torch.tensor(values)
 
-    def forward(self, x, action):
+    def forward(self, x, action, context=None, task=None):
         return x @ self.values
 
 
@@ -29,7 +29,7 @@ class FixedActor:
     def __init__(self, log_probs):
         self.log_probs = torch.tensor(log_probs)
 
-    def sample(self, x, generator=None):
+    def sample(self, x, generator=None, context=None, task=None):
         return torch.zeros(x.shape[0], 1), x @ self.log_probs
 
 

@@ -19,6 +19,16 @@ Losses, for a batch (s, a, r, s', terminated) and alpha = exp(log_alpha):
 
 Q_target_i follow Q_i by Polyak averaging. ``terminated`` stops bootstrapping; time-limit
 truncation still bootstraps. With rewards in {-1, 0}, targets may be clipped to [-1/(1-gamma), 0].
+
+Multi-task SAC (Yu et al., 2019; Sodhani et al., 2021): given a
+:class:`~taskrl.conditioning.networks.TaskConditioning`, the actor and both critics take the task
+context c = encoder(task) as well (``concat``, ``film`` or ``care``; optionally one output head per
+task), every row of a batch with its own task, all tasks in one forward pass. The temperature is
+per task, alpha_k = exp(log_alpha[k]), so a task that is already solved does not set the
+exploration of one still being learnt; each row uses its own task's alpha in the three losses above,
+and J_alpha averages over rows (a task-balanced batch gives every task's alpha equal weight). The
+task encoder's parameters (a learned embedding, a language projection) are trained by the critic
+loss; the actor sees the context as a constant, as in CARE's reference implementation.
 """
 
 from __future__ import annotations
@@ -31,9 +41,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from taskrl.agents.qtopt import StateActionQ
 from taskrl.agents.parts import ActionBox, ObservationInput, as_batch, gradient_step
-from taskrl.nets import mlp
+from taskrl.conditioning.networks import TaskConditioning, network_for
 from taskrl.replay.batch import Batch, Obs
 
 _LOG_2PI = math.log(2 * math.pi)
@@ -56,6 +65,7 @@ class SACConfig:
         max_grad_norm: gradient-norm clip of the actor and critics (0 disables).
         normalize_inputs: standardise observation inputs with running mean/std (clipped to +-5).
         log_std_min, log_std_max: range of the policy's log standard deviation.
+        per_task_alpha: multi-task runs: one learned temperature per task (else one shared).
     """
 
     lr: float = 3e-4
@@ -70,6 +80,7 @@ class SACConfig:
     normalize_inputs: bool = True
     log_std_min: float = -5.0
     log_std_max: float = 2.0
+    per_task_alpha: bool = True
 
 
 def squashed_gaussian_log_prob(u: torch.Tensor, mean: torch.Tensor, log_std: torch.Tensor) -> torch.Tensor:
@@ -80,29 +91,46 @@ def squashed_gaussian_log_prob(u: torch.Tensor, mean: torch.Tensor, log_std: tor
 
 
 class SquashedGaussianActor(nn.Module):
-    """pi(a|s): an MLP giving the mean and log std of u, and a = tanh(u) in [-1, 1]^A."""
+    """pi(a|s, c): a network giving the mean and log std of u, and a = tanh(u) in [-1, 1]^A.
 
-    def __init__(self, in_dim: int, action_dim: int, hidden_sizes: tuple[int, ...], log_std_min: float, log_std_max: float) -> None:
+    ``conditioning`` (multi-task) makes the network take the task context and index as well.
+    """
+
+    def __init__(self, in_dim: int, action_dim: int, hidden_sizes: tuple[int, ...], log_std_min: float, log_std_max: float,
+                 conditioning: TaskConditioning | None = None) -> None:
         super().__init__()
-        self.body = mlp(in_dim, hidden_sizes, 2 * action_dim)
+        self.body = network_for(in_dim, 2 * action_dim, hidden_sizes, conditioning)
         self.log_std_min, self.log_std_max = log_std_min, log_std_max
 
-    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def forward(self, x: torch.Tensor, context: torch.Tensor | None = None, task: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """(mean, log_std) of u; log_std squashed smoothly into [log_std_min, log_std_max]."""
-        mean, raw = self.body(x).chunk(2, dim=-1)
+        mean, raw = self.body(x, context, task).chunk(2, dim=-1)
         log_std = self.log_std_min + 0.5 * (self.log_std_max - self.log_std_min) * (torch.tanh(raw) + 1.0)
         return mean, log_std
 
-    def sample(self, x: torch.Tensor, generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    def sample(self, x: torch.Tensor, generator: torch.Generator | None = None, context: torch.Tensor | None = None,
+               task: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """A reparameterised sample ``a = tanh(mean + std * eps)`` in [-1, 1] and ``log pi(a|s)``."""
-        mean, log_std = self(x)
+        mean, log_std = self(x, context, task)
         eps = torch.randn(mean.shape, generator=generator, device=mean.device, dtype=mean.dtype)
         u = mean + log_std.exp() * eps
         return torch.tanh(u), squashed_gaussian_log_prob(u, mean, log_std)
 
-    def mode(self, x: torch.Tensor) -> torch.Tensor:
+    def mode(self, x: torch.Tensor, context: torch.Tensor | None = None, task: torch.Tensor | None = None) -> torch.Tensor:
         """The deterministic action tanh(mean)."""
-        return torch.tanh(self(x)[0])
+        return torch.tanh(self(x, context, task)[0])
+
+
+class Critic(nn.Module):
+    """Q(s, a, c) -> [B]: the action joins the state after the task conditioning (if any)."""
+
+    def __init__(self, in_dim: int, action_dim: int, hidden_sizes: tuple[int, ...], conditioning: TaskConditioning | None = None) -> None:
+        super().__init__()
+        self.body = network_for(in_dim, 1, hidden_sizes, conditioning, extra_dim=action_dim)
+
+    def forward(self, x: torch.Tensor, action: torch.Tensor, context: torch.Tensor | None = None,
+                task: torch.Tensor | None = None) -> torch.Tensor:
+        return self.body(x, context, task, extra=action).squeeze(-1)
 
 
 class SACAgent:
@@ -114,9 +142,12 @@ class SACAgent:
         action_space: a gymnasium ``Box`` or a ``(low, high)`` pair of tensors / arrays.
         config: hyperparameters, see :class:`SACConfig`.
         device: torch device of the networks.
+        conditioning: multi-task runs: the task encoder and architecture the actor and critics
+            use; observations then carry the task index under ``conditioning.task_key``.
     """
 
-    def __init__(self, input_keys: tuple[str, ...], input_dim: int, action_space: Any, config: SACConfig, device: str | torch.device = "cpu") -> None:
+    def __init__(self, input_keys: tuple[str, ...], input_dim: int, action_space: Any, config: SACConfig, device: str | torch.device = "cpu",
+                 conditioning: TaskConditioning | None = None) -> None:
         if not 0.0 < config.tau <= 1.0:
             raise ValueError(f"tau: must be in (0, 1] (got {config.tau})")
         if config.init_alpha <= 0:
@@ -127,23 +158,42 @@ class SACAgent:
         self.action_dim = self.box.dim
         self.target_entropy = config.target_entropy_per_dim * self.action_dim
         self.inputs = ObservationInput(input_keys, input_dim, config.normalize_inputs).to(self.device)
-        self.actor = SquashedGaussianActor(input_dim, self.action_dim, config.hidden_sizes, config.log_std_min, config.log_std_max).to(self.device)
-        self.critics = nn.ModuleList(StateActionQ(input_dim, self.action_dim, config.hidden_sizes) for _ in range(2)).to(self.device)
-        self.critics_target = nn.ModuleList(StateActionQ(input_dim, self.action_dim, config.hidden_sizes) for _ in range(2)).to(self.device)
+        self.conditioning = conditioning
+        self.task_encoder = conditioning.encoder.to(self.device) if conditioning is not None else None
+        self.num_tasks = conditioning.num_tasks if conditioning is not None else 1
+        self.actor = SquashedGaussianActor(input_dim, self.action_dim, config.hidden_sizes, config.log_std_min, config.log_std_max,
+                                           conditioning).to(self.device)
+        self.critics = nn.ModuleList(Critic(input_dim, self.action_dim, config.hidden_sizes, conditioning) for _ in range(2)).to(self.device)
+        self.critics_target = nn.ModuleList(Critic(input_dim, self.action_dim, config.hidden_sizes, conditioning) for _ in range(2)).to(self.device)
         self.critics_target.load_state_dict(self.critics.state_dict())
         self.critics_target.requires_grad_(False)
-        self.log_alpha = torch.tensor(math.log(config.init_alpha), device=self.device, requires_grad=True)
+        alphas = self.num_tasks if config.per_task_alpha else 1
+        self.log_alpha = torch.full((alphas,), math.log(config.init_alpha), device=self.device, requires_grad=True)
         self._actor_params, self._critic_params = list(self.actor.parameters()), list(self.critics.parameters())
         self._target_params = list(self.critics_target.parameters())
+        # The task encoder's own parameters (learned embedding, language projection) learn from the critics' loss.
+        encoder_params = list(self.task_encoder.parameters()) if self.task_encoder is not None else []
         self.actor_optimizer = torch.optim.Adam(self._actor_params, lr=config.lr, fused=True)
-        self.critic_optimizer = torch.optim.Adam(self._critic_params, lr=config.lr, fused=True)
+        self.critic_optimizer = torch.optim.Adam(self._critic_params + encoder_params, lr=config.lr, fused=True)
         self.alpha_optimizer = torch.optim.Adam([self.log_alpha], lr=config.lr, fused=True)
         self.updates = 0
 
     # ---------------------------------------------------------------- helpers
     @property
     def alpha(self) -> torch.Tensor:
+        """The temperature of every task, ``[T]`` (``[1]`` when shared)."""
         return self.log_alpha.detach().exp()
+
+    def task_inputs(self, obs: Obs) -> tuple[torch.Tensor | None, torch.Tensor | None]:
+        """``(context, task index)`` of a batch of observations; ``(None, None)`` for single-task agents."""
+        if self.conditioning is None:
+            return None, None
+        task = obs[self.conditioning.task_key].long().view(-1)
+        return self.task_encoder(task), task
+
+    def _row_alpha(self, task: torch.Tensor | None, log_alpha: torch.Tensor) -> torch.Tensor:
+        """Each row's entry of ``log_alpha`` (or of its exp): its task's when per task, else the shared one."""
+        return log_alpha[task] if task is not None and log_alpha.shape[0] > 1 else log_alpha[0]
 
     # ---------------------------------------------------------------- acting
     @torch.no_grad()
@@ -158,7 +208,8 @@ class SACAgent:
         """
         obs, single = as_batch(obs, self.device)
         x = self.inputs(obs)
-        unit = self.actor.sample(x, generator)[0] if exploration > 0.0 else self.actor.mode(x)
+        context, task = self.task_inputs(obs)
+        unit = self.actor.sample(x, generator, context, task)[0] if exploration > 0.0 else self.actor.mode(x, context, task)
         action = self.box.from_unit(unit)
         return action[0].cpu().numpy() if single else action
 
@@ -168,9 +219,10 @@ class SACAgent:
         cfg = self.config
         with torch.no_grad():
             next_x = self.inputs(batch.next_obs)
-            next_action, next_log_prob = self.actor.sample(next_x, generator)
-            next_q = torch.minimum(*(q(next_x, next_action) for q in self.critics_target))
-            soft_value = next_q - self.alpha * next_log_prob
+            context, task = self.task_inputs(batch.next_obs)
+            next_action, next_log_prob = self.actor.sample(next_x, generator, context, task)
+            next_q = torch.minimum(*(q(next_x, next_action, context, task) for q in self.critics_target))
+            soft_value = next_q - self._row_alpha(task, self.alpha) * next_log_prob
             target = batch.reward.float() + cfg.gamma * (~batch.terminated).float() * soft_value
             if cfg.clip_target:
                 target = target.clamp(-1.0 / (1.0 - cfg.gamma), 0.0)
@@ -181,34 +233,36 @@ class SACAgent:
         (``critic_loss``, ``actor_loss``, ``alpha``, ``entropy``, ``q_mean``)."""
         cfg = self.config
         self.inputs.update_statistics(batch.obs)
-        alpha = self.alpha
         target = self.bellman_target(batch, generator)
         x, action = self.inputs(batch.obs), self.box.to_unit(batch.action)
+        context, task = self.task_inputs(batch.obs)
+        alpha = self._row_alpha(task, self.alpha)  # each row's task's temperature
 
         # critics: J_Q = sum_i 1/2 (Q_i(s, a) - y)^2
-        q1, q2 = (q(x, action) for q in self.critics)
+        q1, q2 = (q(x, action, context, task) for q in self.critics)
         critic_loss = 0.5 * (F.mse_loss(q1, target) + F.mse_loss(q2, target))
         gradient_step(self.critic_optimizer, critic_loss, self._critic_params, self.config.max_grad_norm)
 
-        # actor: J_pi = alpha log pi(a~|s) - min_i Q_i(s, a~); the critics are constants here
+        # actor: J_pi = alpha log pi(a~|s) - min_i Q_i(s, a~); the critics (and the context) are constants here
         self._set_critic_grad(False)
-        new_action, log_prob = self.actor.sample(x, generator)
-        q_new = torch.minimum(*(q(x, new_action) for q in self.critics))
+        context = context.detach() if context is not None else None
+        new_action, log_prob = self.actor.sample(x, generator, context, task)
+        q_new = torch.minimum(*(q(x, new_action, context, task) for q in self.critics))
         actor_loss = (alpha * log_prob - q_new).mean()
         gradient_step(self.actor_optimizer, actor_loss, self._actor_params, self.config.max_grad_norm)
         self._set_critic_grad(True)
 
-        # temperature: J_alpha = -log_alpha (log pi + target_entropy)
+        # temperature: J_alpha = -log_alpha_k (log pi + target_entropy), k the row's task
         log_prob = log_prob.detach()
         if cfg.learn_alpha:
-            alpha_loss = -(self.log_alpha * (log_prob + self.target_entropy)).mean()
+            alpha_loss = -(self._row_alpha(task, self.log_alpha) * (log_prob + self.target_entropy)).mean()
             self.alpha_optimizer.zero_grad(set_to_none=True)
             alpha_loss.backward()
             self.alpha_optimizer.step()
 
         self.update_target()
         self.updates += 1
-        return {"critic_loss": critic_loss.detach(), "actor_loss": actor_loss.detach(), "alpha": alpha,
+        return {"critic_loss": critic_loss.detach(), "actor_loss": actor_loss.detach(), "alpha": self.alpha.mean(),
                 "entropy": -log_prob.mean(), "q_mean": q1.detach().mean()}
 
     def _set_critic_grad(self, enabled: bool) -> None:
@@ -228,6 +282,7 @@ class SACAgent:
             "critics_target": self.critics_target.state_dict(),
             "log_alpha": self.log_alpha.detach().clone(),
             "normalize": self.inputs.normalize.state_dict(),
+            **({"task_encoder": self.task_encoder.state_dict()} if self.task_encoder is not None else {}),
             "actor_optimizer": self.actor_optimizer.state_dict(),
             "critic_optimizer": self.critic_optimizer.state_dict(),
             "alpha_optimizer": self.alpha_optimizer.state_dict(),
@@ -239,8 +294,10 @@ class SACAgent:
         self.critics.load_state_dict(state["critics"])
         self.critics_target.load_state_dict(state["critics_target"])
         with torch.no_grad():
-            self.log_alpha.copy_(torch.as_tensor(state["log_alpha"]))
+            self.log_alpha.copy_(torch.as_tensor(state["log_alpha"]).reshape(self.log_alpha.shape))
         self.inputs.normalize.load_state_dict(state["normalize"])
+        if self.task_encoder is not None:
+            self.task_encoder.load_state_dict(state["task_encoder"])
         self.actor_optimizer.load_state_dict(state["actor_optimizer"])
         self.critic_optimizer.load_state_dict(state["critic_optimizer"])
         self.alpha_optimizer.load_state_dict(state["alpha_optimizer"])

@@ -1,0 +1,63 @@
+"""Task-balanced sampling: every task gets the same share of a batch, whatever its share of the data.
+
+Uniform sampling over transitions lets the tasks that produce the most data (more copies, longer
+episodes, a uniform task draw that happened to favour them) dominate the gradient. Multi-task SAC
+on Meta-World samples ``batch_size / T`` transitions of every task instead. Episodes carry one
+task each (the task of their first observation), so a task's transitions are the transitions of
+its episodes; all tasks are drawn in one vectorised pass (a batched binary search over per-task
+cumulative episode lengths), no Python loop over tasks.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from taskrl.replay.batch import Batch
+from taskrl.replay.episodes import EpisodeReplay
+
+__all__ = ["TaskBalancedSampler"]
+
+
+class TaskBalancedSampler:
+    """``sampler(batch_size, generator) -> Batch`` with ``batch_size // T`` transitions of every task.
+
+    The remainder ``batch_size % T`` goes to the lowest task indices, one each. A task with no stored
+    transition yet (early in a run, with tasks drawn at random) gets transitions drawn uniformly from
+    all stored data instead, so the batch size never changes.
+
+    Args:
+        replay: the episode storage (observations must carry ``task_key``).
+        num_tasks: T.
+        task_key: observation key of the task index.
+    """
+
+    def __init__(self, replay: EpisodeReplay, num_tasks: int, task_key: str = "task") -> None:
+        if f"obs/{task_key}" not in replay.storage:
+            raise ValueError(f"task-balanced sampling needs observations with a {task_key!r} key; found {replay.obs_keys}")
+        if num_tasks < 1:
+            raise ValueError(f"num_tasks: must be >= 1 (got {num_tasks})")
+        self.replay, self.num_tasks, self.task_key = replay, int(num_tasks), task_key
+        self._tasks = torch.arange(num_tasks, device=replay.device)
+
+    def indices(self, batch_size: int, generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(episode, step)`` index tensors, task-major: rows of task 0 first, then task 1, ..."""
+        r, T = self.replay, self.num_tasks
+        episode_task = r.storage[f"obs/{self.task_key}"][:, 0].long()              # [E]
+        per_task_length = r.length * (episode_task == self._tasks[:, None])       # [T, E]
+        cumulative = torch.cat([per_task_length, r.length[None]]).cumsum(1)        # [T + 1, E]; last row: all tasks
+        totals = cumulative[:, -1]
+        if int(totals[-1]) == 0:
+            raise RuntimeError("cannot sample from an empty replay: no episode has finished yet")
+        rows = torch.where(totals[:T] > 0, self._tasks, T)                         # empty task -> all data
+        per = -(-batch_size // T)                                                  # ceil
+        u = torch.rand((T, per), generator=generator, device=r.device)
+        target = (u * totals[rows, None]).long().minimum(totals[rows, None] - 1)    # [T, per] positions
+        episode = torch.searchsorted(cumulative[rows], target, right=True)         # batched binary search
+        step = target - (cumulative[rows[:, None], episode] - r.length[episode])
+        # exactly batch_size rows: cut in step-major order (the remainder falls on the lowest task
+        # indices), then back to task-major order
+        flat = torch.arange(T * per, device=r.device).view(T, per).t().reshape(-1)[:batch_size].sort().values
+        return episode.reshape(-1)[flat], step.reshape(-1)[flat]
+
+    def __call__(self, batch_size: int, generator: torch.Generator | None = None) -> Batch:
+        return self.replay.gather(*self.indices(batch_size, generator))
