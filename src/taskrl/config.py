@@ -19,8 +19,18 @@ from taskrl.agents.dqn import DQNConfig
 from taskrl.agents.qtopt import QTOptConfig
 from taskrl.agents.sac import SACConfig
 from taskrl.agents.td3 import TD3Config
+from taskrl.conditioning.networks import ARCHITECTURES, ConditioningConfig
+from taskrl.conditioning.task_encoders import TASK_ENCODERS
 
-ENVS = ("bitflip", "pointreach", "fetchreach", "fetchpush", "fetchpickandplace", "fetchslide")
+ENVS = ("bitflip", "pointreach", "fetchreach", "fetchpush", "fetchpickandplace", "fetchslide",
+        "pointreach-mt", "mt1", "mt10", "mt50")
+#: Multi-task environments (observations carry the task index under ``task``).
+MULTITASK_ENVS = ("pointreach-mt", "mt1", "mt10", "mt50")
+#: Meta-World benchmarks by taskrl env name.
+METAWORLD_BENCHMARKS = {"mt1": "MT1", "mt10": "MT10", "mt50": "MT50"}
+#: Algorithms that run on multi-task environments (continuous actions, task-conditioned networks).
+MULTITASK_ALGOS = ("sac",)
+SAMPLINGS = ("uniform", "task_balanced")
 #: Environments that come from gymnasium (through the vector-env adapter), by taskrl name.
 GYMNASIUM_IDS = {
     "fetchreach": "FetchReach-v4",
@@ -48,11 +58,17 @@ class TrainConfig:
     """Everything a training run needs; saved as ``config.json`` in the run directory.
 
     Attributes:
-        env: environment name (``fetch*`` need the ``robotics`` extra: gymnasium-robotics).
+        env: environment name (``fetch*`` need the ``robotics`` extra: gymnasium-robotics;
+            ``mt1`` / ``mt10`` / ``mt50`` are Meta-World v3 and need the ``metaworld`` extra;
+            ``pointreach-mt`` is the native multi-task point reaching with 5 named regions).
         n_bits: bit-string length for ``bitflip`` (also its horizon).
         terminate_on_success: end an episode when its goal is reached (bitflip, pointreach).
         reward: ``sparse`` (0 at the goal, else -1) or ``dense`` (-distance), for pointreach.
         vector_strategy: ``sync`` or ``async`` (one process per copy) for gymnasium environments.
+        mt1_task: the Meta-World task of ``mt1`` (``reach``, ``push``, ... or with its ``-v3`` suffix).
+        max_episode_steps: Meta-World episode length (Meta-World's own is 500).
+        sampling: ``uniform`` over stored transitions, or ``task_balanced`` (multi-task envs: the
+            same number of transitions of every task in each batch).
         algo: learning algorithm; its section (``dqn``, ``qtopt``, ``sac``, ``td3``) holds its hyperparameters.
         total_steps: environment steps to train for (summed over parallel environments).
         num_envs: environments stepped in parallel while collecting.
@@ -70,7 +86,8 @@ class TrainConfig:
         epsilon_end: final exploration level.
         epsilon_decay_steps: environment steps over which it decays linearly.
         eval_interval: environment steps between evaluations.
-        eval_episodes: episodes per evaluation (greedy policy, fixed evaluation seeds).
+        eval_episodes: episodes per evaluation (greedy policy, fixed evaluation seeds); on
+            multi-task envs, episodes per task (Meta-World: over distinct goal positions, at most 50).
         stop_at_success: stop once evaluation success reaches this (0 = train to total_steps).
         checkpoint_interval: environment steps between checkpoints (also one at the end).
         save_replay: include the replay buffer in checkpoints so a resumed run loses no data.
@@ -81,13 +98,18 @@ class TrainConfig:
         qtopt: QT-Opt hyperparameters.
         sac: SAC hyperparameters.
         td3: TD3 hyperparameters.
+        conditioning: how multi-task networks are told the task (task encoder, architecture).
     """
 
-    env: Literal["bitflip", "pointreach", "fetchreach", "fetchpush", "fetchpickandplace", "fetchslide"] = "bitflip"
+    env: Literal["bitflip", "pointreach", "fetchreach", "fetchpush", "fetchpickandplace", "fetchslide",
+                 "pointreach-mt", "mt1", "mt10", "mt50"] = "bitflip"
     n_bits: int = 15
     terminate_on_success: bool = True
     reward: Literal["sparse", "dense"] = "sparse"
     vector_strategy: Literal["sync", "async"] = "sync"
+    mt1_task: str = "reach"
+    max_episode_steps: int = 500
+    sampling: Literal["uniform", "task_balanced"] = "uniform"
     algo: Literal["dqn", "qtopt", "sac", "td3"] = "dqn"
     total_steps: int = 100_000
     num_envs: int = 32
@@ -112,6 +134,7 @@ class TrainConfig:
     qtopt: QTOptConfig = dataclasses.field(default_factory=QTOptConfig)
     sac: SACConfig = dataclasses.field(default_factory=SACConfig)
     td3: TD3Config = dataclasses.field(default_factory=TD3Config)
+    conditioning: ConditioningConfig = dataclasses.field(default_factory=ConditioningConfig)
 
 
 def field_docs(cls: type) -> dict[str, str]:
@@ -147,6 +170,34 @@ def validate(config: TrainConfig) -> TrainConfig:
     require(c.vector_strategy in ("sync", "async"), "vector_strategy",
             f"unknown strategy {c.vector_strategy!r}; allowed: sync, async")
     require(c.n_bits >= 1, "n_bits", f"must be >= 1 (got {c.n_bits})")
+    require(c.sampling in SAMPLINGS, "sampling", f"unknown sampling {c.sampling!r}; allowed: {', '.join(SAMPLINGS)}")
+    require(c.max_episode_steps >= 1, "max_episode_steps", f"must be >= 1 (got {c.max_episode_steps})")
+    if c.env == "mt1":
+        from taskrl.envs.metaworld_tasks import MT50_TASKS, version_free
+
+        require(version_free(c.mt1_task) in MT50_TASKS, "mt1_task",
+                f"unknown Meta-World task {c.mt1_task!r}; allowed: {', '.join(MT50_TASKS)}")
+    if c.env in MULTITASK_ENVS:
+        require(c.algo in MULTITASK_ALGOS, "algo",
+                f"{c.algo!r} does not run on the multi-task env {c.env!r}; allowed: {', '.join(MULTITASK_ALGOS)}")
+        require(c.her == "none", "her", f"{c.env!r} is not a goal env (no achieved/desired goal); use --her none")
+        if c.env in ("mt10", "mt50"):
+            tasks = 10 if c.env == "mt10" else 50
+            require(c.num_envs % tasks == 0, "num_envs",
+                    f"must be a multiple of the {tasks} tasks of {c.env} (one or more copies per task; got {c.num_envs})")
+        if c.env in METAWORLD_BENCHMARKS:
+            require(c.eval_episodes <= 50, "eval_episodes",
+                    f"Meta-World has 50 goal positions per task: at most 50 episodes per task (got {c.eval_episodes})")
+    else:
+        require(c.sampling == "uniform", "sampling", f"task_balanced needs a multi-task env ({', '.join(MULTITASK_ENVS)})")
+    k = c.conditioning
+    require(k.task_encoder in TASK_ENCODERS, "task_encoder",
+            f"unknown task encoder {k.task_encoder!r}; allowed: {', '.join(TASK_ENCODERS)}")
+    require(k.architecture in ARCHITECTURES, "architecture",
+            f"unknown architecture {k.architecture!r}; allowed: {', '.join(ARCHITECTURES)}")
+    for name in ("embedding_dim", "care_encoders", "care_encoder_dim"):
+        require(getattr(k, name) >= 1, name, f"must be >= 1 (got {getattr(k, name)})")
+    require(k.projection_dim >= 0, "projection_dim", f"must be >= 0 (got {k.projection_dim})")
     for name in ("total_steps", "num_envs", "batch_size", "eval_interval", "eval_episodes", "checkpoint_interval"):
         require(getattr(c, name) >= 1, name, f"must be >= 1 (got {getattr(c, name)})")
     require(c.her_k >= 0, "her_k", f"must be >= 0 (got {c.her_k})")
@@ -210,7 +261,7 @@ def leaf_fields(algo: str = "dqn") -> list[tuple[tuple[str, ...], dataclasses.Fi
 def field_help(algo: str = "dqn") -> dict[str, str]:
     """``{setting: description}`` for the CLI, from the dataclasses' docstrings."""
     docs = field_docs(TrainConfig)
-    for cls in (ALGO_CONFIGS[algo], CEMConfig if algo == "qtopt" else None):
+    for cls in (ConditioningConfig, ALGO_CONFIGS[algo], CEMConfig if algo == "qtopt" else None):
         if cls is not None:
             docs.update(field_docs(cls))
     return docs

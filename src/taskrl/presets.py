@@ -17,6 +17,22 @@ _POINTREACH = {**_CONTINUOUS_HER, "env": "pointreach", "num_envs": 16, "updates_
 _FETCH = {**_CONTINUOUS_HER, "num_envs": 2, "updates_per_step": 0.5, "learning_starts": 1_000,
           "eval_interval": 2_000, "eval_episodes": 100, "lr": 1e-3, "gamma": 0.98}
 
+# Multi-task SAC (Meta-World and the native multi-task PointReach): no relabelling, the policy's own
+# entropy explores, task-balanced batches. Meta-World: gamma 0.99, lr 3e-4, one copy per task at
+# 0.1 updates per env step (one update per step of all copies, as multi-task SAC on MT10 does),
+# language contexts projected to 50-d as CARE's context encoder does.
+_MULTITASK_SAC = {**_SAC, "her": "none", "sampling": "task_balanced", "terminate_on_success": False}
+_METAWORLD = {**_MULTITASK_SAC, "lr": 3e-4, "gamma": 0.99, "learning_starts": 5_000, "eval_episodes": 10,
+              "checkpoint_interval": 100_000, "buffer_size": 1_000_000}
+_MT1 = {**_METAWORLD, "env": "mt1", "num_envs": 10, "hidden_sizes": (256, 256), "batch_size": 256,
+        "updates_per_step": 0.5, "total_steps": 200_000, "eval_interval": 10_000, "stop_at_success": 0.0}
+_MT10 = {**_METAWORLD, "env": "mt10", "num_envs": 10, "hidden_sizes": (400, 400, 400), "batch_size": 1280,
+         "updates_per_step": 0.1, "total_steps": 20_000_000, "eval_interval": 100_000}
+_LANGUAGE = {"task_encoder": "language", "projection_dim": 50}
+_POINTREACH_MT = {**_MULTITASK_SAC, "env": "pointreach-mt", "reward": "dense", "num_envs": 16, "updates_per_step": 0.25,
+                  "learning_starts": 500, "eval_interval": 2_000, "eval_episodes": 20, "total_steps": 20_000,
+                  "hidden_sizes": (64, 64), "lr": 1e-3, "gamma": 0.95, "batch_size": 256}
+
 
 @dataclasses.dataclass(frozen=True)
 class Preset:
@@ -65,6 +81,39 @@ PRESETS: dict[str, Preset] = {
         "SAC + hindsight relabelling on FetchPickAndPlace-v4 (~4M env steps in the paper; hours on CPU)",
         {**_FETCH, **_SAC, "env": "fetchpickandplace", "num_envs": 8, "total_steps": 4_000_000,
          "eval_interval": 50_000, "hidden_sizes": (256, 256, 256)},
+    ),
+    "pointreach-mt-sac-onehot": Preset(
+        "multi-task SAC on the native multi-task PointReach (5 regions named in words), one-hot task context",
+        {**_POINTREACH_MT, "task_encoder": "onehot", "architecture": "concat"},
+    ),
+    "pointreach-mt-sac-care": Preset(
+        "multi-task SAC with CARE (encoders mixed by attention on the sentence embedding) on multi-task PointReach",
+        {**_POINTREACH_MT, **_LANGUAGE, "architecture": "care"},
+    ),
+    "mt1-reach-sac": Preset(
+        "SAC on Meta-World v3 reach (MT1: one task, goal positions resampled every episode), 10 copies",
+        {**_MT1, "mt1_task": "reach"},
+    ),
+    "mt1-push-sac": Preset(
+        "SAC on Meta-World v3 push (MT1), 10 copies; needs more steps than reach",
+        {**_MT1, "mt1_task": "push", "total_steps": 1_000_000, "eval_interval": 25_000},
+    ),
+    "mt10-sac-onehot": Preset(
+        "multi-task SAC on Meta-World MT10: one network, one-hot task appended to the state, per-task temperature",
+        {**_MT10, "task_encoder": "onehot", "architecture": "concat"},
+    ),
+    "mt10-sac-film-language": Preset(
+        "multi-task SAC on MT10, hidden layers FiLM-modulated by the sentence embedding of the task description",
+        {**_MT10, **_LANGUAGE, "architecture": "film"},
+    ),
+    "mt10-sac-care": Preset(
+        "CARE on MT10: k=4 state encoders mixed by attention on the description's sentence embedding",
+        {**_MT10, **_LANGUAGE, "architecture": "care", "care_encoders": 4},
+    ),
+    "mt50-sac-care": Preset(
+        "CARE on MT50 (k=6 encoders; 50 copies, one per task)",
+        {**_MT10, **_LANGUAGE, "env": "mt50", "num_envs": 50, "batch_size": 6400, "architecture": "care",
+         "care_encoders": 6, "total_steps": 100_000_000, "eval_interval": 500_000},
     ),
     "bitflip-dqn": Preset(
         "plain DQN, no relabelling, on 15-bit flipping: the contrast case that fails beyond ~13 bits",

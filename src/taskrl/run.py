@@ -9,12 +9,14 @@ Run directory layout::
         checkpoints/latest   name of the newest checkpoint folder
         checkpoints/step_*/  agent / replay / loop parts (safetensors + JSON)
         learning_curve.png   success rate against env steps and wall-clock
+        per_task_success.json  multi-task runs: the last evaluation, per task (Meta-World's protocol)
 """
 
 from __future__ import annotations
 
 import dataclasses
 import datetime
+import json
 from pathlib import Path
 from typing import Any
 
@@ -28,17 +30,19 @@ from taskrl.agents.qtopt import QTOptAgent
 from taskrl.agents.sac import SACAgent
 from taskrl.agents.td3 import TD3Agent
 from taskrl.checkpoint import load_checkpoint, save_checkpoint
-from taskrl.config import GYMNASIUM_IDS, ConfigError, TrainConfig, validate, with_overrides
+from taskrl.conditioning.networks import make_conditioning
+from taskrl.config import GYMNASIUM_IDS, METAWORLD_BENCHMARKS, MULTITASK_ENVS, ConfigError, TrainConfig, validate, with_overrides
 from taskrl.console import ConsoleReporter, final_table
-from taskrl.envs import BitFlip, GymnasiumGoalEnv, PointReach, is_goal_env
+from taskrl.envs import BitFlip, GymnasiumGoalEnv, MultiTaskPointReach, PointReach, evaluate_per_task, is_goal_env
 from taskrl.envs.base import BatchedEnv
 from taskrl.logger import RunLogger
 from taskrl.plots import plot_learning_curve
 from taskrl.presets import preset_config
-from taskrl.replay import EpisodeReplay, HindsightRelabeler
+from taskrl.replay import EpisodeReplay, HindsightRelabeler, TaskBalancedSampler
 from taskrl.training.evaluation import evaluate
 from taskrl.training.offpolicy import LoopSchedule, LoopState, OffPolicyLoop
 
+#: Observation keys the networks read, where the env has them (the task index is read separately).
 AGENT_INPUT_KEYS = ("observation", "desired_goal")
 Agent = DQNAgent | QTOptAgent | SACAgent | TD3Agent
 EVAL_SEED_OFFSET = 1_000_003
@@ -63,8 +67,26 @@ def resolve_device(name: str) -> torch.device:
     return torch.device(name)
 
 
-def make_env(config: TrainConfig, num_envs: int, seed: int, device: torch.device) -> BatchedEnv:
-    """The run's batched environment: a native torch one, or gymnasium's through the adapter."""
+def make_env(config: TrainConfig, num_envs: int, seed: int, device: torch.device, evaluation: bool = False) -> BatchedEnv:
+    """The run's batched environment: a native torch one, or gymnasium's through the adapter.
+
+    Multi-task evaluation envs give every copy a fixed task (per-task evaluation); Meta-World's
+    evaluation env uses the training goal positions (Meta-World's protocol evaluates on them), one
+    copy per task, and ``num_envs`` (training) must be a multiple of the number of tasks.
+    """
+    if config.env == "pointreach-mt":
+        return MultiTaskPointReach(num_envs=num_envs, device=device, reward=config.reward,
+                                   task_sampling="fixed" if evaluation else "uniform",
+                                   terminate_on_success=config.terminate_on_success, seed=seed)
+    if config.env in METAWORLD_BENCHMARKS:
+        from taskrl.envs.metaworld_tasks import MetaWorldMultiTaskEnv
+
+        benchmark = METAWORLD_BENCHMARKS[config.env]
+        num_tasks = {"MT1": 1, "MT10": 10, "MT50": 50}[benchmark]
+        return MetaWorldMultiTaskEnv(benchmark, config.mt1_task if benchmark == "MT1" else None, use_one_hot=True,
+                                     envs_per_task=1 if evaluation else max(1, num_envs // num_tasks),
+                                     max_episode_steps=config.max_episode_steps, seed=config.seed, device=device,
+                                     vector_strategy=config.vector_strategy)
     if config.env == "bitflip":
         return BitFlip(config.n_bits, num_envs=num_envs, device=device,
                        terminate_on_success=config.terminate_on_success, seed=seed)
@@ -78,21 +100,65 @@ def make_env(config: TrainConfig, num_envs: int, seed: int, device: torch.device
 def make_agent(config: TrainConfig, env: BatchedEnv, device: torch.device) -> Agent:
     """The agent of ``config.algo`` for ``env``'s spaces; a mismatch is a ConfigError naming ``algo``."""
     space = env.single_observation_space
-    missing = [k for k in AGENT_INPUT_KEYS if k not in space.spaces]
-    if missing:
-        raise ConfigError("env", f"observations lack {missing}; the agents here need keys {list(AGENT_INPUT_KEYS)}")
-    input_dim = sum(int(torch.tensor(space[k].shape).prod()) for k in AGENT_INPUT_KEYS)
+    keys = tuple(k for k in AGENT_INPUT_KEYS if k in space.spaces)
+    multitask = "task" in space.spaces
+    if "observation" not in keys or not (multitask or "desired_goal" in keys):
+        raise ConfigError("env", f"observations have keys {list(space.spaces)}; the agents here need 'observation' "
+                                 f"and either 'desired_goal' (goal-conditioned) or 'task' (multi-task)")
+    input_dim = sum(int(torch.tensor(space[k].shape).prod()) for k in keys)
+    task_set = getattr(env, "task_set", None)
+    conditioning = None
+    if multitask and len(task_set) > 1:  # one task needs no context
+        conditioning = make_conditioning(config.conditioning, len(task_set), task_set.descriptions)
     action_space = env.single_action_space
     discrete = isinstance(action_space, gym.spaces.Discrete)
     if config.algo == "dqn":
         if not discrete:
             raise ConfigError("algo", f"dqn needs discrete actions but {config.env!r} has {action_space}; use qtopt or sac")
-        return DQNAgent(AGENT_INPUT_KEYS, input_dim, int(action_space.n), config.dqn, device)
+        return DQNAgent(keys, input_dim, int(action_space.n), config.dqn, device)
     if not isinstance(action_space, gym.spaces.Box):
         raise ConfigError("algo", f"{config.algo} needs continuous (Box) actions but {config.env!r} has {action_space}; use dqn")
-    agent_cls = {"qtopt": QTOptAgent, "sac": SACAgent, "td3": TD3Agent}[config.algo]
-    agent_config = getattr(config, config.algo)
-    return agent_cls(AGENT_INPUT_KEYS, input_dim, action_space, agent_config, device)
+    if config.algo == "sac":
+        return SACAgent(keys, input_dim, action_space, config.sac, device, conditioning)
+    agent_cls = {"qtopt": QTOptAgent, "td3": TD3Agent}[config.algo]
+    return agent_cls(keys, input_dim, action_space, getattr(config, config.algo), device)
+
+
+def make_evaluator(config: TrainConfig, eval_env: BatchedEnv, agent: Agent, seed: int):
+    """``() -> metrics`` for the loop, and a holder of the last full result (per-task for multi-task envs).
+
+    Goal-conditioned envs: success at the step an episode ends, over ``eval_episodes`` episodes.
+    Multi-task envs: :func:`evaluate_per_task` with ``eval_episodes`` per task; Meta-World counts an
+    episode as a success if it succeeds at any step (its protocol); the native multi-task
+    PointReach at the final step (touring several regions must not count). ``success_rate`` is
+    the mean over tasks and every task adds a ``success/<name>`` column.
+    """
+    last: dict[str, Any] = {}
+    policy = lambda o: agent.act(o)  # noqa: E731 (greedy: exploration 0)
+
+    def run() -> dict[str, float]:
+        if config.env not in MULTITASK_ENVS:
+            return evaluate(policy, eval_env, seed)
+        result = evaluate_per_task(policy, eval_env, config.eval_episodes, seed,
+                                   success="final" if config.env == "pointreach-mt" else "any")
+        last.clear(), last.update(result)
+        tasks = result["tasks"].values()
+        return {
+            "success_rate": result["mean_success_rate"],
+            "eval_return": sum(t["mean_return"] for t in tasks) / len(tasks),
+            "eval_length": sum(t["mean_length"] for t in tasks) / len(tasks),
+            **{f"success/{name}": t["success_rate"] for name, t in result["tasks"].items()},
+        }
+
+    return run, last
+
+
+def eval_env_copies(config: TrainConfig) -> int:
+    """Copies of the evaluation env: one episode each (goal envs), every task ``eval_episodes`` times at once
+    (native multi-task), or Meta-World's one copy per task."""
+    if config.env == "pointreach-mt":
+        return len(MultiTaskPointReach().task_set) * config.eval_episodes
+    return config.eval_episodes
 
 
 def make_relabeler(config: TrainConfig, env: BatchedEnv) -> HindsightRelabeler | None:
@@ -153,12 +219,13 @@ def train(
     device = resolve_device(config.device)
     torch.manual_seed(config.seed)
     env = make_env(config, config.num_envs, config.seed, device)
-    eval_env = make_env(config, config.eval_episodes, config.seed + EVAL_SEED_OFFSET, device)
+    eval_env = make_env(config, eval_env_copies(config), config.seed + EVAL_SEED_OFFSET, device, evaluation=True)
     agent = make_agent(config, env, device)
     relabel = make_relabeler(config, env)
     replay = EpisodeReplay(env.single_observation_space, env.single_action_space,
-                           min(config.buffer_size, config.total_steps + config.num_envs * env.horizon),
-                           env.horizon, config.num_envs, device)
+                           min(config.buffer_size, config.total_steps + 2 * env.num_envs * env.horizon),
+                           env.horizon, env.num_envs, device)
+    sampler = TaskBalancedSampler(replay, len(env.task_set)) if config.sampling == "task_balanced" else None
     generator = torch.Generator(device=device)
     generator.manual_seed(config.seed + 1)
 
@@ -199,9 +266,9 @@ def train(
             logger.log(row)
             reporter.update(row)
 
-        loop = OffPolicyLoop(env, agent, replay, relabel, schedule,
-                             evaluate=lambda: evaluate(lambda o: agent.act(o), eval_env, config.seed + EVAL_SEED_OFFSET),
-                             on_log=on_log, on_checkpoint=checkpoint, generator=generator)
+        evaluator, last_eval = make_evaluator(config, eval_env, agent, config.seed + EVAL_SEED_OFFSET)
+        loop = OffPolicyLoop(env, agent, replay, relabel, schedule, evaluate=evaluator,
+                             on_log=on_log, on_checkpoint=checkpoint, generator=generator, sample=sampler)
         try:
             state = loop.run(state, env_seed=config.seed + state.env_steps)
         finally:
@@ -210,6 +277,12 @@ def train(
             eval_env.close()
 
     curve = plot_learning_curve(logger.path, run_dir / "learning_curve.png", title=f"{title} ({run_dir.name})")
+    if last_eval:  # multi-task: the per-task table of the last evaluation, printed and saved
+        from taskrl.envs.metaworld_tasks import per_task_table
+
+        (run_dir / "per_task_success.json").write_text(json.dumps({"env_steps": state.env_steps, **last_eval}, indent=2) + "\n")
+        if progress:
+            (console or Console(stderr=True)).print(per_task_table(last_eval, f"per-task success at {state.env_steps:,} env steps"))
     final = rows[-1] if rows else {"env_steps": state.env_steps, "updates": state.updates,
                                    "wall_seconds": state.wall_seconds, "success_rate": state.last_success}
     if progress:
@@ -228,7 +301,7 @@ def load(run_dir: str | Path, device: str = "cpu") -> Agent:
         raise ConfigError("run_dir", f"{run_dir} is not a run directory (no config.json)")
     config = config_io.load(run_dir / "config.json")
     dev = resolve_device(device)
-    env = make_env(config, 1, 0, dev)
+    env = make_env(config, 1, 0, dev, evaluation=True)
     agent = make_agent(config, env, dev)
     env.close()
     agent.load_state_dict(load_checkpoint(run_dir / "checkpoints", ("agent",), dev)["agent"])
@@ -236,13 +309,13 @@ def load(run_dir: str | Path, device: str = "cpu") -> Agent:
 
 
 def evaluate_run(run_dir: str | Path, episodes: int = 100, seed: int | None = None, device: str = "cpu") -> dict[str, float]:
-    """Re-evaluate a saved agent greedily on ``episodes`` fresh episodes."""
+    """Re-evaluate a saved agent greedily on ``episodes`` fresh episodes (per task on multi-task envs)."""
     run_dir = Path(run_dir)
     agent = load(run_dir, device)
-    config = config_io.load(run_dir / "config.json")
+    config = dataclasses.replace(config_io.load(run_dir / "config.json"), eval_episodes=episodes)
     seed = config.seed + EVAL_SEED_OFFSET if seed is None else seed
-    env = make_env(config, episodes, seed, agent.device)
+    env = make_env(config, eval_env_copies(config), seed, agent.device, evaluation=True)
     try:
-        return {**evaluate(lambda o: agent.act(o), env, seed), "episodes": episodes}
+        return {**make_evaluator(config, env, agent, seed)[0](), "episodes": episodes}
     finally:
         env.close()

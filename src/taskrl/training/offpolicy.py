@@ -93,6 +93,8 @@ class OffPolicyLoop:
         on_log: called with each metrics row (to CSV, TensorBoard, the console).
         on_checkpoint: called with the loop state when a checkpoint is due.
         generator: generator for sampling and exploration.
+        sample: ``sample(batch_size, generator) -> Batch`` drawing from ``replay`` (default
+            ``replay.sample``: uniform over transitions; e.g. a ``TaskBalancedSampler``).
     """
 
     def __init__(
@@ -106,14 +108,16 @@ class OffPolicyLoop:
         on_log: Callable[[dict[str, Any]], None],
         on_checkpoint: Callable[[LoopState], None],
         generator: torch.Generator,
+        sample: Callable[[int, torch.Generator], Batch] | None = None,
     ) -> None:
         self.env, self.agent, self.replay, self.relabel = env, agent, replay, relabel
+        self.sample = sample if sample is not None else replay.sample
         self.schedule, self.evaluate = schedule, evaluate
         self.on_log, self.on_checkpoint = on_log, on_checkpoint
         self.generator = generator
 
     def sample_batch(self) -> Batch:
-        batch = self.replay.sample(self.schedule.batch_size, self.generator)
+        batch = self.sample(self.schedule.batch_size, self.generator)
         return self.relabel(batch, self.replay, self.generator) if self.relabel else batch
 
     def run(self, state: LoopState, env_seed: int) -> LoopState:
