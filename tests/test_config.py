@@ -40,6 +40,15 @@ def test_every_preset_is_valid(name):
     ({"algo": "sac", "init_alpha": 0.0}, "init_alpha"),
     ({"algo": "td3", "policy_delay": 0}, "policy_delay"),
     ({"reward": "shaped"}, "reward"),
+    ({"env": "mt10", "algo": "sac", "her": "none", "num_envs": 16}, "num_envs"),
+    ({"env": "mt10", "algo": "dqn", "her": "none", "num_envs": 10}, "algo"),
+    ({"env": "pointreach-mt", "algo": "sac", "her": "future"}, "her"),
+    ({"env": "mt1", "algo": "sac", "her": "none", "mt1_task": "fly"}, "mt1_task"),
+    ({"env": "mt1", "algo": "sac", "her": "none", "eval_episodes": 51}, "eval_episodes"),
+    ({"sampling": "task_balanced"}, "sampling"),
+    ({"task_encoder": "bag-of-words"}, "task_encoder"),
+    ({"architecture": "transformer"}, "architecture"),
+    ({"care_encoders": 0}, "care_encoders"),
 ])
 def test_validation_names_the_field(changes, field):
     with pytest.raises(ConfigError) as err:

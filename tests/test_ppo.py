@@ -250,3 +250,15 @@ def test_categorical_policies_learn_a_contextual_bandit(estimator):
     assert agent.act(tasks).tolist() == [0, 1, 2]
     probs = torch.softmax(agent.policy(torch.zeros(3, 1), cond.encoder(torch.arange(3))), -1)
     assert probs.diagonal().min() > 0.9
+
+
+@pytest.mark.parametrize("arch, multi_head", [("film", False), ("care", False), ("concat", True)])
+def test_every_architecture_runs_an_update(arch, multi_head):
+    torch.manual_seed(0)
+    env = MultiTaskPointReach(num_envs=5, reward="dense", task_sampling="fixed", seed=0)
+    cond = make_conditioning(ConditioningConfig(task_encoder="onehot", architecture=arch, multi_head=multi_head), 5)
+    agent = PPOAgent(("observation",), 2, env.single_action_space, PPOConfig(rollout_steps=4, hidden_sizes=(16, 16)), conditioning=cond)
+    rollout, obs, *_ = collect_rollout(env, agent, env.reset(seed=0), 4)
+    before = agent.act(obs)
+    metrics = agent.update(rollout)
+    assert all(torch.isfinite(v) for v in metrics.values()) and not torch.equal(before, agent.act(obs))

@@ -81,7 +81,16 @@ class RunLogger:
             self.writer.close()
 
 
+def _number(text: str | None) -> int | float | None:
+    if text in ("", None):
+        return None
+    try:
+        return int(text)  # counters stay integers when the file is rewritten
+    except ValueError:
+        return float(text)
+
+
 def read_metrics(path: Path) -> list[dict[str, Any]]:
-    """Rows of a ``metrics.csv`` with numeric fields converted to float."""
+    """Rows of a ``metrics.csv`` with numeric fields converted to int (counters) or float."""
     with Path(path).open() as f:
-        return [{k: (float(v) if v not in ("", None) else None) for k, v in row.items()} for row in csv.DictReader(f)]
+        return [{k: _number(v) for k, v in row.items()} for row in csv.DictReader(f)]
