@@ -146,3 +146,16 @@ def test_multitask_run_with_one_hot_solves_every_region(tmp_path):
     assert run.metrics["success/centre"] == per_task["tasks"]["centre"]["success_rate"]
     again = taskrl.run.evaluate_run(tmp_path / "run", episodes=5)
     assert again["success_rate"] >= 0.8 and "success/top-left" in again
+
+
+def test_multitask_ppo_run_resumes_and_evaluates_per_task(tmp_path):
+    out = tmp_path / "ppo"
+    first = taskrl.train("pointreach-mt-ppo-onehot", out=out, total_steps=20_000, eval_interval=10_000, tensorboard=False)
+    assert first.metrics["env_steps"] >= 20_000 and "success/centre" in first.metrics
+    assert {"policy_loss", "approx_kl", "explained_variance"} <= set(first.metrics)
+    assert not (out / "checkpoints" / "latest").read_text().strip() == ""
+    resumed = taskrl.train(resume=out, total_steps=40_000, tensorboard=False)
+    assert resumed.metrics["env_steps"] >= 40_000 and resumed.metrics["updates"] > first.metrics["updates"]
+    loaded = taskrl.load(out)
+    obs = {"observation": torch.zeros(5, 2), "task": torch.arange(5)}
+    torch.testing.assert_close(loaded.act(obs), resumed.agent.act(obs))

@@ -108,9 +108,8 @@ def test_first_step_sees_the_policy_that_acted_and_validation():
     torch.testing.assert_close(metrics["policy_loss"], -adv.mean())
     assert set(metrics) >= {"policy_loss", "value_loss", "entropy", "approx_kl", "clip_fraction", "explained_variance"}
     assert agent.updates == 1
-    # The CLI reads one help line per field; tau is kept (validation checks it for every algo).
+    # The CLI reads one help line per field.
     assert set(field_docs(PPOConfig)) == {f.name for f in dataclasses.fields(PPOConfig)}
-    assert PPOConfig().tau == 1.0
     with pytest.raises(ValueError, match="estimator"):
         PPOAgent(("observation",), 2, env.single_action_space, PPOConfig(estimator="a2c"))
     with pytest.raises(ValueError, match="value_coef"):

@@ -16,6 +16,7 @@ from typing import Any, Literal
 
 from taskrl.agents.cem import CEMConfig
 from taskrl.agents.dqn import DQNConfig
+from taskrl.agents.ppo import PPOConfig, check_ppo_config
 from taskrl.agents.qtopt import QTOptConfig
 from taskrl.agents.sac import SACConfig
 from taskrl.agents.td3 import TD3Config
@@ -29,7 +30,7 @@ MULTITASK_ENVS = ("pointreach-mt", "mt1", "mt10", "mt50")
 #: Meta-World benchmarks by taskrl env name.
 METAWORLD_BENCHMARKS = {"mt1": "MT1", "mt10": "MT10", "mt50": "MT50"}
 #: Algorithms that run on multi-task environments (continuous actions, task-conditioned networks).
-MULTITASK_ALGOS = ("sac",)
+MULTITASK_ALGOS = ("sac", "ppo")
 SAMPLINGS = ("uniform", "task_balanced")
 #: Environments that come from gymnasium (through the vector-env adapter), by taskrl name.
 GYMNASIUM_IDS = {
@@ -39,7 +40,9 @@ GYMNASIUM_IDS = {
     "fetchslide": "FetchSlide-v4",
 }
 #: Each algorithm's hyperparameters live in its own dataclass, a section of TrainConfig.
-ALGO_CONFIGS: dict[str, type] = {"dqn": DQNConfig, "qtopt": QTOptConfig, "sac": SACConfig, "td3": TD3Config}
+ALGO_CONFIGS: dict[str, type] = {"dqn": DQNConfig, "qtopt": QTOptConfig, "sac": SACConfig, "td3": TD3Config, "ppo": PPOConfig}
+#: Algorithms trained on-policy (rollouts, no replay, no relabelling).
+ON_POLICY_ALGOS = ("ppo",)
 ALGOS = tuple(ALGO_CONFIGS)
 HER_STRATEGIES = ("future", "final", "episode", "random", "none")
 
@@ -69,7 +72,9 @@ class TrainConfig:
         max_episode_steps: Meta-World episode length (Meta-World's own is 500).
         sampling: ``uniform`` over stored transitions, or ``task_balanced`` (multi-task envs: the
             same number of transitions of every task in each batch).
-        algo: learning algorithm; its section (``dqn``, ``qtopt``, ``sac``, ``td3``) holds its hyperparameters.
+        algo: learning algorithm; its section (``dqn``, ``qtopt``, ``sac``, ``td3``, ``ppo``) holds its
+            hyperparameters. ``ppo`` (also REINFORCE, via its ``estimator``) learns on-policy: the replay,
+            relabelling, batch and update-ratio settings do not apply to it.
         total_steps: environment steps to train for (summed over parallel environments).
         num_envs: environments stepped in parallel while collecting.
         seed: seed for network initialisation, environments and sampling.
@@ -98,6 +103,7 @@ class TrainConfig:
         qtopt: QT-Opt hyperparameters.
         sac: SAC hyperparameters.
         td3: TD3 hyperparameters.
+        ppo: PPO / REINFORCE hyperparameters.
         conditioning: how multi-task networks are told the task (task encoder, architecture).
     """
 
@@ -110,7 +116,7 @@ class TrainConfig:
     mt1_task: str = "reach"
     max_episode_steps: int = 500
     sampling: Literal["uniform", "task_balanced"] = "uniform"
-    algo: Literal["dqn", "qtopt", "sac", "td3"] = "dqn"
+    algo: Literal["dqn", "qtopt", "sac", "td3", "ppo"] = "dqn"
     total_steps: int = 100_000
     num_envs: int = 32
     seed: int = 0
@@ -134,6 +140,7 @@ class TrainConfig:
     qtopt: QTOptConfig = dataclasses.field(default_factory=QTOptConfig)
     sac: SACConfig = dataclasses.field(default_factory=SACConfig)
     td3: TD3Config = dataclasses.field(default_factory=TD3Config)
+    ppo: PPOConfig = dataclasses.field(default_factory=PPOConfig)
     conditioning: ConditioningConfig = dataclasses.field(default_factory=ConditioningConfig)
 
 
@@ -214,7 +221,8 @@ def validate(config: TrainConfig) -> TrainConfig:
     a = getattr(c, c.algo)
     require(0.0 <= a.gamma < 1.0, "gamma", f"must be in [0, 1) (got {a.gamma})")
     require(a.lr > 0, "lr", f"must be > 0 (got {a.lr})")
-    require(0.0 < a.tau <= 1.0, "tau", f"must be in (0, 1] (got {a.tau})")
+    if hasattr(a, "tau"):  # target networks
+        require(0.0 < a.tau <= 1.0, "tau", f"must be in (0, 1] (got {a.tau})")
     require(len(a.hidden_sizes) >= 1 and all(h >= 1 for h in a.hidden_sizes), "hidden_sizes",
             f"must be one or more positive widths (got {list(a.hidden_sizes)})")
     require(a.max_grad_norm >= 0, "max_grad_norm", f"must be >= 0 (got {a.max_grad_norm})")
@@ -234,6 +242,13 @@ def validate(config: TrainConfig) -> TrainConfig:
                 f"warm_std must be > 0 and warm_iterations >= 0 (got {cem.warm_std}, {cem.warm_iterations})")
     if c.algo == "sac":
         require(a.init_alpha > 0, "init_alpha", f"must be > 0 (got {a.init_alpha})")
+    if c.algo == "ppo":
+        require(c.her == "none", "her", "ppo learns on-policy from rollouts: there is no replay to relabel; use --her none")
+        try:
+            check_ppo_config(a)
+        except ValueError as error:
+            field, _, message = str(error).partition(": ")
+            raise ConfigError(field, message) from None
     if c.algo == "td3":
         require(a.policy_delay >= 1, "policy_delay", f"must be >= 1 (got {a.policy_delay})")
     return config

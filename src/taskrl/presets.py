@@ -32,6 +32,9 @@ _LANGUAGE = {"task_encoder": "language", "projection_dim": 50}
 _POINTREACH_MT = {**_MULTITASK_SAC, "env": "pointreach-mt", "reward": "dense", "num_envs": 16, "updates_per_step": 0.25,
                   "learning_starts": 500, "eval_interval": 2_000, "eval_episodes": 20, "total_steps": 20_000,
                   "hidden_sizes": (64, 64), "lr": 1e-3, "gamma": 0.95, "batch_size": 256}
+# Multi-task PPO: on-policy, so no replay, relabelling or task-balanced batches (every rollout holds
+# every copy's task in proportion to its copies: one copy per task on Meta-World).
+_PPO = {"algo": "ppo", "her": "none", "sampling": "uniform", "terminate_on_success": False}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -90,6 +93,10 @@ PRESETS: dict[str, Preset] = {
         "multi-task SAC with CARE (encoders mixed by attention on the sentence embedding) on multi-task PointReach",
         {**_POINTREACH_MT, **_LANGUAGE, "architecture": "care"},
     ),
+    "pointreach-mt-ppo-onehot": Preset(
+        "multi-task PPO on multi-task PointReach, one-hot task context (32 copies, rollouts of 64 steps)",
+        {**_POINTREACH_MT, **_PPO, "num_envs": 32, "total_steps": 150_000, "eval_interval": 10_000},
+    ),
     "mt1-reach-sac": Preset(
         "SAC on Meta-World v3 reach (MT1: one task, goal positions resampled every episode), 10 copies",
         {**_MT1, "mt1_task": "reach"},
@@ -109,6 +116,11 @@ PRESETS: dict[str, Preset] = {
     "mt10-sac-care": Preset(
         "CARE on MT10: k=4 state encoders mixed by attention on the description's sentence embedding",
         {**_MT10, **_LANGUAGE, "architecture": "care", "care_encoders": 4},
+    ),
+    "mt10-ppo-onehot": Preset(
+        "multi-task PPO on MT10 with a one-hot task context: one 500-step episode per task per rollout, 10 epochs of 10 minibatches",
+        {**_MT10, **_PPO, "task_encoder": "onehot", "architecture": "concat", "hidden_sizes": (256, 256), "lr": 3e-4,
+         "gamma": 0.99, "rollout_steps": 500, "epochs": 10, "minibatches": 10, "entropy_coef": 0.0},
     ),
     "mt50-sac-care": Preset(
         "CARE on MT50 (k=6 encoders; 50 copies, one per task)",

@@ -26,12 +26,13 @@ from rich.console import Console
 
 from taskrl import config as config_io
 from taskrl.agents.dqn import DQNAgent
+from taskrl.agents.ppo import PPOAgent
 from taskrl.agents.qtopt import QTOptAgent
 from taskrl.agents.sac import SACAgent
 from taskrl.agents.td3 import TD3Agent
 from taskrl.checkpoint import load_checkpoint, save_checkpoint
 from taskrl.conditioning.networks import make_conditioning
-from taskrl.config import GYMNASIUM_IDS, METAWORLD_BENCHMARKS, MULTITASK_ENVS, ConfigError, TrainConfig, validate, with_overrides
+from taskrl.config import GYMNASIUM_IDS, METAWORLD_BENCHMARKS, MULTITASK_ENVS, ON_POLICY_ALGOS, ConfigError, TrainConfig, validate, with_overrides
 from taskrl.console import ConsoleReporter, final_table
 from taskrl.envs import BitFlip, GymnasiumGoalEnv, MultiTaskPointReach, PointReach, evaluate_per_task, is_goal_env
 from taskrl.envs.base import BatchedEnv
@@ -41,10 +42,11 @@ from taskrl.presets import preset_config
 from taskrl.replay import EpisodeReplay, HindsightRelabeler, TaskBalancedSampler
 from taskrl.training.evaluation import evaluate
 from taskrl.training.offpolicy import LoopSchedule, LoopState, OffPolicyLoop
+from taskrl.training.onpolicy import OnPolicyLoop, OnPolicySchedule
 
 #: Observation keys the networks read, where the env has them (the task index is read separately).
 AGENT_INPUT_KEYS = ("observation", "desired_goal")
-Agent = DQNAgent | QTOptAgent | SACAgent | TD3Agent
+Agent = DQNAgent | QTOptAgent | SACAgent | TD3Agent | PPOAgent
 EVAL_SEED_OFFSET = 1_000_003
 
 
@@ -112,6 +114,8 @@ def make_agent(config: TrainConfig, env: BatchedEnv, device: torch.device) -> Ag
         conditioning = make_conditioning(config.conditioning, len(task_set), task_set.descriptions)
     action_space = env.single_action_space
     discrete = isinstance(action_space, gym.spaces.Discrete)
+    if config.algo == "ppo":  # Gaussian (Box) or categorical (Discrete) policy
+        return PPOAgent(keys, input_dim, action_space, config.ppo, device, conditioning)
     if config.algo == "dqn":
         if not discrete:
             raise ConfigError("algo", f"dqn needs discrete actions but {config.env!r} has {action_space}; use qtopt or sac")
@@ -221,11 +225,12 @@ def train(
     env = make_env(config, config.num_envs, config.seed, device)
     eval_env = make_env(config, eval_env_copies(config), config.seed + EVAL_SEED_OFFSET, device, evaluation=True)
     agent = make_agent(config, env, device)
+    on_policy = config.algo in ON_POLICY_ALGOS
     relabel = make_relabeler(config, env)
-    replay = EpisodeReplay(env.single_observation_space, env.single_action_space,
-                           min(config.buffer_size, config.total_steps + 2 * env.num_envs * env.horizon),
-                           env.horizon, env.num_envs, device)
-    sampler = TaskBalancedSampler(replay, len(env.task_set)) if config.sampling == "task_balanced" else None
+    replay = None if on_policy else EpisodeReplay(
+        env.single_observation_space, env.single_action_space,
+        min(config.buffer_size, config.total_steps + 2 * env.num_envs * env.horizon), env.horizon, env.num_envs, device)
+    sampler = TaskBalancedSampler(replay, len(env.task_set)) if config.sampling == "task_balanced" and replay else None
     generator = torch.Generator(device=device)
     generator.manual_seed(config.seed + 1)
 
@@ -233,7 +238,7 @@ def train(
     if resume is not None:
         saved = load_checkpoint(run_dir / "checkpoints", ("agent", "replay", "loop"), device)
         agent.load_state_dict(saved["agent"])
-        if "replay" in saved:
+        if "replay" in saved and replay is not None:
             replay.load_state_dict(saved["replay"])
         loop_saved = dict(saved["loop"])
         generator.set_state(loop_saved.pop("generator").cpu())
@@ -246,17 +251,10 @@ def train(
             "agent": agent.state_dict(),
             "loop": {**dataclasses.asdict(loop_state), "generator": generator.get_state()},
         }
-        if config.save_replay:
+        if config.save_replay and replay is not None:
             parts["replay"] = replay.state_dict()
         save_checkpoint(run_dir / "checkpoints", parts, loop_state.env_steps)
 
-    schedule = LoopSchedule(
-        total_steps=config.total_steps, batch_size=config.batch_size, learning_starts=config.learning_starts,
-        updates_per_step=config.updates_per_step, eval_interval=config.eval_interval,
-        checkpoint_interval=config.checkpoint_interval, stop_at_success=config.stop_at_success,
-        epsilon_start=config.epsilon_start, epsilon_end=config.epsilon_end,
-        epsilon_decay_steps=config.epsilon_decay_steps,
-    )
     rows: list[dict[str, Any]] = []
     title = preset or f"{config.env}-{config.algo}"
     with ConsoleReporter(title, config.total_steps, state.env_steps, enabled=progress) as reporter:
@@ -267,8 +265,19 @@ def train(
             reporter.update(row)
 
         evaluator, last_eval = make_evaluator(config, eval_env, agent, config.seed + EVAL_SEED_OFFSET)
-        loop = OffPolicyLoop(env, agent, replay, relabel, schedule, evaluate=evaluator,
-                             on_log=on_log, on_checkpoint=checkpoint, generator=generator, sample=sampler)
+        callbacks = dict(evaluate=evaluator, on_log=on_log, on_checkpoint=checkpoint, generator=generator)
+        if on_policy:
+            loop = OnPolicyLoop(env, agent, OnPolicySchedule(config.total_steps, config.eval_interval,
+                                                             config.checkpoint_interval, config.stop_at_success), **callbacks)
+        else:
+            schedule = LoopSchedule(
+                total_steps=config.total_steps, batch_size=config.batch_size, learning_starts=config.learning_starts,
+                updates_per_step=config.updates_per_step, eval_interval=config.eval_interval,
+                checkpoint_interval=config.checkpoint_interval, stop_at_success=config.stop_at_success,
+                epsilon_start=config.epsilon_start, epsilon_end=config.epsilon_end,
+                epsilon_decay_steps=config.epsilon_decay_steps,
+            )
+            loop = OffPolicyLoop(env, agent, replay, relabel, schedule, sample=sampler, **callbacks)
         try:
             state = loop.run(state, env_seed=config.seed + state.env_steps)
         finally:

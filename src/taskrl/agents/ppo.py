@@ -83,7 +83,6 @@ class PPOConfig:
         normalize_advantages: standardise the advantages of every minibatch.
         max_grad_norm: gradient-norm clip of all parameters together (0 disables).
         normalize_inputs: standardise observation inputs with running mean/std (clipped to +-5).
-        tau: unused by PPO and REINFORCE (no target networks); kept so every algorithm has it.
     """
 
     estimator: Literal["ppo", "reinforce"] = "ppo"
@@ -101,7 +100,6 @@ class PPOConfig:
     normalize_advantages: bool = True
     max_grad_norm: float = 0.5
     normalize_inputs: bool = True
-    tau: float = 1.0
 
 
 def check_ppo_config(config: PPOConfig) -> None:
