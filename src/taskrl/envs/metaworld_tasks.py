@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import json
 import math
+import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, Literal
@@ -289,15 +290,18 @@ class _MetaWorldFactory:
     def __call__(self) -> gym.Env:
         import metaworld
 
-        # What Meta-World's own MT constructors call for each vector slot.
-        env = metaworld._init_each_env(
-            env_cls=self.env_cls,
-            tasks=self.goals,
-            seed=self.seed,
-            env_id=self.task_index,
-            num_tasks=self.num_tasks,
-            **self.kwargs,
-        )
+        # What Meta-World's own MT constructors call for each vector slot. Its float64 space
+        # bounds make gymnasium warn about casting them to float32 on every construction: noise.
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message=".*precision lowered by casting to float32.*")
+            env = metaworld._init_each_env(
+                env_cls=self.env_cls,
+                tasks=self.goals,
+                seed=self.seed,
+                env_id=self.task_index,
+                num_tasks=self.num_tasks,
+                **self.kwargs,
+            )
         steps = self.kwargs["max_episode_steps"]
         if steps > env.unwrapped.max_path_length:  # Meta-World refuses steps past max_path_length
             env.unwrapped.max_path_length = steps
