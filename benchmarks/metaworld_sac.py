@@ -26,9 +26,23 @@ import torch
 
 import taskrl
 from common import append_results
+from qtopt_cem import matmul_gflops
 from taskrl.logger import read_metrics
 
 TASK = "reach-v3"
+OBS_DIM, ACTION_DIM = 39, 4
+
+
+def sac_update_flops(batch: int, hidden: int) -> float:
+    """Multiply-adds x 2 of one SAC update with two-layer networks of width ``hidden``.
+
+    Actor forward Fa, critic forward Fc. Target: Fa + 2 Fc. Critic step: 2 x (Fc + 2 Fc backward).
+    Actor step: Fa + 2 Fa backward, plus 2 critics forward and backward to the action only (~2 Fc
+    each, critic weights frozen). Total 4 Fa + 12 Fc.
+    """
+    fa = 2 * batch * (OBS_DIM * hidden + hidden * hidden + hidden * 2 * ACTION_DIM)
+    fc = 2 * batch * ((OBS_DIM + ACTION_DIM) * hidden + hidden * hidden + hidden)
+    return 4 * fa + 12 * fc
 
 
 def taskrl_throughput(num_envs: int, updates_per_step: float, learning_starts: int, steps: int, seed: int) -> dict:
@@ -67,7 +81,8 @@ def sb3_throughput(learning_starts: int, steps: int, seed: int) -> dict:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--learning-starts", type=int, default=1_000)
+    parser.add_argument("--learning-starts", type=int, default=5_000,
+                        help="random steps first; >= 10 x 500 so that 10 copies have finished episodes to learn from")
     parser.add_argument("--steps", type=int, default=3_000, help="env steps of the learning phase that is timed")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=1, help="torch threads for both libraries")
@@ -86,6 +101,11 @@ def main() -> None:
     for name, r in rows.items():
         lines.append(f"| {name} | {r['env_steps_per_s']:.0f} | {r['updates_per_s']:.0f} | "
                      f"{r['env_steps_per_s'] / base['env_steps_per_s']:.2f}x | {r['updates_per_s'] / base['updates_per_s']:.2f}x |")
+    gflops = matmul_gflops()
+    bound_ms = sac_update_flops(256, 256) / gflops / 1e6
+    lines += ["", f"FLOP bound of one update (256x256, batch 256, {sac_update_flops(256, 256) / 1e6:.0f} MFLOP) at the measured "
+                  f"{gflops:.0f} GFLOP/s: {bound_ms:.1f} ms, i.e. at most {1e3 / bound_ms:.0f} updates/s on this core "
+                  f"({1e3 / bound_ms / base['updates_per_s']:.1f}x SB3's rate) with one update per env step."]
     table = "\n".join(lines)
     print(json.dumps(rows, indent=2))
     print(table)
