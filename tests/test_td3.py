@@ -103,3 +103,17 @@ def test_acting_respects_bounds_and_round_trips_state():
     other.load_state_dict(unflatten_state(tensors, skeleton))
     torch.testing.assert_close(other.act(obs), agent.act(obs))
     assert not torch.allclose(make_agent(low=(-2.0, 0.5), high=(3.0, 1.0)).act(obs), agent.act(obs))
+
+
+def test_hindsight_paper_exploration_mixes_gaussian_noise_and_random_actions():
+    from taskrl.agents.parts import explore_in_box
+
+    g = torch.Generator().manual_seed(0)
+    greedy = torch.full((20_000, 2), 0.5)
+    noisy = explore_in_box(greedy, 0.2, 0.0, g)
+    assert noisy.abs().max() <= 1.0 and abs((noisy - 0.5).std().item() - 0.2) < 0.01
+    mixed = explore_in_box(greedy, 0.0, 0.3, g)
+    random_rows = (mixed != 0.5).any(1)
+    assert abs(random_rows.float().mean().item() - 0.3) < 0.02
+    assert mixed[random_rows].min() < -0.9 and mixed[random_rows].max() > 0.9  # uniform over the box
+    assert torch.equal(explore_in_box(greedy, 0.0, 0.0, g), greedy)

@@ -233,6 +233,7 @@ def validate(config: TrainConfig) -> TrainConfig:
         require(a.loss in ("huber", "mse", "cross_entropy"), "loss",
                 f"unknown loss {a.loss!r}; allowed: huber, mse, cross_entropy")
         require(a.target2_interval >= 1, "target2_interval", f"must be >= 1 (got {a.target2_interval})")
+        require(a.noise_std >= 0, "noise_std", f"must be >= 0 (got {a.noise_std})")
         cem = a.cem
         require(cem.iterations >= 1, "iterations", f"must be >= 1 (got {cem.iterations})")
         require(1 <= cem.elites <= cem.samples, "elites", f"must be in [1, samples={cem.samples}] (got {cem.elites})")
@@ -250,6 +251,7 @@ def validate(config: TrainConfig) -> TrainConfig:
             field, _, message = str(error).partition(": ")
             raise ConfigError(field, message) from None
     if c.algo == "td3":
+        require(0.0 <= a.random_action_prob <= 1.0, "random_action_prob", f"must be in [0, 1] (got {a.random_action_prob})")
         require(a.policy_delay >= 1, "policy_delay", f"must be >= 1 (got {a.policy_delay})")
     return config
 

@@ -4,7 +4,8 @@
   normalisation), one module for the online and target networks alike;
 - :class:`ActionBox`: between an action box ``[low, high]`` and the ``[-1, 1]^A`` networks see;
 - :func:`gradient_step`: zero the gradients, backpropagate, clip the norm, step;
-- :func:`as_batch`: one numpy observation of a gymnasium environment as a batch of one.
+- :func:`as_batch`: one numpy observation of a gymnasium environment as a batch of one;
+- :func:`explore_in_box`: the hindsight paper's exploration for deterministic policies.
 """
 
 from __future__ import annotations
@@ -82,3 +83,20 @@ def as_batch(obs: Obs | dict[str, Any], device: torch.device) -> tuple[Obs, bool
     if single:
         obs = {k: torch.as_tensor(np.asarray(v), device=device).unsqueeze(0) for k, v in obs.items()}
     return obs, single
+
+
+def explore_in_box(unit: torch.Tensor, noise_std: float, random_prob: float,
+                   generator: torch.Generator | None = None) -> torch.Tensor:
+    """Exploration around deterministic actions in ``[-1, 1]^A`` (the hindsight paper's, for Fetch):
+
+        a = clip(a* + N(0, noise_std^2), -1, 1)     Gaussian noise, in half-widths of the box
+        a = U(-1, 1)^A  with probability random_prob per row   (the paper: 0.2 noise, 30% random)
+    """
+    n, dim = unit.shape
+    if noise_std > 0:
+        unit = (unit + noise_std * torch.randn(unit.shape, generator=generator, device=unit.device)).clamp(-1.0, 1.0)
+    if random_prob > 0:
+        pick = torch.rand(n, 1, generator=generator, device=unit.device) < random_prob
+        uniform = torch.rand(n, dim, generator=generator, device=unit.device) * 2 - 1
+        unit = torch.where(pick, uniform, unit)
+    return unit

@@ -34,7 +34,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from taskrl.agents.cem import CEMConfig, CrossEntropyMethod
-from taskrl.agents.parts import ActionBox, ObservationInput, as_batch, gradient_step
+from taskrl.agents.parts import ActionBox, ObservationInput, as_batch, explore_in_box, gradient_step
 from taskrl.nets import mlp
 from taskrl.replay.batch import Batch, Obs
 
@@ -54,6 +54,8 @@ class QTOptConfig:
         clip_target: clip targets to [-1/(1-gamma), 0] (for rewards in {-1, 0}; huber/mse only).
         max_grad_norm: gradient-norm clip (0 disables).
         normalize_inputs: standardise observation inputs with running mean/std (clipped to +-5).
+        noise_std: while collecting, std of Gaussian noise added to the CEM action (half-widths of
+            the box); the loop's exploration level is the probability of a uniformly random action.
         cem: cross-entropy-method settings, used both to act and in the Bellman target.
     """
 
@@ -66,6 +68,7 @@ class QTOptConfig:
     clip_target: bool = False
     max_grad_norm: float = 10.0
     normalize_inputs: bool = True
+    noise_std: float = 0.0
     cem: CEMConfig = dataclasses.field(default_factory=CEMConfig)
 
 
@@ -167,8 +170,9 @@ class QTOptAgent:
     # ---------------------------------------------------------------- acting
     @torch.no_grad()
     def act(self, obs: Obs | dict[str, Any], exploration: float = 0.0, generator: torch.Generator | None = None):
-        """CEM-greedy actions [B, A] in the action box; with probability ``exploration`` per state
-        a uniformly random action in the box instead (epsilon-greedy over a continuous box).
+        """CEM-greedy actions [B, A] in the action box; while collecting (``exploration`` > 0),
+        Gaussian noise of std ``noise_std`` around them and, with probability ``exploration`` per
+        state, a uniformly random action in the box instead (epsilon-greedy over a continuous box).
 
         Accepts batched tensors, or one numpy observation of a gymnasium environment (then
         returns a numpy action of shape [A]).
@@ -177,10 +181,7 @@ class QTOptAgent:
         x = self.inputs(obs)
         unit, _ = self.argmax(self.q, x, generator)
         if exploration > 0.0:
-            n = unit.shape[0]
-            explore = torch.rand(n, 1, generator=generator, device=self.device) < exploration
-            uniform = torch.rand(n, self.action_dim, generator=generator, device=self.device) * 2 - 1
-            unit = torch.where(explore, uniform, unit)
+            unit = explore_in_box(unit, self.config.noise_std, exploration, generator)
         action = self.box.from_unit(unit)
         return action[0].cpu().numpy() if single else action
 

@@ -21,7 +21,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from taskrl.agents.qtopt import StateActionQ
-from taskrl.agents.parts import ActionBox, ObservationInput, as_batch, gradient_step
+from taskrl.agents.parts import ActionBox, ObservationInput, as_batch, explore_in_box, gradient_step
 from taskrl.nets import mlp
 from taskrl.replay.batch import Batch, Obs
 
@@ -41,6 +41,8 @@ class TD3Config:
         clip_target: clip targets to [-1/(1-gamma), 0] (for rewards in {-1, 0}).
         max_grad_norm: gradient-norm clip (0 disables).
         normalize_inputs: standardise observation inputs with running mean/std (clipped to +-5).
+        random_action_prob: while collecting, the fraction of actions drawn uniformly from the box
+            instead (the hindsight paper's Fetch exploration: 0.3, with Gaussian noise 0.2).
     """
 
     lr: float = 3e-4
@@ -53,6 +55,7 @@ class TD3Config:
     clip_target: bool = False
     max_grad_norm: float = 0.0
     normalize_inputs: bool = True
+    random_action_prob: float = 0.0
 
 
 class DeterministicActor(nn.Module):
@@ -108,12 +111,12 @@ class TD3Agent:
     @torch.no_grad()
     def act(self, obs: Obs | dict[str, Any], exploration: float = 0.0, generator: torch.Generator | None = None):
         """mu(s) in the action box, plus Gaussian noise of std ``exploration`` x half-width (TD3's
-        0.1 while collecting), clipped to the box. Accepts one numpy observation (returns numpy [A])."""
+        0.1 while collecting), clipped to the box, and with ``random_action_prob`` a uniformly random
+        action instead. Accepts one numpy observation (returns numpy [A])."""
         obs, single = as_batch(obs, self.device)
         unit = self.actor(self.inputs(obs))
         if exploration > 0.0:
-            noise = torch.randn(unit.shape, generator=generator, device=self.device) * exploration
-            unit = (unit + noise).clamp(-1.0, 1.0)
+            unit = explore_in_box(unit, exploration, self.config.random_action_prob, generator)
         action = self.box.from_unit(unit)
         return action[0].cpu().numpy() if single else action
 
