@@ -25,7 +25,8 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 METHODS = ("mt10-sac-onehot", "mt10-sac-film-language", "mt10-sac-care", "mt10-ppo-onehot")
-OUT = Path("benchmarks/out/mt10")
+HERE = Path(__file__).resolve().parent
+OUT = HERE / "out" / "mt10"
 
 
 def run_one(preset: str, seed: int, budget: int, hidden: tuple[int, ...], batch_size: int, eval_interval: int,
@@ -149,7 +150,7 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--profile", action="store_true")
     parser.add_argument("--out", type=Path, default=OUT, help="run directories (a finished run there is reused)")
-    parser.add_argument("--figure", type=Path, default=Path("benchmarks/figures/mt10_curves.png"))
+    parser.add_argument("--figure", type=Path, default=HERE / "figures" / "mt10_curves.png")
     parser.add_argument("--write", action="store_true")
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
@@ -185,7 +186,7 @@ def main() -> None:
             f"Budget {args.budget:,} env steps in total ({args.budget // 10:,} per task), seeds {args.seeds}, hidden "
             f"{tuple(args.hidden)}, SAC batch {args.batch_size} (task-balanced), evaluation every {args.eval_interval:,} "
             f"steps on {args.eval_episodes} distinct goals per task (success at any step); {args.workers} runs at a "
-            f"time, one torch thread each. Curves: `{args.figure}`.\n\n{text}")
+            f"time, one torch thread each. Curves: `benchmarks/figures/{args.figure.name}`.\n\n{text}")
 
 
 if __name__ == "__main__":

@@ -6,7 +6,7 @@ values at collection time, the value of ``info["final_obs"]`` where a time limit
 and the value of the observation after the last step), and hands the :class:`Rollout` to
 ``agent.update``. Nothing is kept between rollouts. Evaluation, logging and checkpointing run on
 env-step schedules, checked after each rollout, with the counters and the stopwatch of the
-off-policy loop (:class:`~taskrl.training.offpolicy.LoopState`, ``Stopwatch``).
+off-policy loop (:class:`~taskrl.training.bookkeeping.Bookkeeping`).
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from typing import Any, Callable, Protocol
 import torch
 
 from taskrl.envs.base import BatchedEnv, Obs
-from taskrl.training.offpolicy import LoopState, Stopwatch
+from taskrl.training.bookkeeping import Bookkeeping, LoopState
 
 
 @dataclasses.dataclass
@@ -138,61 +138,16 @@ class OnPolicyLoop:
 
     def run(self, state: LoopState, env_seed: int) -> LoopState:
         s, env, agent = self.schedule, self.env, self.agent
+        books = Bookkeeping(state, self.evaluate, self.on_log, self.on_checkpoint, s.total_steps, s.eval_interval,
+                            s.checkpoint_interval, s.stop_at_success, env.device)
         obs = env.reset(seed=env_seed)
-        # Sums of the agent's update metrics, kept as tensors between log rows: no host sync
-        # inside the hot loop.
-        metric_sums: dict[str, torch.Tensor] = {}
-        episodes_done = torch.zeros((), device=env.device)
-        episodes_success = torch.zeros((), device=env.device)
-        row_updates, row_steps, row_rollouts = 0, 0, 0
-        clock = Stopwatch(state.wall_seconds)
-        row_start = clock.read()
-
         while state.env_steps < s.total_steps:
             rollout, obs, ended, succeeded = collect_rollout(env, agent, obs, agent.rollout_steps, self.generator)
-            episodes_done += ended
-            episodes_success += succeeded
-            state.env_steps += rollout.num_steps
-            row_steps += rollout.num_steps
-
+            books.add_episodes(ended, succeeded)
+            books.add_steps(rollout.num_steps)
             before = agent.updates
-            for name, value in agent.update(rollout, self.generator).items():
-                metric_sums[name] = metric_sums[name] + value if name in metric_sums else value.clone()
-            state.updates += agent.updates - before
-            row_updates += agent.updates - before
-            row_rollouts += 1
-
-            finished = state.env_steps >= s.total_steps
-            if state.env_steps >= state.next_eval or finished:
-                state.wall_seconds = clock.pause()
-                elapsed = max(state.wall_seconds - row_start, 1e-9)
-                result = self.evaluate()
-                row = {
-                    "env_steps": state.env_steps,
-                    "updates": state.updates,
-                    "wall_seconds": round(state.wall_seconds, 3),
-                    **result,
-                    "train_success": (episodes_success / episodes_done.clamp(min=1)).item(),
-                    **{name: (total / max(row_rollouts, 1)).item() for name, total in metric_sums.items()},
-                    "env_steps_per_s": row_steps / elapsed,
-                    "updates_per_s": row_updates / elapsed,
-                }
-                self.on_log(row)
-                state.last_success = result["success_rate"]
-                state.best_success = max(state.best_success, result["success_rate"])
-                missed = (state.env_steps - state.next_eval) // s.eval_interval + 1  # whole rollouts may skip some
-                state.next_eval += max(missed, 1) * s.eval_interval
-                metric_sums.clear(), episodes_done.zero_(), episodes_success.zero_()
-                row_updates, row_steps, row_rollouts, row_start = 0, 0, 0, state.wall_seconds
-                clock.resume()
-                if s.stop_at_success > 0 and result["success_rate"] >= s.stop_at_success:
-                    finished = True
-            if state.env_steps >= state.next_checkpoint or finished:
-                state.wall_seconds = clock.pause()
-                state.next_checkpoint = state.env_steps + s.checkpoint_interval
-                self.on_checkpoint(state)
-                clock.resume()
-            if finished:
+            metrics = agent.update(rollout, self.generator)
+            books.add_update(metrics, gradient_steps=agent.updates - before)
+            if books.after_step():
                 break
-        state.wall_seconds = clock.pause()
-        return state
+        return books.close()

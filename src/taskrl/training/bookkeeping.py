@@ -1,0 +1,133 @@
+"""What every training loop does between its own steps: clock, metric rows, evaluation, checkpoints.
+
+The off-policy and on-policy loops differ in how they collect and learn; they share everything
+else through :class:`Bookkeeping`: the training stopwatch (evaluation and checkpoints do not
+count), the sums that make a metrics row (the agent's update scalars kept as tensors, so the hot
+loop never waits for the device; finished training episodes and their successes; env steps and
+updates), and the schedule of evaluations, log rows, early stopping and checkpoints.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from typing import Any, Callable
+
+import torch
+
+
+class Stopwatch:
+    """Training wall-clock that can be paused (evaluation and checkpoints do not count)."""
+
+    def __init__(self, already: float = 0.0) -> None:
+        self.total, self.started = already, time.perf_counter()
+
+    def pause(self) -> float:
+        self.total += time.perf_counter() - self.started
+        return self.total
+
+    def resume(self) -> None:
+        self.started = time.perf_counter()
+
+    def read(self) -> float:
+        return self.total + time.perf_counter() - self.started
+
+
+@dataclasses.dataclass
+class LoopState:
+    """Counters that survive a resume."""
+
+    env_steps: int = 0
+    updates: int = 0
+    wall_seconds: float = 0.0
+    update_credit: float = 0.0
+    next_eval: int = 0
+    next_checkpoint: int = 0
+    best_success: float = 0.0
+    last_success: float = 0.0
+
+
+class Bookkeeping:
+    """Accumulates one metrics row and runs the evaluation / checkpoint schedule.
+
+    Args:
+        state: the loop's counters (advanced by the loop, read and updated here).
+        evaluate: ``() -> metrics`` with ``success_rate``.
+        on_log: receives each row.
+        on_checkpoint: receives the state when a checkpoint is due (and at the end).
+        total_steps: env steps after which the run is finished.
+        eval_interval, checkpoint_interval: env steps between evaluations / checkpoints.
+        stop_at_success: end the run once evaluation success reaches this (0: never).
+        device: where the running sums live.
+    """
+
+    def __init__(self, state: LoopState, evaluate: Callable[[], dict[str, float]], on_log: Callable[[dict[str, Any]], None],
+                 on_checkpoint: Callable[[LoopState], None], total_steps: int, eval_interval: int,
+                 checkpoint_interval: int, stop_at_success: float, device: torch.device) -> None:
+        self.state, self.evaluate, self.on_log, self.on_checkpoint = state, evaluate, on_log, on_checkpoint
+        self.total_steps = total_steps
+        self.eval_interval, self.checkpoint_interval, self.stop_at_success = eval_interval, checkpoint_interval, stop_at_success
+        self.clock = Stopwatch(state.wall_seconds)
+        self.metric_sums: dict[str, torch.Tensor] = {}
+        self.episodes_done = torch.zeros((), device=device)
+        self.episodes_success = torch.zeros((), device=device)
+        self.row_steps = self.row_updates = self.row_calls = 0
+        self.row_start = self.clock.read()
+
+    def add_steps(self, n: int) -> None:
+        self.state.env_steps += n
+        self.row_steps += n
+
+    def add_episodes(self, ended: torch.Tensor, succeeded: torch.Tensor) -> None:
+        """Training episodes that finished and how many succeeded (counts or boolean masks)."""
+        self.episodes_done += ended.sum()
+        self.episodes_success += succeeded.sum()
+
+    def add_update(self, metrics: dict[str, torch.Tensor], gradient_steps: int = 1) -> None:
+        """The scalars one ``agent.update`` call returned, and how many gradient steps it took."""
+        for name, value in metrics.items():
+            self.metric_sums[name] = self.metric_sums[name] + value if name in self.metric_sums else value.clone()
+        self.state.updates += gradient_steps
+        self.row_updates += gradient_steps
+        self.row_calls += 1
+
+    def after_step(self, extra: dict[str, Any] | None = None) -> bool:
+        """Evaluate, log and checkpoint when due; returns whether the run is finished."""
+        state = self.state
+        finished = state.env_steps >= self.total_steps
+        if state.env_steps >= state.next_eval or finished:
+            state.wall_seconds = self.clock.pause()
+            elapsed = max(state.wall_seconds - self.row_start, 1e-9)
+            result = self.evaluate()
+            row = {
+                "env_steps": state.env_steps,
+                "updates": state.updates,
+                "wall_seconds": round(state.wall_seconds, 3),
+                **result,
+                "train_success": (self.episodes_success / self.episodes_done.clamp(min=1)).item(),
+                **{name: (total / max(self.row_calls, 1)).item() for name, total in self.metric_sums.items()},
+                **(extra or {}),
+                "env_steps_per_s": self.row_steps / elapsed,
+                "updates_per_s": self.row_updates / elapsed,
+            }
+            self.on_log(row)
+            state.last_success = result["success_rate"]
+            state.best_success = max(state.best_success, result["success_rate"])
+            missed = (state.env_steps - state.next_eval) // self.eval_interval + 1  # a big step may pass several
+            state.next_eval += max(missed, 1) * self.eval_interval
+            self.metric_sums.clear(), self.episodes_done.zero_(), self.episodes_success.zero_()
+            self.row_steps = self.row_updates = self.row_calls = 0
+            self.row_start = state.wall_seconds
+            self.clock.resume()
+            if self.stop_at_success > 0 and result["success_rate"] >= self.stop_at_success:
+                finished = True
+        if state.env_steps >= state.next_checkpoint or finished:
+            state.wall_seconds = self.clock.pause()
+            state.next_checkpoint = state.env_steps + self.checkpoint_interval
+            self.on_checkpoint(state)
+            self.clock.resume()
+        return finished
+
+    def close(self) -> LoopState:
+        self.state.wall_seconds = self.clock.pause()
+        return self.state
