@@ -11,6 +11,7 @@ from taskrl.envs.metaworld_tasks import (
     MT50_TASKS,
     evaluate_per_task,
     metaworld_id,
+    metaworld_spec,
     metaworld_task_set,
     per_task_table,
     version_free,
@@ -88,6 +89,9 @@ def test_mt10_builds_with_one_hot_and_the_one_hot_matches_the_task_index():
         obs, reward, terminated, truncated, info = env.step(torch.zeros(10, 4))
         assert obs["task"].tolist() == list(range(10)) and reward.dtype == torch.float32
         assert info["is_success"].dtype == torch.bool and info["is_success"].shape == (10,)
+        spec = metaworld_spec("MT10")  # what loading an agent builds instead of the env
+        assert spec.single_observation_space == env.single_observation_space
+        assert spec.single_action_space == env.single_action_space and spec.task_set == env.task_set
 
 
 def test_goal_positions_are_resampled_at_every_reset():

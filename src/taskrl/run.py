@@ -310,7 +310,13 @@ def load(run_dir: str | Path, device: str = "cpu") -> Agent:
         raise ConfigError("run_dir", f"{run_dir} is not a run directory (no config.json)")
     config = config_io.load(run_dir / "config.json")
     dev = resolve_device(device)
-    env = make_env(config, 1, 0, dev, evaluation=True)
+    if config.env in METAWORLD_BENCHMARKS:  # spaces and task set only: building Meta-World takes seconds
+        from taskrl.envs.metaworld_tasks import metaworld_spec
+
+        benchmark = METAWORLD_BENCHMARKS[config.env]
+        env = metaworld_spec(benchmark, config.mt1_task if benchmark == "MT1" else None)
+    else:
+        env = make_env(config, 1, 0, dev, evaluation=True)
     agent = make_agent(config, env, dev)
     env.close()
     agent.load_state_dict(load_checkpoint(run_dir / "checkpoints", ("agent",), dev)["agent"])

@@ -24,6 +24,7 @@ version ``"v2"`` (its default); horizon 500 (Meta-World's ``max_path_length``), 
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import warnings
@@ -48,6 +49,7 @@ __all__ = [
     "MetaWorldMultiTaskEnv",
     "evaluate_per_task",
     "metaworld_id",
+    "metaworld_spec",
     "metaworld_task_set",
     "per_task_table",
     "version_free",
@@ -57,6 +59,7 @@ METAWORLD_VERSION = "v3"
 METAWORLD_HORIZON = 500  # Meta-World's max_path_length
 METAWORLD_NUM_GOALS = 50  # goal positions Meta-World pre-draws per task
 METAWORLD_OBS_DIM = 39
+METAWORLD_ACTION_DIM = 4
 _INSTALL_HINT = "Meta-World environments need the `metaworld` extra: pip install 'taskrl[metaworld]'"
 
 # One sentence per task, written for taskrl from what each task asks of the robot (Yu et al.,
@@ -180,6 +183,28 @@ def metaworld_task_set(benchmark: str | Sequence[str] = "MT10", task: str | None
         if repeated:
             raise ValueError(f"a custom Meta-World benchmark lists tasks more than once: {', '.join(repeated)}")
     return TaskSet.from_pairs((n, METAWORLD_DESCRIPTIONS[n]) for n in names)
+
+
+@dataclasses.dataclass
+class MetaWorldSpec:
+    """What an agent is built from — the task set and the spaces of :class:`MetaWorldMultiTaskEnv` —
+    without building the env (each task's MuJoCo model and goal draws take seconds), e.g. to load a
+    trained agent. ``test_metaworld_tasks`` checks that it matches a real env."""
+
+    task_set: TaskSet
+    single_observation_space: gym.spaces.Dict
+    single_action_space: gym.spaces.Box
+
+    def close(self) -> None:
+        """Nothing to release (the same call as on an env)."""
+
+
+def metaworld_spec(benchmark: str | Sequence[str] = "MT10", task: str | None = None) -> MetaWorldSpec:
+    """The :class:`MetaWorldSpec` of a benchmark (arguments as :func:`metaworld_task_set`)."""
+    task_set = metaworld_task_set(benchmark, task)
+    observation = gym.spaces.Box(-np.inf, np.inf, shape=(METAWORLD_OBS_DIM,), dtype=np.float32)
+    return MetaWorldSpec(task_set, gym.spaces.Dict({"observation": observation, "task": gym.spaces.Discrete(len(task_set))}),
+                         gym.spaces.Box(-1.0, 1.0, shape=(METAWORLD_ACTION_DIM,), dtype=np.float32))
 
 
 # ---------------------------------------------------------------------------------------------
