@@ -34,6 +34,10 @@ def test_presets_lists_each_with_a_description(capsys):
         (["train"], "allowed: bitflip-her"),
         (["fly"], "allowed: train, eval, presets, solve"),
         (["eval", "/nonexistent/run"], "not a run directory"),
+        (["train", "mt10-sac-care", "--architecture", "transformer"], "'concat', 'film', 'care'"),
+        (["train", "mt10-sac-care", "--num-envs", "12"], "--num-envs must be a multiple of the 10 tasks"),
+        (["train", "mt10-ppo-onehot", "--estimator", "a2c"], "'ppo', 'reinforce'"),
+        (["train", "pointreach-mt-sac-onehot", "--algo", "dqn"], "allowed: sac, ppo"),
     ],
 )
 def test_bad_input_gets_one_line_naming_the_allowed_values_and_exit_2(capsys, args, expected):
@@ -75,3 +79,14 @@ def test_flags_follow_the_presets_algorithm(capsys):
     assert code == 2 and "unknown option '--double-q'" in err  # a DQN flag, not SAC's
     code, _, err = run_cli(capsys, "train", "bitflip-her", "--algo", "sac")
     assert code == 2 and "needs continuous (Box) actions" in err
+
+
+def test_multitask_train_then_eval_per_task_from_the_command_line(capsys, tmp_path):
+    out = tmp_path / "mt"
+    code, stdout, err = run_cli(capsys, "train", "pointreach-mt-ppo-onehot", "--out", str(out), "--total-steps", "4000",
+                                "--eval-interval", "2000", "--eval-episodes", "2", "--no-progress", "--no-tensorboard")
+    assert code == 0, err
+    assert json.loads((out / "per_task_success.json").read_text())["episodes_per_task"] == 2
+    code, stdout, err = run_cli(capsys, "eval", str(out), "--episodes", "3")
+    result = json.loads(stdout)
+    assert code == 0 and result["episodes"] == 3 and {"success/top-left", "success/centre"} <= set(result)

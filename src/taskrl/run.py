@@ -328,6 +328,10 @@ def evaluate_run(run_dir: str | Path, episodes: int = 100, seed: int | None = No
     run_dir = Path(run_dir)
     agent = load(run_dir, device)
     config = dataclasses.replace(config_io.load(run_dir / "config.json"), eval_episodes=episodes)
+    try:
+        validate(config)
+    except ConfigError as error:  # the only setting this call changes is the episode count
+        raise ConfigError("episodes" if error.field == "eval_episodes" else error.field, error.message) from None
     seed = config.seed + EVAL_SEED_OFFSET if seed is None else seed
     env = make_env(config, eval_env_copies(config), seed, agent.device, evaluation=True)
     try:
