@@ -189,7 +189,9 @@ def validate(config: TrainConfig) -> TrainConfig:
                 f"{c.algo!r} does not run on the multi-task env {c.env!r}; allowed: {', '.join(MULTITASK_ALGOS)}")
         require(c.her == "none", "her", f"{c.env!r} is not a goal env (no achieved/desired goal); use --her none")
         if c.env in ("mt10", "mt50"):
-            tasks = 10 if c.env == "mt10" else 50
+            from taskrl.envs.metaworld_tasks import MT10_TASKS, MT50_TASKS
+
+            tasks = len(MT10_TASKS if c.env == "mt10" else MT50_TASKS)
             require(c.num_envs % tasks == 0, "num_envs",
                     f"must be a multiple of the {tasks} tasks of {c.env} (one or more copies per task; got {c.num_envs})")
         if c.env in METAWORLD_BENCHMARKS:

@@ -36,6 +36,7 @@ from taskrl.config import GYMNASIUM_IDS, METAWORLD_BENCHMARKS, MULTITASK_ENVS, O
 from taskrl.console import ConsoleReporter, final_table
 from taskrl.envs import BitFlip, GymnasiumGoalEnv, MultiTaskPointReach, PointReach, evaluate_per_task, is_goal_env
 from taskrl.envs.base import BatchedEnv
+from taskrl.envs.multitask_point import DEFAULT_REGIONS
 from taskrl.logger import RunLogger
 from taskrl.plots import plot_learning_curve
 from taskrl.presets import preset_config
@@ -81,11 +82,12 @@ def make_env(config: TrainConfig, num_envs: int, seed: int, device: torch.device
                                    task_sampling="fixed" if evaluation else "uniform",
                                    terminate_on_success=config.terminate_on_success, seed=seed)
     if config.env in METAWORLD_BENCHMARKS:
-        from taskrl.envs.metaworld_tasks import MetaWorldMultiTaskEnv
+        from taskrl.envs.metaworld_tasks import MetaWorldMultiTaskEnv, metaworld_task_set
 
         benchmark = METAWORLD_BENCHMARKS[config.env]
-        num_tasks = {"MT1": 1, "MT10": 10, "MT50": 50}[benchmark]
-        return MetaWorldMultiTaskEnv(benchmark, config.mt1_task if benchmark == "MT1" else None, use_one_hot=True,
+        task = config.mt1_task if benchmark == "MT1" else None
+        num_tasks = len(metaworld_task_set(benchmark, task))
+        return MetaWorldMultiTaskEnv(benchmark, task, use_one_hot=True,
                                      envs_per_task=1 if evaluation else max(1, num_envs // num_tasks),
                                      max_episode_steps=config.max_episode_steps, seed=config.seed, device=device,
                                      vector_strategy=config.vector_strategy)
@@ -161,7 +163,7 @@ def eval_env_copies(config: TrainConfig) -> int:
     """Copies of the evaluation env: one episode each (goal envs), every task ``eval_episodes`` times at once
     (native multi-task), or Meta-World's one copy per task."""
     if config.env == "pointreach-mt":
-        return len(MultiTaskPointReach().task_set) * config.eval_episodes
+        return len(DEFAULT_REGIONS) * config.eval_episodes
     return config.eval_episodes
 
 
