@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import statistics
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -41,13 +42,8 @@ def run_one(preset: str, seed: int, budget: int, hidden: tuple[int, ...], batch_
                      eval_episodes=eval_episodes, checkpoint_interval=10**12, save_replay=False, tensorboard=False)
     if "ppo" not in preset:
         overrides["batch_size"] = batch_size
-    if (out / "per_task_success.json").exists():  # finished before: reuse
-        pass
-    else:
-        if out.exists():
-            import shutil
-
-            shutil.rmtree(out)
+    if not (out / "per_task_success.json").exists():  # a finished run is reused; an unfinished one restarts
+        shutil.rmtree(out, ignore_errors=True)
         taskrl.train(preset, out=out, **overrides)
     from taskrl.logger import read_metrics
 

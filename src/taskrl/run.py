@@ -70,6 +70,12 @@ def resolve_device(name: str) -> torch.device:
     return torch.device(name)
 
 
+def metaworld_benchmark(config: TrainConfig) -> tuple[str, str | None]:
+    """``(benchmark, task)`` of a Meta-World run: ``("MT1", "reach")``, ``("MT10", None)``, ..."""
+    benchmark = METAWORLD_BENCHMARKS[config.env]
+    return benchmark, config.mt1_task if benchmark == "MT1" else None
+
+
 def make_env(config: TrainConfig, num_envs: int, seed: int, device: torch.device, evaluation: bool = False) -> BatchedEnv:
     """The run's batched environment: a native torch one, or gymnasium's through the adapter.
 
@@ -84,8 +90,7 @@ def make_env(config: TrainConfig, num_envs: int, seed: int, device: torch.device
     if config.env in METAWORLD_BENCHMARKS:
         from taskrl.envs.metaworld_tasks import MetaWorldMultiTaskEnv, metaworld_task_set
 
-        benchmark = METAWORLD_BENCHMARKS[config.env]
-        task = config.mt1_task if benchmark == "MT1" else None
+        benchmark, task = metaworld_benchmark(config)
         num_tasks = len(metaworld_task_set(benchmark, task))
         return MetaWorldMultiTaskEnv(benchmark, task, use_one_hot=True,
                                      envs_per_task=1 if evaluation else max(1, num_envs // num_tasks),
@@ -315,8 +320,7 @@ def load(run_dir: str | Path, device: str = "cpu") -> Agent:
     if config.env in METAWORLD_BENCHMARKS:  # spaces and task set only: building Meta-World takes seconds
         from taskrl.envs.metaworld_tasks import metaworld_spec
 
-        benchmark = METAWORLD_BENCHMARKS[config.env]
-        env = metaworld_spec(benchmark, config.mt1_task if benchmark == "MT1" else None)
+        env = metaworld_spec(*metaworld_benchmark(config))
     else:
         env = make_env(config, 1, 0, dev, evaluation=True)
     agent = make_agent(config, env, dev)
@@ -328,12 +332,14 @@ def load(run_dir: str | Path, device: str = "cpu") -> Agent:
 def evaluate_run(run_dir: str | Path, episodes: int = 100, seed: int | None = None, device: str = "cpu") -> dict[str, float]:
     """Re-evaluate a saved agent greedily on ``episodes`` fresh episodes (per task on multi-task envs)."""
     run_dir = Path(run_dir)
-    agent = load(run_dir, device)
+    if not (run_dir / "config.json").exists():
+        raise ConfigError("run_dir", f"{run_dir} is not a run directory (no config.json)")
     config = dataclasses.replace(config_io.load(run_dir / "config.json"), eval_episodes=episodes)
-    try:
+    try:  # before loading anything
         validate(config)
     except ConfigError as error:  # the only setting this call changes is the episode count
         raise ConfigError("episodes" if error.field == "eval_episodes" else error.field, error.message) from None
+    agent = load(run_dir, device)
     seed = config.seed + EVAL_SEED_OFFSET if seed is None else seed
     env = make_env(config, eval_env_copies(config), seed, agent.device, evaluation=True)
     try:

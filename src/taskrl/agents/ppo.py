@@ -248,8 +248,7 @@ class PPOAgent:
         x = self.inputs(obs)
         if self.conditioning is None:
             return x, None, None
-        task = obs[self.conditioning.task_key].to(self.device)
-        return x, self.task_encoder(task), task
+        return x, *self.conditioning.task_inputs(obs)
 
     def _policy_output(self, feats) -> torch.Tensor:
         """Gaussian mean in [-1, 1] units, or Categorical logits."""

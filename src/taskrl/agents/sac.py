@@ -186,10 +186,7 @@ class SACAgent:
 
     def task_inputs(self, obs: Obs) -> tuple[torch.Tensor | None, torch.Tensor | None]:
         """``(context, task index)`` of a batch of observations; ``(None, None)`` for single-task agents."""
-        if self.conditioning is None:
-            return None, None
-        task = obs[self.conditioning.task_key].long().view(-1)
-        return self.task_encoder(task), task
+        return (None, None) if self.conditioning is None else self.conditioning.task_inputs(obs)
 
     def _row_alpha(self, task: torch.Tensor | None, log_alpha: torch.Tensor) -> torch.Tensor:
         """Each row's entry of ``log_alpha`` (or of its exp): its task's when per task, else the shared one."""

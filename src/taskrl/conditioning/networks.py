@@ -156,6 +156,11 @@ class TaskConditioning:
     def num_tasks(self) -> int:
         return self.encoder.num_tasks
 
+    def task_inputs(self, obs: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(context [B, C], task index [B])`` of a batch of observations."""
+        task = obs[self.task_key].long().view(-1)
+        return self.encoder(task), task
+
     def network(self, in_dim: int, out_dim: int, hidden_sizes: Sequence[int], extra_dim: int = 0) -> ConditionedMLP:
         """A :class:`ConditionedMLP` with this conditioning (one head per task if ``multi_head``)."""
         c = self.config

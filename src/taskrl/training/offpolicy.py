@@ -15,9 +15,9 @@ import torch
 from taskrl.envs.base import BatchedEnv, Obs
 from taskrl.replay.batch import Batch
 from taskrl.replay.episodes import EpisodeReplay
-from taskrl.training.bookkeeping import Bookkeeping, LoopState, Stopwatch
+from taskrl.training.bookkeeping import Bookkeeping, LoopState
 
-__all__ = ["LoopSchedule", "LoopState", "OffPolicyLoop", "Stopwatch"]
+__all__ = ["LoopSchedule", "LoopState", "OffPolicyLoop"]
 
 
 class OffPolicyAgent(Protocol):

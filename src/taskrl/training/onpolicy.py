@@ -93,7 +93,9 @@ def collect_rollout(env: BatchedEnv, agent: OnPolicyAgent, obs: Obs, steps: int,
     for _ in range(steps):
         env_action, action, log_prob, value = agent.explore(obs, generator)
         next_obs, reward, terminated, truncated, info = env.step(env_action)
-        final_value = torch.where(truncated, agent.value(info["final_obs"]), torch.zeros_like(value))
+        final_value = torch.zeros_like(value)
+        if bool(truncated.any()):  # time limits are rare steps: no value pass on the others
+            final_value = torch.where(truncated, agent.value(info["final_obs"]), final_value)
         for key, item in (("action", action), ("log_prob", log_prob), ("value", value), ("reward", reward.float()),
                           ("terminated", terminated), ("truncated", truncated), ("final_value", final_value)):
             columns[key].append(item)
