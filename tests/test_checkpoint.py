@@ -105,3 +105,36 @@ def test_metrics_csv_gains_the_agents_columns_after_the_first_updates(tmp_path):
     assert {"loss", "q_mean", "success_rate", "wall_seconds"} <= set(rows[0])
     assert rows[0]["loss"] is None and rows[-1]["loss"] is not None  # no updates before the first row
     assert run.metrics["updates"] > 0
+
+
+def test_a_time_limit_stops_cleanly_and_resume_finishes_the_run(tmp_path):
+    out = tmp_path / "limited"
+    first = taskrl.train("bitflip-her", out=out, total_steps=10_000_000, eval_interval=400, checkpoint_interval=10**9,
+                         max_hours=2 / 3600, **TINY)
+    assert first.stopped_by == "time limit"
+    stopped_at = first.metrics["env_steps"]
+    assert 0 < stopped_at < 10_000_000
+    # the stop wrote a checkpoint at the step it stopped on, and a metrics row for it
+    assert load_checkpoint(out / "checkpoints", ("loop",))["loop"]["env_steps"] == stopped_at
+    assert read_metrics(out / "metrics.csv")[-1]["env_steps"] == stopped_at
+    second = taskrl.train(resume=out, total_steps=stopped_at + 400, max_hours=0, tensorboard=False)
+    assert second.stopped_by is None and second.metrics["env_steps"] == stopped_at + 400
+
+
+def test_sigterm_stops_a_cli_run_with_a_checkpoint_at_the_current_step(tmp_path):
+    out = tmp_path / "terminated"
+    cmd = [sys.executable, "-m", "taskrl.cli", "train", "bitflip-her", "--out", str(out), "--no-progress",
+           "--no-tensorboard", "--n-bits", "6", "--num-envs", "4", "--total-steps", "10000000",
+           "--checkpoint-interval", "1000000000", "--eval-interval", "400", "--eval-episodes", "10", "--learning-starts", "100"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 120
+    while not ((out / "metrics.csv").exists() and len(read_metrics(out / "metrics.csv")) >= 3):
+        assert proc.poll() is None, proc.stderr.read()
+        assert time.time() < deadline
+        time.sleep(0.2)
+    proc.send_signal(signal.SIGTERM)
+    stdout, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == 0, stderr
+    assert "stopped early (SIGTERM)" in stderr and f"--resume {out}" in stderr
+    final = json.loads(stdout.strip().splitlines()[-1])
+    assert load_checkpoint(out / "checkpoints", ("loop",))["loop"]["env_steps"] == final["env_steps"] > 400

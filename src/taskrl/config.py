@@ -96,6 +96,9 @@ class TrainConfig:
         stop_at_success: stop once evaluation success reaches this (0 = train to total_steps).
         checkpoint_interval: environment steps between checkpoints (also one at the end).
         save_replay: include the replay buffer in checkpoints so a resumed run loses no data.
+        max_hours: stop cleanly (evaluation, checkpoint) after this many hours of wall-clock in
+            this invocation, to continue later with ``--resume``; 0 = no limit. Ctrl-C and
+            SIGTERM stop the same way.
         threads: torch CPU threads. 1 by default: the networks here are small, one thread is as
             fast, and torch's multi-threaded kernels stall when another process holds a core
             (measured 100x slower on a busy 2-core machine). 0 = torch's default.
@@ -135,6 +138,7 @@ class TrainConfig:
     stop_at_success: float = 0.0
     checkpoint_interval: int = 50_000
     save_replay: bool = True
+    max_hours: float = 0.0
     threads: int = 1
     dqn: DQNConfig = dataclasses.field(default_factory=DQNConfig)
     qtopt: QTOptConfig = dataclasses.field(default_factory=QTOptConfig)
@@ -212,6 +216,7 @@ def validate(config: TrainConfig) -> TrainConfig:
     require(c.her_k >= 0, "her_k", f"must be >= 0 (got {c.her_k})")
     require(c.learning_starts >= 0, "learning_starts", f"must be >= 0 (got {c.learning_starts})")
     require(c.updates_per_step >= 0, "updates_per_step", f"must be >= 0 (got {c.updates_per_step})")
+    require(c.max_hours >= 0, "max_hours", f"must be >= 0 hours (0 = no limit; got {c.max_hours})")
     for name in ("epsilon_start", "epsilon_end", "stop_at_success"):
         require(0.0 <= getattr(c, name) <= 1.0, name, f"must be in [0, 1] (got {getattr(c, name)})")
     require(c.epsilon_decay_steps >= 0, "epsilon_decay_steps", f"must be >= 0 (got {c.epsilon_decay_steps})")

@@ -43,6 +43,7 @@ from taskrl.presets import preset_config
 from taskrl.replay import EpisodeReplay, HindsightRelabeler, TaskBalancedSampler
 from taskrl.training.evaluation import evaluate
 from taskrl.training.offpolicy import LoopSchedule, LoopState, OffPolicyLoop
+from taskrl.training.bookkeeping import StopRequest
 from taskrl.training.onpolicy import OnPolicyLoop, OnPolicySchedule
 
 #: Observation keys the networks read, where the env has them (the task index is read separately).
@@ -59,6 +60,7 @@ class Run:
     config: TrainConfig
     metrics: dict[str, Any]
     agent: Agent
+    stopped_by: str | None = None  # "time limit", "SIGINT", "SIGTERM" when stopped early (resumable)
 
 
 # ---------------------------------------------------------------------- wiring
@@ -272,7 +274,8 @@ def train(
             reporter.update(row)
 
         evaluator, last_eval = make_evaluator(config, eval_env, agent, config.seed + EVAL_SEED_OFFSET)
-        callbacks = dict(evaluate=evaluator, on_log=on_log, on_checkpoint=checkpoint, generator=generator)
+        stop = StopRequest(config.max_hours)
+        callbacks = dict(evaluate=evaluator, on_log=on_log, on_checkpoint=checkpoint, generator=generator, stop=stop)
         if on_policy:
             loop = OnPolicyLoop(env, agent, OnPolicySchedule(config.total_steps, config.eval_interval,
                                                              config.checkpoint_interval, config.stop_at_success), **callbacks)
@@ -286,7 +289,8 @@ def train(
             )
             loop = OffPolicyLoop(env, agent, replay, relabel, schedule, sample=sampler, **callbacks)
         try:
-            state = loop.run(state, env_seed=config.seed + state.env_steps)
+            with stop.on_signals():
+                state = loop.run(state, env_seed=config.seed + state.env_steps)
         finally:
             logger.close()
             env.close()
@@ -303,7 +307,11 @@ def train(
                                    "wall_seconds": state.wall_seconds, "success_rate": state.last_success}
     if progress:
         (console or Console(stderr=True)).print(final_table({"eval_return": float("nan"), **final}, run_dir, curve))
-    return Run(run_dir=run_dir, config=config, metrics=final, agent=agent)
+    if loop.stopped_by:
+        (console or Console(stderr=True)).print(
+            f"stopped early ({loop.stopped_by}) at {state.env_steps:,} env steps, checkpoint saved; "
+            f"continue with: taskrl train --resume {run_dir}", soft_wrap=True, markup=False)
+    return Run(run_dir=run_dir, config=config, metrics=final, agent=agent, stopped_by=loop.stopped_by)
 
 
 # ---------------------------------------------------------------------- loading

@@ -9,9 +9,12 @@ updates), and the schedule of evaluations, log rows, early stopping and checkpoi
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import signal
+import threading
 import time
-from typing import Any, Callable
+from typing import Any, Callable, Iterator
 
 import torch
 
@@ -31,6 +34,49 @@ class Stopwatch:
 
     def read(self) -> float:
         return self.total + time.perf_counter() - self.started
+
+
+class StopRequest:
+    """Ends a run early but cleanly: after a wall-clock limit, or on Ctrl-C / SIGTERM.
+
+    The loops ask :meth:`reason` after every step; when it answers, the run evaluates, logs and
+    checkpoints as at its natural end, so ``--resume`` continues it with nothing lost (stopping
+    inside an optimiser step would checkpoint half an update). A second Ctrl-C interrupts at once.
+
+    Args:
+        max_hours: hours of wall-clock from now (this invocation, not the run's total) after which
+            the run stops; 0 = no limit.
+    """
+
+    def __init__(self, max_hours: float = 0.0) -> None:
+        self.deadline = time.monotonic() + max_hours * 3600 if max_hours > 0 else None
+        self.signalled: str | None = None
+
+    def reason(self) -> str | None:
+        if self.signalled:
+            return self.signalled
+        if self.deadline is not None and time.monotonic() >= self.deadline:
+            return "time limit"
+        return None
+
+    @contextlib.contextmanager
+    def on_signals(self) -> Iterator["StopRequest"]:
+        """Turn SIGINT / SIGTERM into a stop request while the block runs (main thread only)."""
+        if threading.current_thread() is not threading.main_thread():
+            yield self
+            return
+
+        def handle(signum: int, frame: Any) -> None:
+            if self.signalled:  # asked twice: stop now
+                raise KeyboardInterrupt
+            self.signalled = signal.Signals(signum).name
+
+        previous = {sig: signal.signal(sig, handle) for sig in (signal.SIGINT, signal.SIGTERM)}
+        try:
+            yield self
+        finally:
+            for sig, old in previous.items():
+                signal.signal(sig, old)
 
 
 @dataclasses.dataclass
@@ -59,12 +105,16 @@ class Bookkeeping:
         eval_interval, checkpoint_interval: env steps between evaluations / checkpoints.
         stop_at_success: end the run once evaluation success reaches this (0: never).
         device: where the running sums live.
+        stop: ends the run early (time limit, signals) with an evaluation and a checkpoint.
     """
 
     def __init__(self, state: LoopState, evaluate: Callable[[], dict[str, float]], on_log: Callable[[dict[str, Any]], None],
                  on_checkpoint: Callable[[LoopState], None], total_steps: int, eval_interval: int,
-                 checkpoint_interval: int, stop_at_success: float, device: torch.device) -> None:
+                 checkpoint_interval: int, stop_at_success: float, device: torch.device,
+                 stop: StopRequest | None = None) -> None:
         self.state, self.evaluate, self.on_log, self.on_checkpoint = state, evaluate, on_log, on_checkpoint
+        self.stop = stop
+        self.stopped_by: str | None = None
         self.total_steps = total_steps
         self.eval_interval, self.checkpoint_interval, self.stop_at_success = eval_interval, checkpoint_interval, stop_at_success
         self.clock = Stopwatch(state.wall_seconds)
@@ -95,6 +145,8 @@ class Bookkeeping:
         """Evaluate, log and checkpoint when due; returns whether the run is finished."""
         state = self.state
         finished = state.env_steps >= self.total_steps
+        if not finished and self.stop is not None and (reason := self.stop.reason()):
+            self.stopped_by, finished = reason, True
         if state.env_steps >= state.next_eval or finished:
             state.wall_seconds = self.clock.pause()
             elapsed = max(state.wall_seconds - self.row_start, 1e-9)

@@ -15,7 +15,7 @@ import torch
 from taskrl.envs.base import BatchedEnv, Obs
 from taskrl.replay.batch import Batch
 from taskrl.replay.episodes import EpisodeReplay
-from taskrl.training.bookkeeping import Bookkeeping, LoopState
+from taskrl.training.bookkeeping import Bookkeeping, LoopState, StopRequest
 
 __all__ = ["LoopSchedule", "LoopState", "OffPolicyLoop"]
 
@@ -63,6 +63,7 @@ class OffPolicyLoop:
         evaluate: ``() -> metrics`` run on the evaluation schedule (must return ``success_rate``).
         on_log: called with each metrics row (to CSV, TensorBoard, the console).
         on_checkpoint: called with the loop state when a checkpoint is due.
+        stop: ends the run early and cleanly (a time limit, Ctrl-C); ``stopped_by`` then says why.
         generator: generator for sampling and exploration.
         sample: ``sample(batch_size, generator) -> Batch`` drawing from ``replay`` (default
             ``replay.sample``: uniform over transitions; e.g. a ``TaskBalancedSampler``).
@@ -79,6 +80,7 @@ class OffPolicyLoop:
         on_log: Callable[[dict[str, Any]], None],
         on_checkpoint: Callable[[LoopState], None],
         generator: torch.Generator,
+        stop: StopRequest | None = None,
         sample: Callable[[int, torch.Generator], Batch] | None = None,
     ) -> None:
         self.env, self.agent, self.replay, self.relabel = env, agent, replay, relabel
@@ -86,6 +88,8 @@ class OffPolicyLoop:
         self.schedule, self.evaluate = schedule, evaluate
         self.on_log, self.on_checkpoint = on_log, on_checkpoint
         self.generator = generator
+        self.stop = stop
+        self.stopped_by: str | None = None
 
     def sample_batch(self) -> Batch:
         batch = self.sample(self.schedule.batch_size, self.generator)
@@ -94,7 +98,7 @@ class OffPolicyLoop:
     def run(self, state: LoopState, env_seed: int) -> LoopState:
         s, env, agent, replay = self.schedule, self.env, self.agent, self.replay
         books = Bookkeeping(state, self.evaluate, self.on_log, self.on_checkpoint, s.total_steps, s.eval_interval,
-                            s.checkpoint_interval, s.stop_at_success, env.device)
+                            s.checkpoint_interval, s.stop_at_success, env.device, self.stop)
         obs = env.reset(seed=env_seed)
         replay.start(obs)
         while state.env_steps < s.total_steps:
@@ -116,4 +120,5 @@ class OffPolicyLoop:
 
             if books.after_step({"epsilon": epsilon}):
                 break
+        self.stopped_by = books.stopped_by
         return books.close()

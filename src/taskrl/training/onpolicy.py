@@ -17,7 +17,7 @@ from typing import Any, Callable, Protocol
 import torch
 
 from taskrl.envs.base import BatchedEnv, Obs
-from taskrl.training.bookkeeping import Bookkeeping, LoopState
+from taskrl.training.bookkeeping import Bookkeeping, LoopState, StopRequest
 
 
 @dataclasses.dataclass
@@ -121,6 +121,7 @@ class OnPolicyLoop:
         evaluate: ``() -> metrics`` run on the evaluation schedule (must return ``success_rate``).
         on_log: called with each metrics row (to CSV, TensorBoard, the console).
         on_checkpoint: called with the loop state when a checkpoint is due.
+        stop: ends the run early and cleanly (a time limit, Ctrl-C); ``stopped_by`` then says why.
         generator: generator for action sampling and minibatch order.
     """
 
@@ -133,15 +134,18 @@ class OnPolicyLoop:
         on_log: Callable[[dict[str, Any]], None],
         on_checkpoint: Callable[[LoopState], None],
         generator: torch.Generator,
+        stop: StopRequest | None = None,
     ) -> None:
         self.env, self.agent, self.schedule, self.evaluate = env, agent, schedule, evaluate
         self.on_log, self.on_checkpoint = on_log, on_checkpoint
         self.generator = generator
+        self.stop = stop
+        self.stopped_by: str | None = None
 
     def run(self, state: LoopState, env_seed: int) -> LoopState:
         s, env, agent = self.schedule, self.env, self.agent
         books = Bookkeeping(state, self.evaluate, self.on_log, self.on_checkpoint, s.total_steps, s.eval_interval,
-                            s.checkpoint_interval, s.stop_at_success, env.device)
+                            s.checkpoint_interval, s.stop_at_success, env.device, self.stop)
         obs = env.reset(seed=env_seed)
         while state.env_steps < s.total_steps:
             rollout, obs, ended, succeeded = collect_rollout(env, agent, obs, agent.rollout_steps, self.generator)
@@ -152,4 +156,5 @@ class OnPolicyLoop:
             books.add_update(metrics, gradient_steps=agent.updates - before)
             if books.after_step():
                 break
+        self.stopped_by = books.stopped_by
         return books.close()
