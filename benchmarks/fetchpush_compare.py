@@ -54,9 +54,15 @@ def summarise(run_dir: Path) -> dict:
     reached = next((r for r in rows if r["success_rate"] >= TARGET), None)
     learning = [r for r in rows if r["updates_per_s"]]
     last = rows[-1]
+    section = config.get(config["algo"], {})
+    if config["algo"] == "sac":
+        exploration = "policy entropy"
+    else:
+        eps = f"{config['epsilon_start']}" + (f"->{config['epsilon_end']}" if config["epsilon_end"] != config["epsilon_start"] else "")
+        exploration = f"{eps} random, noise {section.get('noise_std', 0.0)}"
     return {
         "run": run_dir.name, "algo": config["algo"], "seed": config["seed"],
-        "hidden": config.get(config["algo"], {}).get("hidden_sizes"), "updates_per_step": config["updates_per_step"],
+        "hidden": section.get("hidden_sizes"), "updates_per_step": config["updates_per_step"], "exploration": exploration,
         "env_steps": last["env_steps"], "updates": last["updates"], "hours": last["wall_seconds"] / 3600,
         "last_success": last["success_rate"], "best_success": max(r["success_rate"] for r in rows),
         "steps_to_target": reached["env_steps"] if reached else None,
@@ -76,7 +82,7 @@ def curves_png(results: list[dict], path: Path) -> None:
     fig, (by_steps, by_hours) = plt.subplots(1, 2, figsize=(10, 4), sharey=True)
     for r in results:
         steps, hours, success = zip(*r["curve"])
-        label = f"{r['algo']} + HER (seed {r['seed']})"
+        label = f"{r['run']}: {r['algo']} + HER, {r['updates_per_step']} updates/step"
         by_steps.plot([s / 1e6 for s in steps], success, marker=".", label=label)
         by_hours.plot(hours, success, marker=".", label=label)
     for ax, xlabel in ((by_steps, "env steps (millions)"), (by_hours, "training hours (one CPU core)")):
@@ -92,12 +98,12 @@ def curves_png(results: list[dict], path: Path) -> None:
 
 
 def table(results: list[dict]) -> str:
-    lines = ["| run | network | updates / env step | env steps | training hours | env steps/s | updates/s | "
-             "best success | last success | env steps to 90% | hours to 90% |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+    lines = ["| run | network | exploration | updates / env step | env steps | training hours | env steps/s | updates/s | "
+             "best success | last success | env steps to 90% | hours to 90% |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in results:
         to_steps = f"{r['steps_to_target']:,}" if r["steps_to_target"] else "not reached"
         to_hours = f"{r['hours_to_target']:.2f}" if r["hours_to_target"] else "-"
-        lines.append(f"| {r['run']} | {tuple(r['hidden'] or ())} | {r['updates_per_step']} | {r['env_steps']:,} | "
+        lines.append(f"| {r['run']} | {tuple(r['hidden'] or ())} | {r['exploration']} | {r['updates_per_step']} | {r['env_steps']:,} | "
                      f"{r['hours']:.2f} | {r['env_steps_per_s']:.0f} | {r['updates_per_s']:.1f} | {r['best_success']:.2f} | "
                      f"{r['last_success']:.2f} | {to_steps} | {to_hours} |")
     return "\n".join(lines)
@@ -112,6 +118,8 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--report", action="store_true", help="train nothing; report the runs as they stand")
     parser.add_argument("--out", type=Path, default=OUT, help="run directories <preset>-s<seed> (resumed when present)")
+    parser.add_argument("--extra", type=Path, nargs="*", default=[],
+                        help="more run directories to report beside them (e.g. a variant trained with other settings)")
     parser.add_argument("--figure", type=Path, default=HERE / "figures" / "fetchpush_sac_qtopt.png")
     parser.add_argument("--write", action="store_true")
     args = parser.parse_args()
@@ -122,7 +130,8 @@ def main() -> None:
         with ProcessPoolExecutor(args.workers) as pool:
             list(pool.map(run_one, *zip(*jobs), [args.budget] * len(jobs), [args.hours] * len(jobs),
                           [args.out] * len(jobs)))
-    results = [summarise(args.out / f"{p}-s{s}") for p, s in jobs if (args.out / f"{p}-s{s}" / "metrics.csv").exists()]
+    run_dirs = [args.out / f"{p}-s{s}" for p, s in jobs] + list(args.extra)
+    results = [summarise(d) for d in run_dirs if (d / "metrics.csv").exists()]
     (args.out / "results.json").write_text(json.dumps(results, indent=2))
     curves_png(results, args.figure)
     text = table(results)
