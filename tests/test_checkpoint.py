@@ -119,6 +119,8 @@ def test_a_time_limit_stops_cleanly_and_resume_finishes_the_run(tmp_path):
     assert read_metrics(out / "metrics.csv")[-1]["env_steps"] == stopped_at
     second = taskrl.train(resume=out, total_steps=stopped_at + 400, max_hours=0, tensorboard=False)
     assert second.stopped_by is None and second.metrics["env_steps"] == stopped_at + 400
+    steps = [r["env_steps"] for r in read_metrics(out / "metrics.csv")]
+    assert (stopped_at // 400 + 1) * 400 in steps  # the stop's extra evaluation did not shift the schedule
 
 
 def test_sigterm_stops_a_cli_run_with_a_checkpoint_at_the_current_step(tmp_path):

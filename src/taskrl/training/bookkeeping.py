@@ -165,8 +165,9 @@ class Bookkeeping:
             self.on_log(row)
             state.last_success = result["success_rate"]
             state.best_success = max(state.best_success, result["success_rate"])
-            missed = (state.env_steps - state.next_eval) // self.eval_interval + 1  # a big step may pass several
-            state.next_eval += max(missed, 1) * self.eval_interval
+            if state.env_steps >= state.next_eval:  # an early stop's evaluation keeps the schedule as it was
+                missed = (state.env_steps - state.next_eval) // self.eval_interval + 1  # a big step may pass several
+                state.next_eval += missed * self.eval_interval
             self.metric_sums.clear(), self.episodes_done.zero_(), self.episodes_success.zero_()
             self.row_steps = self.row_updates = self.row_calls = 0
             self.row_start = state.wall_seconds
