@@ -41,9 +41,9 @@ from taskrl.logger import RunLogger
 from taskrl.plots import plot_learning_curve
 from taskrl.presets import preset_config
 from taskrl.replay import EpisodeReplay, HindsightRelabeler, TaskBalancedSampler
+from taskrl.training.bookkeeping import StopRequest
 from taskrl.training.evaluation import evaluate
 from taskrl.training.offpolicy import LoopSchedule, LoopState, OffPolicyLoop
-from taskrl.training.bookkeeping import StopRequest
 from taskrl.training.onpolicy import OnPolicyLoop, OnPolicySchedule
 
 #: Observation keys the networks read, where the env has them (the task index is read separately).
@@ -307,11 +307,11 @@ def train(
                                    "wall_seconds": state.wall_seconds, "success_rate": state.last_success}
     if progress:
         (console or Console(stderr=True)).print(final_table({"eval_return": float("nan"), **final}, run_dir, curve))
-    if loop.stopped_by:
+    if stop.stopped_by:
         (console or Console(stderr=True)).print(
-            f"stopped early ({loop.stopped_by}) at {state.env_steps:,} env steps, checkpoint saved; "
+            f"stopped early ({stop.stopped_by}) at {state.env_steps:,} env steps, checkpoint saved; "
             f"continue with: taskrl train --resume {run_dir}", soft_wrap=True, markup=False)
-    return Run(run_dir=run_dir, config=config, metrics=final, agent=agent, stopped_by=loop.stopped_by)
+    return Run(run_dir=run_dir, config=config, metrics=final, agent=agent, stopped_by=stop.stopped_by)
 
 
 # ---------------------------------------------------------------------- loading

@@ -39,9 +39,10 @@ class Stopwatch:
 class StopRequest:
     """Ends a run early but cleanly: after a wall-clock limit, or on Ctrl-C / SIGTERM.
 
-    The loops ask :meth:`reason` after every step; when it answers, the run evaluates, logs and
+    The loops ask :meth:`due` after every step; when it says yes, the run evaluates, logs and
     checkpoints as at its natural end, so ``--resume`` continues it with nothing lost (stopping
-    inside an optimiser step would checkpoint half an update). A second Ctrl-C interrupts at once.
+    inside an optimiser step would checkpoint half an update), and ``stopped_by`` keeps the reason.
+    A second Ctrl-C interrupts at once.
 
     Args:
         max_hours: hours of wall-clock from now (this invocation, not the run's total) after which
@@ -51,13 +52,14 @@ class StopRequest:
     def __init__(self, max_hours: float = 0.0) -> None:
         self.deadline = time.monotonic() + max_hours * 3600 if max_hours > 0 else None
         self.signalled: str | None = None
+        self.stopped_by: str | None = None  # "time limit", "SIGINT" or "SIGTERM" once due
 
-    def reason(self) -> str | None:
+    def due(self) -> bool:
         if self.signalled:
-            return self.signalled
-        if self.deadline is not None and time.monotonic() >= self.deadline:
-            return "time limit"
-        return None
+            self.stopped_by = self.signalled
+        elif self.deadline is not None and time.monotonic() >= self.deadline:
+            self.stopped_by = "time limit"
+        return self.stopped_by is not None
 
     @contextlib.contextmanager
     def on_signals(self) -> Iterator["StopRequest"]:
@@ -114,7 +116,6 @@ class Bookkeeping:
                  stop: StopRequest | None = None) -> None:
         self.state, self.evaluate, self.on_log, self.on_checkpoint = state, evaluate, on_log, on_checkpoint
         self.stop = stop
-        self.stopped_by: str | None = None
         self.total_steps = total_steps
         self.eval_interval, self.checkpoint_interval, self.stop_at_success = eval_interval, checkpoint_interval, stop_at_success
         self.clock = Stopwatch(state.wall_seconds)
@@ -145,8 +146,8 @@ class Bookkeeping:
         """Evaluate, log and checkpoint when due; returns whether the run is finished."""
         state = self.state
         finished = state.env_steps >= self.total_steps
-        if not finished and self.stop is not None and (reason := self.stop.reason()):
-            self.stopped_by, finished = reason, True
+        if not finished and self.stop is not None and self.stop.due():
+            finished = True
         if state.env_steps >= state.next_eval or finished:
             state.wall_seconds = self.clock.pause()
             elapsed = max(state.wall_seconds - self.row_start, 1e-9)

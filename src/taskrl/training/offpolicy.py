@@ -63,7 +63,7 @@ class OffPolicyLoop:
         evaluate: ``() -> metrics`` run on the evaluation schedule (must return ``success_rate``).
         on_log: called with each metrics row (to CSV, TensorBoard, the console).
         on_checkpoint: called with the loop state when a checkpoint is due.
-        stop: ends the run early and cleanly (a time limit, Ctrl-C); ``stopped_by`` then says why.
+        stop: ends the run early and cleanly (a time limit, Ctrl-C); its ``stopped_by`` says why.
         generator: generator for sampling and exploration.
         sample: ``sample(batch_size, generator) -> Batch`` drawing from ``replay`` (default
             ``replay.sample``: uniform over transitions; e.g. a ``TaskBalancedSampler``).
@@ -89,7 +89,6 @@ class OffPolicyLoop:
         self.on_log, self.on_checkpoint = on_log, on_checkpoint
         self.generator = generator
         self.stop = stop
-        self.stopped_by: str | None = None
 
     def sample_batch(self) -> Batch:
         batch = self.sample(self.schedule.batch_size, self.generator)
@@ -120,5 +119,4 @@ class OffPolicyLoop:
 
             if books.after_step({"epsilon": epsilon}):
                 break
-        self.stopped_by = books.stopped_by
         return books.close()

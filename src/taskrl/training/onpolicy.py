@@ -121,7 +121,7 @@ class OnPolicyLoop:
         evaluate: ``() -> metrics`` run on the evaluation schedule (must return ``success_rate``).
         on_log: called with each metrics row (to CSV, TensorBoard, the console).
         on_checkpoint: called with the loop state when a checkpoint is due.
-        stop: ends the run early and cleanly (a time limit, Ctrl-C); ``stopped_by`` then says why.
+        stop: ends the run early and cleanly (a time limit, Ctrl-C); its ``stopped_by`` says why.
         generator: generator for action sampling and minibatch order.
     """
 
@@ -140,7 +140,6 @@ class OnPolicyLoop:
         self.on_log, self.on_checkpoint = on_log, on_checkpoint
         self.generator = generator
         self.stop = stop
-        self.stopped_by: str | None = None
 
     def run(self, state: LoopState, env_seed: int) -> LoopState:
         s, env, agent = self.schedule, self.env, self.agent
@@ -156,5 +155,4 @@ class OnPolicyLoop:
             books.add_update(metrics, gradient_steps=agent.updates - before)
             if books.after_step():
                 break
-        self.stopped_by = books.stopped_by
         return books.close()
