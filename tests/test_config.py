@@ -1,32 +1,48 @@
 import dataclasses
+import json
 
 import pytest
 
-from taskrl.config import (ALGO_CONFIGS, ConfigError, TrainConfig, field_help, from_dict, leaf_fields, to_dict,
-                           validate, with_overrides)
+from taskrl.agents.registry import ALGORITHMS
+from taskrl.config import (TrainConfig, field_help, from_dict, leaf_fields, load, to_dict, validate,
+                           with_overrides)
+from taskrl.envs.registry import ENV_FAMILIES
+from taskrl.errors import ConfigError
 from taskrl.presets import PRESETS, preset_config
 
 
-def test_round_trip_of_every_section():
-    config = with_overrides(TrainConfig(), {"algo": "qtopt", "hidden_sizes": (32, 16), "samples": 32})
-    again = from_dict(to_dict(config))
-    assert again == config and again.qtopt.hidden_sizes == (32, 16) and again.qtopt.cem.samples == 32
+def test_round_trip_keeps_both_sections_under_their_names():
+    config = with_overrides(TrainConfig(), {"env": "pointreach", "algo": "qtopt", "hidden_sizes": (32, 16), "samples": 32,
+                                            "reward": "dense"})
+    data = to_dict(config)
+    assert data["qtopt"]["cem"]["samples"] == 32 and data["pointreach"]["reward"] == "dense"
+    assert "dqn" not in data and "bitflip" not in data  # only the run's own sections are saved
+    again = from_dict(json.loads(json.dumps(data)))
+    assert again == config and again.algo_settings.hidden_sizes == (32, 16)
 
 
-def test_flat_names_address_the_active_algorithm():
-    c = with_overrides(TrainConfig(), {"algo": "sac", "lr": 0.01, "gamma": 0.9})
-    assert (c.sac.lr, c.sac.gamma) == (0.01, 0.9)
-    assert c.dqn.lr == TrainConfig().dqn.lr  # other sections untouched
-    with pytest.raises(ConfigError, match="unknown setting for algo 'sac'"):
+def test_flat_names_address_the_active_sections():
+    c = with_overrides(TrainConfig(), {"algo": "sac", "lr": 0.01, "gamma": 0.9, "n_bits": 7})
+    assert (c.algo_settings.lr, c.algo_settings.gamma, c.env_settings.n_bits) == (0.01, 0.9, 7)
+    with pytest.raises(ConfigError, match="unknown setting for env 'bitflip' and algo 'sac'"):
         with_overrides(TrainConfig(), {"algo": "sac", "double_q": False})
+    with pytest.raises(ConfigError, match="unknown setting"):
+        with_overrides(TrainConfig(), {"env": "pointreach", "n_bits": 3})  # bit flipping's, not PointReach's
 
 
-@pytest.mark.parametrize("algo", list(ALGO_CONFIGS))
-def test_every_algorithm_has_unique_documented_flags(algo):
-    names = [path[-1] for path, _, _ in leaf_fields(algo)]
-    assert len(names) == len(set(names))
-    docs = field_help(algo)
+@pytest.mark.parametrize("algo", list(ALGORITHMS))
+@pytest.mark.parametrize("env", ["bitflip", "pointreach", "mt10", "gym", "tasks"])
+def test_every_setting_has_one_documented_flag(env, algo):
+    names = [path[-1] for path, _, _ in leaf_fields(env, algo)]
+    assert len(names) == len(set(names)), sorted(n for n in names if names.count(n) > 1)
+    docs = field_help(env, algo)
     assert all(docs.get(n) for n in names), [n for n in names if not docs.get(n)]
+
+
+def test_every_family_and_algorithm_has_a_validated_settings_class():
+    for spec in [*ENV_FAMILIES.values(), *ALGORITHMS.values()]:
+        settings = spec.settings() if hasattr(spec, "settings") else spec.config()
+        assert dataclasses.is_dataclass(settings) and callable(settings.validate)
 
 
 @pytest.mark.parametrize("name", list(PRESETS))
@@ -35,16 +51,22 @@ def test_every_preset_is_valid(name):
 
 
 @pytest.mark.parametrize("changes, field", [
-    ({"algo": "qtopt", "elites": 100}, "elites"),
-    ({"algo": "qtopt", "loss": "l1"}, "loss"),
-    ({"algo": "sac", "init_alpha": 0.0}, "init_alpha"),
-    ({"algo": "td3", "policy_delay": 0}, "policy_delay"),
-    ({"reward": "shaped"}, "reward"),
+    ({"algo": "qtopt", "env": "pointreach", "elites": 100}, "elites"),
+    ({"algo": "qtopt", "env": "pointreach", "loss": "l1"}, "loss"),
+    ({"algo": "sac", "env": "pointreach", "init_alpha": 0.0}, "init_alpha"),
+    ({"algo": "td3", "env": "pointreach", "policy_delay": 0}, "policy_delay"),
+    ({"algo": "td3", "env": "pointreach", "noise_std": -0.1}, "noise_std"),
+    ({"algo": "dqn", "epsilon_start": 1.5}, "epsilon_start"),
+    ({"env": "pointreach", "algo": "sac", "reward": "shaped"}, "reward"),
+    ({"n_bits": 0}, "n_bits"),
     ({"env": "mt10", "algo": "sac", "her": "none", "num_envs": 16}, "num_envs"),
     ({"env": "mt10", "algo": "dqn", "her": "none", "num_envs": 10}, "algo"),
     ({"env": "pointreach-mt", "algo": "sac", "her": "future"}, "her"),
-    ({"env": "mt1", "algo": "sac", "her": "none", "mt1_task": "fly"}, "mt1_task"),
+    ({"env": "mt1", "algo": "sac", "her": "none", "task": "fly"}, "task"),
     ({"env": "mt1", "algo": "sac", "her": "none", "eval_episodes": 51}, "eval_episodes"),
+    ({"env": "bitflip", "algo": "sac"}, "algo"),
+    ({"env": "gym", "algo": "sac"}, "env_id"),
+    ({"env": "tasks", "algo": "sac", "her": "none", "task_file": "/no/such/tasks.yaml"}, "task_file"),
     ({"sampling": "task_balanced"}, "sampling"),
     ({"task_encoder": "bag-of-words"}, "task_encoder"),
     ({"architecture": "transformer"}, "architecture"),
@@ -56,8 +78,54 @@ def test_validation_names_the_field(changes, field):
     assert err.value.field == field
 
 
+def test_a_rule_lives_in_one_place_ppo_may_use_gamma_one_dqn_may_not():
+    ppo = with_overrides(preset_config("bitflip-her"), {"algo": "ppo", "her": "none", "gamma": 1.0})
+    assert validate(ppo).algo_settings.gamma == 1.0
+    with pytest.raises(ConfigError, match=r"must be in \[0, 1\)"):
+        validate(with_overrides(preset_config("bitflip-her"), {"gamma": 1.0}))
+    with pytest.raises(ConfigError) as err:  # the agent checks with the very same rule
+        ALGORITHMS["dqn"].config(gamma=1.0).validate()
+    assert err.value.field == "gamma"
+
+
+def test_switching_algorithm_keeps_shared_settings_and_says_so():
+    notes = []
+    c = with_overrides(preset_config("pointreach-sac-her"), {"algo": "td3"}, notes)
+    assert (c.algo_settings.lr, c.algo_settings.gamma, c.algo_settings.hidden_sizes) == (1e-3, 0.95, (64, 64))
+    assert c.algo_settings.noise_std == 0.1  # TD3's own exploration, not a number meant for another algorithm
+    assert notes and "kept lr=0.001, gamma=0.95, hidden_sizes=(64, 64)" in notes[0]
+    notes = []
+    with_overrides(preset_config("bitflip-her"), {"env": "pointreach", "algo": "sac"}, notes)
+    assert notes == []  # nothing the preset changed is lost: bitflip's section was at its defaults
+
+
+def test_env_id_alone_selects_the_gymnasium_family():
+    notes = []
+    c = with_overrides(preset_config("pointreach-sac-her"), {"env_id": "my/Slider-v0"}, notes)
+    assert (c.env, c.env_settings.env_id, c.algo) == ("gym", "my/Slider-v0", "sac")
+
+
 def test_unknown_keys_in_a_saved_config_are_an_error():
-    data = to_dict(TrainConfig())
+    data = to_dict(with_overrides(TrainConfig(), {"algo": "sac", "env": "pointreach"}))
     data["sac"]["leraning_rate"] = 1.0
     with pytest.raises(ConfigError, match="config.sac"):
         from_dict(data)
+
+
+def test_a_config_saved_before_the_registries_still_loads(tmp_path):
+    """Run directories written with flat env settings and a loop-level epsilon resume unchanged."""
+    old = {"env": "pointreach", "n_bits": 15, "terminate_on_success": False, "reward": "dense", "vector_strategy": "sync",
+           "mt1_task": "reach", "max_episode_steps": 500, "sampling": "uniform", "algo": "qtopt", "total_steps": 40000,
+           "num_envs": 16, "seed": 0, "device": "cpu", "buffer_size": 1000, "her": "future", "her_k": 4, "batch_size": 256,
+           "learning_starts": 1000, "updates_per_step": 0.25, "epsilon_start": 0.3, "epsilon_end": 0.1,
+           "epsilon_decay_steps": 20000, "eval_interval": 3000, "eval_episodes": 100, "stop_at_success": 0.0,
+           "checkpoint_interval": 50000, "save_replay": True, "max_hours": 0.0, "threads": 1,
+           "dqn": {"lr": 0.001}, "qtopt": {"lr": 0.001, "noise_std": 0.2, "cem": {"samples": 32}}, "sac": {}, "td3": {}, "ppo": {},
+           "conditioning": {"task_encoder": "onehot"}}
+    (tmp_path / "config.json").write_text(json.dumps(old))
+    c = load(tmp_path / "config.json")
+    assert c.env_settings.reward == "dense" and c.env_settings.terminate_on_success is False
+    q = c.algo_settings
+    assert (q.random_action_prob, q.random_action_prob_end, q.random_action_decay_steps) == (0.3, 0.1, 20000)
+    assert q.noise_std == 0.2 and q.cem.samples == 32
+    validate(c)

@@ -98,11 +98,12 @@ def test_dqn_converges_to_q_star_of_a_tiny_mdp():
 
 
 def test_epsilon_greedy_explores_at_the_requested_rate():
-    agent = make_agent(hidden_sizes=(4,))
+    agent = make_agent(hidden_sizes=(4,), epsilon_start=0.6, epsilon_end=0.0, epsilon_decay_steps=1000)
     set_q(agent.q, [[0.0, 0.0, 9.0], [0.0, 0.0, 9.0]])
     obs = {"observation": torch.nn.functional.one_hot(torch.zeros(30_000, dtype=torch.long), 2).float()}
     g = torch.Generator().manual_seed(0)
-    actions = agent.act(obs, epsilon=0.3, generator=g)
+    assert agent.exploration(500) == {"epsilon": pytest.approx(0.3)}  # the agent's own schedule, halfway
+    actions = agent.act(obs, explore=True, generator=g, env_steps=500)
     non_greedy = (actions != 2).float().mean().item()
     assert abs(non_greedy - 0.3 * 2 / 3) < 0.01
     assert (agent.act(obs) == 2).all()

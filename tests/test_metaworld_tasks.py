@@ -9,13 +9,13 @@ from taskrl.envs.metaworld_tasks import (
     METAWORLD_DESCRIPTIONS,
     MT10_TASKS,
     MT50_TASKS,
-    evaluate_per_task,
     metaworld_id,
     metaworld_spec,
     metaworld_task_set,
-    per_task_table,
     version_free,
 )
+from taskrl.console import per_task_table
+from taskrl.training.per_task import evaluate_per_task
 
 
 # ------------------------------------------------------------------ no Meta-World needed
@@ -145,8 +145,8 @@ def test_per_task_evaluation_on_a_tiny_budget(tmp_path):
 
     env = MetaWorldMultiTaskEnv(["reach", "push"], use_one_hot=True, max_episode_steps=4, seed=0, num_goals=5)
     with env:
-        result = evaluate_per_task(policy, env, episodes_per_task=3, seed=0, console=Console(file=open(tmp_path / "t.txt", "w")),
-                                   save_to=tmp_path / "eval.json")
+        result = evaluate_per_task(policy, env, episodes_per_task=3, seed=0, save_to=tmp_path / "eval.json")
+        Console(file=open(tmp_path / "t.txt", "w")).print(per_task_table(result))
         assert result["distinct_goals"] and set(result["tasks"]) == {"reach", "push"}
         assert all(r["episodes"] == 3 and r["mean_length"] == 4 for r in result["tasks"].values())
         assert len(seen[0]) == 3 and len(seen[1]) == 3  # three distinct goal positions per task

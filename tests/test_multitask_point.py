@@ -6,7 +6,8 @@ import torch.nn.functional as F
 from gymnasium.utils.env_checker import check_env
 
 from taskrl.agents.sac import SACAgent, SACConfig
-from taskrl.envs import GymnasiumVectorEnv, MultiTaskPointReach, evaluate_per_task, is_goal_env
+from taskrl.envs import GymnasiumVectorEnv, MultiTaskPointReach, is_goal_env
+from taskrl.training.per_task import evaluate_per_task
 from taskrl.envs.multitask_point import DEFAULT_REGIONS
 from taskrl.replay.batch import Batch
 
@@ -141,7 +142,7 @@ def _train_sac(conditioned: bool, seed: int = 0, env_steps: int = 250) -> float:
     store = {"obs": [], "action": [], "reward": [], "next": [], "task": []}
     obs = env.reset(seed=seed)
     for step in range(env_steps):
-        action = agent.act(with_onehot(obs), exploration=1.0) if step > 10 else torch.rand(16, 2) * 2 - 1
+        action = agent.act(with_onehot(obs), explore=True) if step > 10 else torch.rand(16, 2) * 2 - 1
         nxt, reward, terminated, truncated, info = env.step(action)
         for key, value in (("obs", obs["observation"]), ("action", action), ("reward", reward),
                            ("next", info["final_obs"]["observation"]), ("task", obs["task"])):

@@ -17,10 +17,12 @@ from taskrl.agents.ppo import (
 from taskrl.checkpoint import flatten_state, unflatten_state
 from taskrl.conditioning.networks import ConditioningConfig, make_conditioning
 from taskrl.config import field_docs
-from taskrl.envs import MultiTaskPointReach, evaluate_per_task
+from taskrl.envs import MultiTaskPointReach
+from taskrl.training.per_task import evaluate_per_task
 from taskrl.envs.base import BatchedEnv
 from taskrl.training.offpolicy import LoopState
-from taskrl.training.onpolicy import OnPolicyLoop, OnPolicySchedule, collect_rollout
+from taskrl.training.bookkeeping import Bookkeeping
+from taskrl.training.onpolicy import OnPolicyLoop, collect_rollout
 
 # Two environments, three steps. Env 0 is truncated at t=1 (time limit: bootstrap from
 # V(final_obs) = 10) and runs on after the rollout (bootstrap from last_value = 4). Env 1
@@ -79,8 +81,8 @@ def test_gaussian_and_categorical_log_probs_match_torch_distributions():
     box = gym.spaces.Box(-2.0, 2.0, shape=(2,))
     agent = PPOAgent(("observation",), 2, box, PPOConfig(init_log_std=1.0, normalize_inputs=False))
     obs = {"observation": torch.randn(256, 2, generator=g)}
-    env_action, action, log_prob, value = agent.explore(obs, g)
-    mean = agent.policy(obs["observation"])
+    env_action, action, log_prob, value = agent.rollout_step(obs, g)
+    mean = agent.policy_net(obs["observation"])
     expected = torch.distributions.Normal(mean, agent.log_std.exp()).log_prob(action).sum(-1)
     torch.testing.assert_close(log_prob, expected)
     assert action.abs().max() > 1.0  # std e in unit space: some samples leave the box ...
@@ -89,8 +91,8 @@ def test_gaussian_and_categorical_log_probs_match_torch_distributions():
     torch.testing.assert_close(agent.act(obs), 2.0 * mean.clamp(-1, 1))  # exploration 0: the mean
 
     discrete = PPOAgent(("observation",), 2, gym.spaces.Discrete(4, start=1), PPOConfig())
-    env_action, action, log_prob, _ = discrete.explore(obs, g)
-    logits = discrete.policy(obs["observation"])
+    env_action, action, log_prob, _ = discrete.rollout_step(obs, g)
+    logits = discrete.policy_net(obs["observation"])
     torch.testing.assert_close(log_prob, torch.distributions.Categorical(logits=logits).log_prob(action))
     assert torch.equal(env_action, action + 1) and torch.equal(discrete.act(obs), logits.argmax(-1) + 1)
 
@@ -182,9 +184,10 @@ def _train_on_point(config: PPOConfig, total_steps: int, stop_at: float, seed: i
         return {"success_rate": result["mean_success_rate"]}
 
     rows, checkpoints = [], []
-    loop = OnPolicyLoop(env, agent, OnPolicySchedule(total_steps, 8192, 10**9, stop_at), evaluate, rows.append,
-                        lambda state: checkpoints.append(state.env_steps), torch.Generator().manual_seed(seed))
-    state = loop.run(LoopState(), env_seed=seed)
+    books = Bookkeeping(LoopState(), evaluate, rows.append, lambda state: checkpoints.append(state.env_steps), total_steps,
+                        8192, 10**9, stop_at, env.device)
+    loop = OnPolicyLoop(env, agent, total_steps, books, torch.Generator().manual_seed(seed))
+    state = loop.run(env_seed=seed)
     return agent, state, rows, checkpoints
 
 
@@ -247,7 +250,7 @@ def test_categorical_policies_learn_a_contextual_bandit(estimator):
     assert int(ended) == 128 and rollout.final_value.eq(0).all()  # terminations never bootstrap
     tasks = {"observation": torch.zeros(3, 1), "task": torch.arange(3)}
     assert agent.act(tasks).tolist() == [0, 1, 2]
-    probs = torch.softmax(agent.policy(torch.zeros(3, 1), cond.encoder(torch.arange(3))), -1)
+    probs = torch.softmax(agent.policy_net(torch.zeros(3, 1), cond.encoder(torch.arange(3))), -1)
     assert probs.diagonal().min() > 0.9
 
 

@@ -121,16 +121,22 @@ def test_target1_is_polyak_averaged_and_target2_lags_it():
 
 
 def test_acting_respects_the_bounds_and_explores_uniformly_at_the_requested_rate():
-    agent = make_agent(low=(-2.0, 0.5), high=(3.0, 1.0), cem=CEMConfig())
     obs = {"observation": torch.rand(4000, 2)}
     g = torch.Generator().manual_seed(0)
-    for eps in (0.0, 0.5, 1.0):
-        a = agent.act(obs, exploration=eps, generator=g)
+    for prob in (0.0, 0.5, 1.0):
+        agent = make_agent(low=(-2.0, 0.5), high=(3.0, 1.0), cem=CEMConfig(), random_action_prob_end=prob,
+                           random_action_decay_steps=0)
+        a = agent.act(obs, explore=True, generator=g)
         assert a.shape == (4000, 2)
         assert (a >= torch.tensor([-2.0, 0.5])).all() and (a <= torch.tensor([3.0, 1.0])).all()
+    # the agent's own schedule: 0.6 -> 0.2 over 1000 env steps, 0.3 at 750
+    agent = make_agent(low=(-2.0, 0.5), high=(3.0, 1.0), cem=CEMConfig(), random_action_prob=0.6,
+                       random_action_prob_end=0.2, random_action_decay_steps=1000)
+    assert agent.exploration(750) == {"random_action_prob": pytest.approx(0.3)}
     # greedy actions all at the stub's optimum (0.5 in unit space -> 1.75 / 0.875 in the box)
     agent.q = Stub(lambda x, a: -(a - 0.5).square().sum(-1))
-    a = agent.act(obs, exploration=0.3, generator=g)
+    assert ((agent.act(obs) - torch.tensor([1.75, 0.875])).abs() <= torch.tensor([0.5, 0.05])).all()  # greedy: no exploration
+    a = agent.act(obs, explore=True, generator=g, env_steps=750)
     # "far": more than 0.2 (unit space) from the optimum in some dimension; a uniform action is near w.p. 0.2 * 0.2
     far = ((a - torch.tensor([1.75, 0.875])).abs() > torch.tensor([0.5, 0.05])).any(dim=1).float().mean().item()
     assert far == pytest.approx(0.3 * (1 - 0.2 * 0.2), abs=0.025)

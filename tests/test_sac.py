@@ -142,7 +142,7 @@ def test_acting_respects_bounds_is_deterministic_without_exploration_and_takes_n
     g = torch.Generator().manual_seed(0)
     greedy = agent.act(obs)
     torch.testing.assert_close(agent.act(obs), greedy)
-    sampled = agent.act(obs, exploration=1.0, generator=g)
+    sampled = agent.act(obs, explore=True, generator=g)
     for a in (greedy, sampled):
         assert a.shape == (500, 2)
         assert (a >= torch.tensor([-2.0, 0.5])).all() and (a <= torch.tensor([3.0, 1.0])).all()

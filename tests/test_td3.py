@@ -88,10 +88,10 @@ def test_td3_learns_the_best_action_of_a_continuous_bandit():
 
 
 def test_acting_respects_bounds_and_round_trips_state():
-    agent = make_agent(low=(-2.0, 0.5), high=(3.0, 1.0))
+    agent = make_agent(low=(-2.0, 0.5), high=(3.0, 1.0), noise_std=0.5)
     obs = {"observation": torch.randn(500, 2) * 3}
-    for eps in (0.0, 0.5):
-        a = agent.act(obs, exploration=eps, generator=torch.Generator().manual_seed(0))
+    for explore in (False, True):
+        a = agent.act(obs, explore=explore, generator=torch.Generator().manual_seed(0))
         assert (a >= torch.tensor([-2.0, 0.5])).all() and (a <= torch.tensor([3.0, 1.0])).all()
     single = agent.act({"observation": np.array([1.0, 0.0], dtype=np.float32)})
     assert isinstance(single, np.ndarray) and single.shape == (2,)

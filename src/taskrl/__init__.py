@@ -5,7 +5,11 @@
     agent = taskrl.load(run.run_dir)               # agent.act(obs) on the env's observations
 """
 
+from taskrl.registration import register_gymnasium_envs
+
 __version__ = "0.1.0"
+
+register_gymnasium_envs()  # gymnasium.make("taskrl/BitFlip-v0") works after `import taskrl`
 
 
 def train(*args, **kwargs):

@@ -1,7 +1,8 @@
 """The ``taskrl`` command line.
 
     taskrl presets                         list presets with a one-line description each
-    taskrl train PRESET [--setting VALUE]  train (every TrainConfig field is a --kebab-case flag)
+    taskrl train PRESET [--setting VALUE]  train (every setting of the run, its env and its algorithm is a flag)
+    taskrl train PRESET --env-id my/Env-v0 train a preset's algorithm on any gymnasium env (--env-module to register it)
     taskrl train --resume RUN_DIR          continue a run from its last checkpoint
     taskrl eval RUN_DIR                    re-evaluate a saved agent, print JSON
     taskrl solve MDP [--method ...]        exact dynamic programming on finite MDPs
@@ -38,15 +39,22 @@ def _flag(name: str) -> str:
     return "--" + name.replace("_", "-")
 
 
-def _add_config_flags(parser: argparse.ArgumentParser, algo: str) -> None:
+def _add_config_flags(parser: argparse.ArgumentParser, env: str, algo: str) -> None:
+    from taskrl.agents.registry import ALGORITHMS
     from taskrl.config import field_help, leaf_fields
+    from taskrl.envs.registry import ENV_FAMILIES
 
-    docs = field_help(algo)
-    for path, field, tp in leaf_fields(algo):
+    docs = field_help(env, algo)
+    docs["env"] += " Choices: " + "; ".join(f"{f.name} ({f.description})" for f in ENV_FAMILIES.values())
+    docs["algo"] += " Choices: " + "; ".join(f"{a.name} ({a.description})" for a in ALGORITHMS.values())
+    choices = {"env": tuple(ENV_FAMILIES), "algo": tuple(ALGORITHMS)}
+    for path, field, tp in leaf_fields(env, algo):
         name = path[-1]
         kwargs: dict[str, Any] = {"dest": name, "default": argparse.SUPPRESS, "help": docs.get(name, "")}
         origin = typing.get_origin(tp)
-        if tp is bool:
+        if name in choices:
+            kwargs["choices"] = choices[name]
+        elif tp is bool:
             kwargs["action"] = argparse.BooleanOptionalAction
         elif origin is typing.Literal:
             kwargs["choices"] = typing.get_args(tp)
@@ -57,29 +65,44 @@ def _add_config_flags(parser: argparse.ArgumentParser, algo: str) -> None:
         parser.add_argument(_flag(name), **kwargs)
 
 
-def _active_algo(argv: Sequence[str]) -> str:
-    """The algorithm whose settings the flags address: --algo, else the preset's, else the resumed run's."""
-    from taskrl.config import ALGOS
+def _active_sections(argv: Sequence[str]) -> tuple[str, str]:
+    """``(env, algo)`` whose settings the flags address: ``--env`` / ``--algo`` (``--env-id`` or
+    ``--task-file`` alone select their family), else the preset's, else the resumed run's."""
+    from taskrl.agents.registry import ALGORITHMS
+    from taskrl.config import TrainConfig, from_dict
+    from taskrl.envs.registry import ENV_FAMILIES
     from taskrl.presets import PRESETS, preset_config
 
     peek = _Parser(add_help=False)
     peek.add_argument("preset", nargs="?")
+    peek.add_argument("--env")
     peek.add_argument("--algo")
     peek.add_argument("--resume")
+    selectors = {f.selected_by: f.name for f in ENV_FAMILIES.values() if f.selected_by}
+    for setting in selectors:
+        peek.add_argument(_flag(setting))
     known, _ = peek.parse_known_args(argv)
-    if known.algo is not None:
-        if known.algo not in ALGOS:
-            raise UsageError(f"argument --algo: invalid choice: {known.algo!r} (choose from {', '.join(map(repr, ALGOS))})")
-        return known.algo
+    for flag, value, allowed in (("--env", known.env, ENV_FAMILIES), ("--algo", known.algo, ALGORITHMS)):
+        if value is not None and value not in allowed:
+            hint = " (a gymnasium id goes to --env-id)" if flag == "--env" else ""
+            raise UsageError(f"argument {flag}: invalid choice: {value!r} (choose from {', '.join(map(repr, allowed))}){hint}")
+    base = TrainConfig()
     if known.preset in PRESETS:
-        return preset_config(known.preset).algo
-    if known.resume is not None:
+        base = preset_config(known.preset)
+    elif known.resume is not None:
         from pathlib import Path
 
         saved = Path(known.resume) / "config.json"
         if saved.exists():
-            return json.loads(saved.read_text()).get("algo", "dqn")
-    return "dqn"
+            try:
+                base = from_dict(json.loads(saved.read_text()))
+            except (ValueError, KeyError):
+                pass  # train() reports a damaged config.json with the field it names
+    env = known.env
+    if env is None:
+        given = [name for setting, name in selectors.items() if getattr(known, setting) is not None]
+        env = given[0] if given and given[0] != base.env else base.env
+    return env, known.algo or base.algo
 
 
 def _parse(parser: argparse.ArgumentParser, argv: Sequence[str]) -> argparse.Namespace:
@@ -112,7 +135,7 @@ def cmd_train(argv: Sequence[str]) -> int:
     parser.add_argument("--resume", metavar="RUN_DIR", help="continue this run from its last checkpoint")
     parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=True, help="progress bar and final table")
     parser.add_argument("--tensorboard", action=argparse.BooleanOptionalAction, default=True, help="write TensorBoard events")
-    _add_config_flags(parser, _active_algo(argv))
+    _add_config_flags(parser, *_active_sections(argv))
     args = vars(_parse(parser, argv))
     preset, out, resume = args.pop("preset"), args.pop("out"), args.pop("resume")
     progress, tensorboard = args.pop("progress"), args.pop("tensorboard")
@@ -135,12 +158,13 @@ def cmd_eval(argv: Sequence[str]) -> int:
     parser.add_argument("--episodes", type=int, default=100, help="evaluation episodes (default 100)")
     parser.add_argument("--seed", type=int, default=None, help="evaluation seed (default: the run's evaluation seed)")
     parser.add_argument("--device", default="cpu", help="cpu, cuda, cuda:N or auto")
+    parser.add_argument("--env-module", default=None, help="import this module first (one that registers the run's gymnasium id)")
     args = _parse(parser, argv)
     if args.episodes < 1:
         raise UsageError(f"--episodes must be >= 1 (got {args.episodes})")
     from taskrl.run import evaluate_run
 
-    print(json.dumps(evaluate_run(args.run_dir, args.episodes, args.seed, args.device)))
+    print(json.dumps(evaluate_run(args.run_dir, args.episodes, args.seed, args.device, env_module=args.env_module)))
     return 0
 
 
@@ -157,7 +181,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0
     command, rest = argv[0], argv[1:]
     handlers = {"train": cmd_train, "eval": cmd_eval, "presets": cmd_presets, "solve": cmd_solve}
-    from taskrl.config import ConfigError
+    from taskrl.errors import ConfigError
 
     try:
         if command not in handlers:

@@ -1,9 +1,15 @@
-"""Typed run configuration: one dataclass, validated in one place, saved with every run.
+"""Typed run configuration: run-level settings plus one section for the env family and one for the
+algorithm, each validated by its own ``validate()``, saved with every run.
 
-Agent hyperparameters live in each agent's own dataclass (``DQNConfig``, ``QTOptConfig``,
-``SACConfig``) nested here, so every hyperparameter is declared once. The settings of a run are
-the top-level fields plus the section of its ``algo``; the CLI turns each of them into a flat
-``--kebab-case`` flag (``--lr`` means the active algorithm's learning rate).
+``config.json`` reads::
+
+    {"env": "bitflip", "algo": "dqn", "total_steps": 60000, ..., "conditioning": {...},
+     "bitflip": {"n_bits": 15, ...}, "dqn": {"lr": 0.001, "epsilon_start": 0.5, ...}}
+
+The sections are those of the registries (``taskrl.envs.registry``, ``taskrl.agents.registry``):
+a new family or algorithm brings its own. The CLI turns every run-level field and every field of
+the active sections into a flat ``--kebab-case`` flag (``--lr`` is the active algorithm's learning
+rate, ``--n-bits`` the bit-flipping section's length).
 """
 
 from __future__ import annotations
@@ -14,46 +20,32 @@ import typing
 from pathlib import Path
 from typing import Any, Literal
 
-from taskrl.agents.cem import CEMConfig
-from taskrl.agents.dqn import DQNConfig
-from taskrl.agents.ppo import PPOConfig, check_ppo_config
-from taskrl.agents.qtopt import QTOptConfig
-from taskrl.agents.sac import SACConfig
-from taskrl.agents.td3 import TD3Config
-from taskrl.conditioning.networks import ARCHITECTURES, ConditioningConfig
-from taskrl.conditioning.task_encoders import TASK_ENCODERS
+from taskrl.agents.registry import algorithm
+from taskrl.conditioning.networks import ConditioningConfig
+from taskrl.envs.registry import ENV_FAMILIES, env_family
+from taskrl.errors import ConfigError, one_of, require
 
-ENVS = ("bitflip", "pointreach", "fetchreach", "fetchpush", "fetchpickandplace", "fetchslide",
-        "pointreach-mt", "mt1", "mt10", "mt50")
-#: Multi-task environments (observations carry the task index under ``task``).
-MULTITASK_ENVS = ("pointreach-mt", "mt1", "mt10", "mt50")
-#: Meta-World benchmarks by taskrl env name.
-METAWORLD_BENCHMARKS = {"mt1": "MT1", "mt10": "MT10", "mt50": "MT50"}
-#: Algorithms that run on multi-task environments (continuous actions, task-conditioned networks).
-MULTITASK_ALGOS = ("sac", "ppo")
+__all__ = [
+    "ConfigError",
+    "HER_STRATEGIES",
+    "SAMPLINGS",
+    "TrainConfig",
+    "check_fit",
+    "field_help",
+    "from_dict",
+    "leaf_fields",
+    "load",
+    "save",
+    "to_dict",
+    "validate",
+    "with_overrides",
+]
+
 SAMPLINGS = ("uniform", "task_balanced")
-#: Environments that come from gymnasium (through the vector-env adapter), by taskrl name.
-GYMNASIUM_IDS = {
-    "fetchreach": "FetchReach-v4",
-    "fetchpush": "FetchPush-v4",
-    "fetchpickandplace": "FetchPickAndPlace-v4",
-    "fetchslide": "FetchSlide-v4",
-}
-#: Each algorithm's hyperparameters live in its own dataclass, a section of TrainConfig.
-ALGO_CONFIGS: dict[str, type] = {"dqn": DQNConfig, "qtopt": QTOptConfig, "sac": SACConfig, "td3": TD3Config, "ppo": PPOConfig}
-#: Algorithms trained on-policy (rollouts, no replay, no relabelling).
-ON_POLICY_ALGOS = ("ppo",)
-ALGOS = tuple(ALGO_CONFIGS)
 HER_STRATEGIES = ("future", "final", "episode", "random", "none")
-
-
-class ConfigError(ValueError):
-    """A bad configuration value; ``field`` names the offending setting."""
-
-    def __init__(self, field: str, message: str) -> None:
-        super().__init__(f"{field}: {message}")
-        self.field = field
-        self.message = message
+#: Algorithm settings that carry over when ``algo`` changes (if the old section changed them).
+SHARED_ALGO_SETTINGS = ("lr", "gamma", "hidden_sizes", "tau", "max_grad_norm", "normalize_inputs", "clip_target")
+_SECTIONS = ("env_settings", "algo_settings")
 
 
 @dataclasses.dataclass
@@ -61,20 +53,12 @@ class TrainConfig:
     """Everything a training run needs; saved as ``config.json`` in the run directory.
 
     Attributes:
-        env: environment name (``fetch*`` need the ``robotics`` extra: gymnasium-robotics;
-            ``mt1`` / ``mt10`` / ``mt50`` are Meta-World v3 and need the ``metaworld`` extra;
-            ``pointreach-mt`` is the native multi-task point reaching with 5 named regions).
-        n_bits: bit-string length for ``bitflip`` (also its horizon).
-        terminate_on_success: end an episode when its goal is reached (bitflip, pointreach).
-        reward: ``sparse`` (0 at the goal, else -1) or ``dense`` (-distance), for pointreach.
-        vector_strategy: ``sync`` or ``async`` (one process per copy) for gymnasium environments.
-        mt1_task: the Meta-World task of ``mt1`` (``reach``, ``push``, ... or with its ``-v3`` suffix).
-        max_episode_steps: Meta-World episode length (Meta-World's own is 500).
-        sampling: ``uniform`` over stored transitions, or ``task_balanced`` (multi-task envs: the
-            same number of transitions of every task in each batch).
+        env: environment family (``taskrl train --help`` lists them; ``gym`` is any gymnasium id
+            given by ``--env-id``, ``tasks`` a task set given by ``--task-file``). Its settings are
+            the section named after it (``bitflip.n_bits``, ``metaworld.task``, ...).
         algo: learning algorithm; its section (``dqn``, ``qtopt``, ``sac``, ``td3``, ``ppo``) holds its
-            hyperparameters. ``ppo`` (also REINFORCE, via its ``estimator``) learns on-policy: the replay,
-            relabelling, batch and update-ratio settings do not apply to it.
+            hyperparameters and its exploration. ``ppo`` (also REINFORCE, via its ``estimator``) learns
+            on-policy: the replay, relabelling, batch and update-ratio settings do not apply to it.
         total_steps: environment steps to train for (summed over parallel environments).
         num_envs: environments stepped in parallel while collecting.
         seed: seed for network initialisation, environments and sampling.
@@ -85,11 +69,8 @@ class TrainConfig:
         batch_size: transitions per gradient update.
         learning_starts: environment steps collected before the first update.
         updates_per_step: gradient updates per environment step (fractions accumulate).
-        epsilon_start: initial exploration level passed to the agent while collecting: DQN's
-            epsilon, QT-Opt's probability of a uniformly random action, TD3's Gaussian noise std
-            (fraction of the action half-width); SAC samples its policy whenever it is above 0.
-        epsilon_end: final exploration level.
-        epsilon_decay_steps: environment steps over which it decays linearly.
+        sampling: ``uniform`` over stored transitions, or ``task_balanced`` (multi-task envs: the
+            same number of transitions of every task in each batch).
         eval_interval: environment steps between evaluations.
         eval_episodes: episodes per evaluation (greedy policy, fixed evaluation seeds); on
             multi-task envs, episodes per task (Meta-World: over distinct goal positions, at most 50).
@@ -102,24 +83,15 @@ class TrainConfig:
         threads: torch CPU threads. 1 by default: the networks here are small, one thread is as
             fast, and torch's multi-threaded kernels stall when another process holds a core
             (measured 100x slower on a busy 2-core machine). 0 = torch's default.
-        dqn: DQN hyperparameters.
-        qtopt: QT-Opt hyperparameters.
-        sac: SAC hyperparameters.
-        td3: TD3 hyperparameters.
-        ppo: PPO / REINFORCE hyperparameters.
+        env_module: a Python module to import before the envs are built (one that registers your
+            gymnasium ids). Resuming, evaluating and loading never import it unless you pass it again.
         conditioning: how multi-task networks are told the task (task encoder, architecture).
+        env_settings: the env family's section (saved under the family's section name).
+        algo_settings: the algorithm's section (saved under the algorithm's name).
     """
 
-    env: Literal["bitflip", "pointreach", "fetchreach", "fetchpush", "fetchpickandplace", "fetchslide",
-                 "pointreach-mt", "mt1", "mt10", "mt50"] = "bitflip"
-    n_bits: int = 15
-    terminate_on_success: bool = True
-    reward: Literal["sparse", "dense"] = "sparse"
-    vector_strategy: Literal["sync", "async"] = "sync"
-    mt1_task: str = "reach"
-    max_episode_steps: int = 500
-    sampling: Literal["uniform", "task_balanced"] = "uniform"
-    algo: Literal["dqn", "qtopt", "sac", "td3", "ppo"] = "dqn"
+    env: str = "bitflip"
+    algo: str = "dqn"
     total_steps: int = 100_000
     num_envs: int = 32
     seed: int = 0
@@ -130,9 +102,7 @@ class TrainConfig:
     batch_size: int = 256
     learning_starts: int = 1_000
     updates_per_step: float = 0.1
-    epsilon_start: float = 0.5
-    epsilon_end: float = 0.05
-    epsilon_decay_steps: int = 20_000
+    sampling: Literal["uniform", "task_balanced"] = "uniform"
     eval_interval: int = 5_000
     eval_episodes: int = 100
     stop_at_success: float = 0.0
@@ -140,12 +110,25 @@ class TrainConfig:
     save_replay: bool = True
     max_hours: float = 0.0
     threads: int = 1
-    dqn: DQNConfig = dataclasses.field(default_factory=DQNConfig)
-    qtopt: QTOptConfig = dataclasses.field(default_factory=QTOptConfig)
-    sac: SACConfig = dataclasses.field(default_factory=SACConfig)
-    td3: TD3Config = dataclasses.field(default_factory=TD3Config)
-    ppo: PPOConfig = dataclasses.field(default_factory=PPOConfig)
+    env_module: str = ""
     conditioning: ConditioningConfig = dataclasses.field(default_factory=ConditioningConfig)
+    env_settings: Any = None
+    algo_settings: Any = None
+
+    def __post_init__(self) -> None:
+        if self.env_settings is None:
+            self.env_settings = env_family(self.env).settings()
+        if self.algo_settings is None:
+            self.algo_settings = algorithm(self.algo).config()
+
+    @property
+    def env_section(self) -> str:
+        """The name the env settings are saved under (families may share one, e.g. ``metaworld``)."""
+        return env_family(self.env).section
+
+
+def _run_fields() -> list[dataclasses.Field]:
+    return [f for f in dataclasses.fields(TrainConfig) if f.name not in _SECTIONS]
 
 
 def field_docs(cls: type) -> dict[str, str]:
@@ -166,104 +149,69 @@ def field_docs(cls: type) -> dict[str, str]:
     return docs
 
 
+# ---------------------------------------------------------------------- validation
+def check_fit(config: TrainConfig, kind: str | None, actions: str | None) -> None:
+    """The rules between the env and the algorithm, checked before building (with what the family
+    declares) and again once the env is built (with what it is): the same rules both times."""
+    c, spec = config, algorithm(config.algo)
+    fitting = ", ".join(a.name for a in _algorithms()
+                        if (actions is None or actions in a.actions) and (kind != "multitask" or a.multitask))
+    if actions is not None and actions not in spec.actions:
+        need = " or ".join("continuous (Box)" if a == "box" else "discrete" for a in spec.actions)
+        raise ConfigError("algo", f"{c.algo} needs {need} actions but {c.env!r} has {actions} actions; allowed: {fitting}")
+    if kind == "multitask" and not spec.multitask:
+        raise ConfigError("algo", f"{c.algo!r} does not run on the multi-task env {c.env!r}; allowed: {fitting}")
+    if c.her != "none":
+        require(spec.loop == "off_policy", "her",
+                f"{c.algo} learns on-policy from rollouts: there is no replay to relabel; use --her none")
+        require(kind in (None, "goal"), "her",
+                f"hindsight relabelling needs a goal env (achieved_goal, desired_goal, compute_reward); "
+                f"{c.env!r} is not one; use --her none")
+    if c.sampling == "task_balanced":
+        require(kind in (None, "multitask"), "sampling",
+                f"task_balanced needs a multi-task env (observations with a task index); {c.env!r} is not one")
+
+
+def _algorithms():
+    from taskrl.agents.registry import ALGORITHMS
+
+    return ALGORITHMS.values()
+
+
 def validate(config: TrainConfig) -> TrainConfig:
-    """Raise :class:`ConfigError` naming the field and the allowed values; return the config."""
+    """Raise :class:`ConfigError` naming the field and the allowed values; return the config.
 
-    def require(ok: bool, field: str, message: str) -> None:
-        if not ok:
-            raise ConfigError(field, message)
-
+    Run-level settings are checked here, each section by its own ``validate()``, the env family's
+    rules between its section and the run by ``family.check``, and env against algorithm by
+    :func:`check_fit`.
+    """
     c = config
-    require(c.env in ENVS, "env", f"unknown env {c.env!r}; allowed: {', '.join(ENVS)}")
-    require(c.algo in ALGOS, "algo", f"unknown algo {c.algo!r}; allowed: {', '.join(ALGOS)}")
-    require(c.her in HER_STRATEGIES, "her", f"unknown strategy {c.her!r}; allowed: {', '.join(HER_STRATEGIES)}")
-    require(c.reward in ("sparse", "dense"), "reward", f"unknown reward {c.reward!r}; allowed: sparse, dense")
-    require(c.vector_strategy in ("sync", "async"), "vector_strategy",
-            f"unknown strategy {c.vector_strategy!r}; allowed: sync, async")
-    require(c.n_bits >= 1, "n_bits", f"must be >= 1 (got {c.n_bits})")
-    require(c.sampling in SAMPLINGS, "sampling", f"unknown sampling {c.sampling!r}; allowed: {', '.join(SAMPLINGS)}")
-    require(c.max_episode_steps >= 1, "max_episode_steps", f"must be >= 1 (got {c.max_episode_steps})")
-    if c.env == "mt1":
-        from taskrl.envs.metaworld_tasks import MT50_TASKS, version_free
-
-        require(version_free(c.mt1_task) in MT50_TASKS, "mt1_task",
-                f"unknown Meta-World task {c.mt1_task!r}; allowed: {', '.join(MT50_TASKS)}")
-    if c.env in MULTITASK_ENVS:
-        require(c.algo in MULTITASK_ALGOS, "algo",
-                f"{c.algo!r} does not run on the multi-task env {c.env!r}; allowed: {', '.join(MULTITASK_ALGOS)}")
-        require(c.her == "none", "her", f"{c.env!r} is not a goal env (no achieved/desired goal); use --her none")
-        if c.env in ("mt10", "mt50"):
-            from taskrl.envs.metaworld_tasks import MT10_TASKS, MT50_TASKS
-
-            tasks = len(MT10_TASKS if c.env == "mt10" else MT50_TASKS)
-            require(c.num_envs % tasks == 0, "num_envs",
-                    f"must be a multiple of the {tasks} tasks of {c.env} (one or more copies per task; got {c.num_envs})")
-        if c.env in METAWORLD_BENCHMARKS:
-            require(c.eval_episodes <= 50, "eval_episodes",
-                    f"Meta-World has 50 goal positions per task: at most 50 episodes per task (got {c.eval_episodes})")
-    else:
-        require(c.sampling == "uniform", "sampling", f"task_balanced needs a multi-task env ({', '.join(MULTITASK_ENVS)})")
-    k = c.conditioning
-    require(k.task_encoder in TASK_ENCODERS, "task_encoder",
-            f"unknown task encoder {k.task_encoder!r}; allowed: {', '.join(TASK_ENCODERS)}")
-    require(k.architecture in ARCHITECTURES, "architecture",
-            f"unknown architecture {k.architecture!r}; allowed: {', '.join(ARCHITECTURES)}")
-    for name in ("embedding_dim", "care_encoders", "care_encoder_dim"):
-        require(getattr(k, name) >= 1, name, f"must be >= 1 (got {getattr(k, name)})")
-    require(k.projection_dim >= 0, "projection_dim", f"must be >= 0 (got {k.projection_dim})")
+    family = env_family(c.env)
+    algorithm(c.algo)
+    one_of(c.her, HER_STRATEGIES, "her", "strategy")
+    one_of(c.sampling, SAMPLINGS, "sampling", "sampling")
     for name in ("total_steps", "num_envs", "batch_size", "eval_interval", "eval_episodes", "checkpoint_interval"):
         require(getattr(c, name) >= 1, name, f"must be >= 1 (got {getattr(c, name)})")
-    require(c.her_k >= 0, "her_k", f"must be >= 0 (got {c.her_k})")
-    require(c.learning_starts >= 0, "learning_starts", f"must be >= 0 (got {c.learning_starts})")
-    require(c.updates_per_step >= 0, "updates_per_step", f"must be >= 0 (got {c.updates_per_step})")
+    for name in ("her_k", "learning_starts", "updates_per_step", "threads"):
+        require(getattr(c, name) >= 0, name, f"must be >= 0 (got {getattr(c, name)})")
     require(c.max_hours >= 0, "max_hours", f"must be >= 0 hours (0 = no limit; got {c.max_hours})")
-    for name in ("epsilon_start", "epsilon_end", "stop_at_success"):
-        require(0.0 <= getattr(c, name) <= 1.0, name, f"must be in [0, 1] (got {getattr(c, name)})")
-    require(c.epsilon_decay_steps >= 0, "epsilon_decay_steps", f"must be >= 0 (got {c.epsilon_decay_steps})")
-    require(c.threads >= 0, "threads", f"must be >= 0 (got {c.threads})")
-    require(c.device == "auto" or c.device == "cpu" or c.device.startswith("cuda"), "device",
+    require(0.0 <= c.stop_at_success <= 1.0, "stop_at_success", f"must be in [0, 1] (got {c.stop_at_success})")
+    require(c.device in ("auto", "cpu") or c.device.startswith("cuda"), "device",
             f"unknown device {c.device!r}; allowed: cpu, cuda, cuda:N, auto")
-
-    # The active algorithm's section: checks shared by every agent, then its own.
-    a = getattr(c, c.algo)
-    require(0.0 <= a.gamma < 1.0, "gamma", f"must be in [0, 1) (got {a.gamma})")
-    require(a.lr > 0, "lr", f"must be > 0 (got {a.lr})")
-    if hasattr(a, "tau"):  # target networks
-        require(0.0 < a.tau <= 1.0, "tau", f"must be in (0, 1] (got {a.tau})")
-    require(len(a.hidden_sizes) >= 1 and all(h >= 1 for h in a.hidden_sizes), "hidden_sizes",
-            f"must be one or more positive widths (got {list(a.hidden_sizes)})")
-    require(a.max_grad_norm >= 0, "max_grad_norm", f"must be >= 0 (got {a.max_grad_norm})")
-    if c.algo == "dqn":
-        require(a.loss in ("huber", "mse"), "loss", f"unknown loss {a.loss!r}; allowed: huber, mse")
-        require(a.target_update_interval >= 1, "target_update_interval", f"must be >= 1 (got {a.target_update_interval})")
-    if c.algo == "qtopt":
-        require(a.loss in ("huber", "mse", "cross_entropy"), "loss",
-                f"unknown loss {a.loss!r}; allowed: huber, mse, cross_entropy")
-        require(a.target2_interval >= 1, "target2_interval", f"must be >= 1 (got {a.target2_interval})")
-        require(a.noise_std >= 0, "noise_std", f"must be >= 0 (got {a.noise_std})")
-        cem = a.cem
-        require(cem.iterations >= 1, "iterations", f"must be >= 1 (got {cem.iterations})")
-        require(1 <= cem.elites <= cem.samples, "elites", f"must be in [1, samples={cem.samples}] (got {cem.elites})")
-        require(cem.first_samples == 0 or cem.first_samples >= cem.elites, "first_samples",
-                f"must be 0 (same as samples) or >= elites={cem.elites} (got {cem.first_samples})")
-        require(cem.warm_std > 0 and cem.warm_iterations >= 0, "warm_std",
-                f"warm_std must be > 0 and warm_iterations >= 0 (got {cem.warm_std}, {cem.warm_iterations})")
-    if c.algo == "sac":
-        require(a.init_alpha > 0, "init_alpha", f"must be > 0 (got {a.init_alpha})")
-    if c.algo == "ppo":
-        require(c.her == "none", "her", "ppo learns on-policy from rollouts: there is no replay to relabel; use --her none")
-        try:
-            check_ppo_config(a)
-        except ValueError as error:
-            field, _, message = str(error).partition(": ")
-            raise ConfigError(field, message) from None
-    if c.algo == "td3":
-        require(0.0 <= a.random_action_prob <= 1.0, "random_action_prob", f"must be in [0, 1] (got {a.random_action_prob})")
-        require(a.policy_delay >= 1, "policy_delay", f"must be >= 1 (got {a.policy_delay})")
+    c.conditioning.validate()
+    c.env_settings.validate()
+    c.algo_settings.validate()
+    check_fit(c, family.kind, family.actions)
+    if family.check is not None:
+        family.check(c.env_settings, c)
     return config
 
 
-def _leaves(cls: type, prefix: tuple[str, ...]) -> list[tuple[tuple[str, ...], dataclasses.Field, type]]:
+# ---------------------------------------------------------------------- flat settings
+Leaf = tuple[tuple[str, ...], dataclasses.Field, type]
+
+
+def _leaves(cls: type, prefix: tuple[str, ...]) -> list[Leaf]:
     hints = typing.get_type_hints(cls)
     out = []
     for f in dataclasses.fields(cls):
@@ -275,36 +223,98 @@ def _leaves(cls: type, prefix: tuple[str, ...]) -> list[tuple[tuple[str, ...], d
     return out
 
 
-def leaf_fields(algo: str = "dqn") -> list[tuple[tuple[str, ...], dataclasses.Field, type]]:
-    """The settings of a run with ``algo``: ``(path, field, type)`` of every top-level field and of
-    every field of that algorithm's section (nested sections flattened)."""
-    top = [leaf for leaf in _leaves(TrainConfig, ()) if leaf[0][0] not in ALGO_CONFIGS]
-    return top + _leaves(ALGO_CONFIGS[algo], (algo,))
+def leaf_fields(env: str = "bitflip", algo: str = "dqn") -> list[Leaf]:
+    """The settings of a run on ``env`` with ``algo``: ``(path, field, type)`` of every run-level
+    field, every field of the conditioning section, of the env family's and of the algorithm's
+    section (nested sections flattened). Paths are those of ``config.json``."""
+    hints = typing.get_type_hints(TrainConfig)
+    top: list[Leaf] = []
+    for f in _run_fields():
+        tp = hints[f.name]
+        top += _leaves(tp, (f.name,)) if dataclasses.is_dataclass(tp) else [((f.name,), f, tp)]
+    family = env_family(env)
+    return top + _leaves(family.settings, (family.section,)) + _leaves(algorithm(algo).config, (algo,))
 
 
-def field_help(algo: str = "dqn") -> dict[str, str]:
+def field_help(env: str = "bitflip", algo: str = "dqn") -> dict[str, str]:
     """``{setting: description}`` for the CLI, from the dataclasses' docstrings."""
     docs = field_docs(TrainConfig)
-    for cls in (ConditioningConfig, ALGO_CONFIGS[algo], CEMConfig if algo == "qtopt" else None):
-        if cls is not None:
-            docs.update(field_docs(cls))
+    classes = [ConditioningConfig, env_family(env).settings]
+    stack = [algorithm(algo).config]
+    while stack:  # the algorithm's section and the sections nested in it (QT-Opt's cem)
+        cls = stack.pop()
+        classes.append(cls)
+        hints = typing.get_type_hints(cls)
+        stack += [hints[f.name] for f in dataclasses.fields(cls) if dataclasses.is_dataclass(hints[f.name])]
+    for cls in classes:
+        docs.update(field_docs(cls))
     return docs
 
 
-def with_overrides(config: TrainConfig, overrides: dict[str, Any]) -> TrainConfig:
+def _changed(section: Any) -> dict[str, Any]:
+    """Fields of ``section`` that differ from its class's defaults."""
+    default = type(section)()
+    return {f.name: getattr(section, f.name) for f in dataclasses.fields(section)
+            if getattr(section, f.name) != getattr(default, f.name)}
+
+
+def _switch_algorithm(old: Any, old_name: str, new_name: str, notes: list[str]) -> Any:
+    """The new algorithm's section, keeping the shared settings the old section had changed."""
+    new_cls = algorithm(new_name).config
+    new_fields = {f.name for f in dataclasses.fields(new_cls)}
+    changed = _changed(old)
+    kept = {k: v for k, v in changed.items() if k in SHARED_ALGO_SETTINGS and k in new_fields}
+    dropped = sorted(set(changed) - set(kept))
+    section = new_cls(**kept)
+    if kept:
+        notes.append(f"--algo {new_name}: kept {', '.join(f'{k}={v}' for k, v in kept.items())} from {old_name}")
+    if dropped:
+        notes.append(f"--algo {new_name}: {old_name}'s {', '.join(f'{k}={changed[k]}' for k in dropped)} "
+                     f"do{'es' if len(dropped) == 1 else ''} not carry over ({new_name} uses its own defaults)")
+    return section
+
+
+def _selected_family(config: TrainConfig, overrides: dict[str, Any]) -> str:
+    if "env" in overrides:
+        return overrides["env"]
+    for family in ENV_FAMILIES.values():  # --env-id X alone means the gym family, --task-file F the tasks one
+        if family.selected_by and family.selected_by in overrides and family.name != config.env:
+            current = dataclasses.fields(env_family(config.env).settings)
+            if family.selected_by not in {f.name for f in current}:
+                return family.name
+    return config.env
+
+
+def with_overrides(config: TrainConfig, overrides: dict[str, Any], notes: list[str] | None = None) -> TrainConfig:
     """A copy of ``config`` with settings replaced by name (``{"n_bits": 30, "lr": 1e-3}``).
 
-    Names are those of :func:`leaf_fields` for the resulting ``algo``: ``lr`` is the learning rate
-    of whichever algorithm the run uses.
+    Names are those of :func:`leaf_fields` for the resulting ``env`` and ``algo``. Changing ``env``
+    starts its family's section from defaults (families sharing a section keep it); changing
+    ``algo`` keeps the :data:`SHARED_ALGO_SETTINGS` the old section had changed. What was kept
+    or dropped is appended to ``notes``.
     """
+    notes = [] if notes is None else notes
+    overrides = dict(overrides)
+    env = _selected_family(config, overrides)
     algo = overrides.get("algo", config.algo)
-    if algo not in ALGO_CONFIGS:
-        raise ConfigError("algo", f"unknown algo {algo!r}; allowed: {', '.join(ALGOS)}")
-    paths = {path[-1]: path for path, _, _ in leaf_fields(algo)}
+    family, old_family = env_family(env), env_family(config.env)
+    algorithm(algo)
+    env_settings = config.env_settings
+    if family.section != old_family.section:
+        changed = _changed(config.env_settings)
+        if changed:
+            notes.append(f"--env {env}: {config.env}'s {', '.join(f'{k}={v}' for k, v in changed.items())} "
+                         f"do{'es' if len(changed) == 1 else ''} not apply")
+        env_settings = family.settings()
+    algo_settings = config.algo_settings
+    if algo != config.algo:
+        algo_settings = _switch_algorithm(config.algo_settings, config.algo, algo, notes)
+    data = to_dict(dataclasses.replace(config, env=env, algo=algo, env_settings=env_settings, algo_settings=algo_settings))
+    paths = {path[-1]: path for path, _, _ in leaf_fields(env, algo)}
+    overrides.pop("env", None), overrides.pop("algo", None)
     unknown = sorted(set(overrides) - set(paths))
     if unknown:
-        raise ConfigError(unknown[0], f"unknown setting for algo {algo!r}; allowed: {', '.join(sorted(paths))}")
-    data = to_dict(config)
+        raise ConfigError(unknown[0], f"unknown setting for env {env!r} and algo {algo!r}; allowed: {', '.join(sorted(paths))}")
     for name, value in overrides.items():
         node = data
         *parents, leaf = paths[name]
@@ -314,13 +324,21 @@ def with_overrides(config: TrainConfig, overrides: dict[str, Any]) -> TrainConfi
     return from_dict(data)
 
 
+# ---------------------------------------------------------------------- saving and loading
 def to_dict(config: TrainConfig) -> dict[str, Any]:
-    return dataclasses.asdict(config)
+    """``config.json``'s content: run-level fields, ``conditioning``, and the two sections by name."""
+    data = {f.name: getattr(config, f.name) for f in _run_fields()}
+    data["conditioning"] = dataclasses.asdict(config.conditioning)
+    data[config.env_section] = dataclasses.asdict(config.env_settings)
+    data[config.algo] = dataclasses.asdict(config.algo_settings)
+    return data
 
 
 def _build(cls: type, data: dict[str, Any], where: str) -> Any:
+    if not isinstance(data, dict):
+        raise ConfigError(where.rsplit(".", 1)[-1], f"{where} must be a mapping of settings, got {data!r}")
     hints = typing.get_type_hints(cls)
-    names = {f.name for f in dataclasses.fields(cls)}
+    names = {f.name for f in dataclasses.fields(cls)} - set(_SECTIONS)
     unknown = sorted(set(data) - names)
     if unknown:
         raise ConfigError(unknown[0], f"unknown setting in {where}; allowed: {', '.join(sorted(names))}")
@@ -335,13 +353,59 @@ def _build(cls: type, data: dict[str, Any], where: str) -> Any:
     return cls(**kwargs)
 
 
+# Settings that sat flat on TrainConfig before the registries (and the section each now lives in).
+_LEGACY_ENV_KEYS = ("n_bits", "terminate_on_success", "reward", "vector_strategy", "mt1_task", "max_episode_steps")
+_LEGACY_EXPLORATION = ("epsilon_start", "epsilon_end", "epsilon_decay_steps")
+
+
+def _migrate(data: dict[str, Any]) -> dict[str, Any]:
+    """A ``config.json`` written before the registries, in today's shape (flat env settings and a
+    loop-level exploration schedule become the sections' own settings; other algorithms' sections go)."""
+    if not any(k in data for k in _LEGACY_ENV_KEYS + _LEGACY_EXPLORATION):
+        return data
+    data = dict(data)
+    env, algo = data.get("env", "bitflip"), data.get("algo", "dqn")
+    flat = {k: data.pop(k) for k in _LEGACY_ENV_KEYS + _LEGACY_EXPLORATION if k in data}
+    family = env_family(env)
+    if "mt1_task" in flat:
+        flat["task"] = flat.pop("mt1_task")
+    fields = {f.name for f in dataclasses.fields(family.settings)}
+    data[family.section] = {k: v for k, v in flat.items() if k in fields}
+    section = dict(data.get(algo, {}))
+    start, end, steps = (flat.get(k) for k in _LEGACY_EXPLORATION)
+    if start is not None:
+        if algo == "dqn":
+            section.update(epsilon_start=start, epsilon_end=end, epsilon_decay_steps=steps)
+        elif algo == "qtopt":
+            section.update(random_action_prob=start, random_action_prob_end=end, random_action_decay_steps=steps)
+        elif algo == "td3":
+            section.update(noise_std=end)  # the loop's level was TD3's noise std
+    for name in [k for k in data if isinstance(data[k], dict) and k not in ("conditioning", family.section)]:
+        if name != algo:
+            data.pop(name)  # every algorithm's section was saved; only the run's own is kept
+    data[algo] = section
+    return data
+
+
 def from_dict(data: dict[str, Any]) -> TrainConfig:
     """Rebuild a config from :func:`to_dict` output (e.g. a run's ``config.json``)."""
-    return _build(TrainConfig, data, "config")
+    data = _migrate(dict(data))
+    env, algo = data.get("env", TrainConfig.env), data.get("algo", TrainConfig.algo)
+    family, spec = env_family(env), algorithm(algo)
+    sections = {family.section, algo}
+    top = {k: v for k, v in data.items() if k not in sections}
+    config = _build(TrainConfig, top, "config")
+    config.env_settings = _build(family.settings, data.get(family.section, {}), f"config.{family.section}")
+    config.algo_settings = _build(spec.config, data.get(algo, {}), f"config.{algo}")
+    return config
 
 
 def save(config: TrainConfig, path: Path) -> None:
-    Path(path).write_text(json.dumps(to_dict(config), indent=2) + "\n")
+    """Write ``config.json`` (temp file + rename, so a kill never leaves half a file)."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(to_dict(config), indent=2) + "\n")
+    tmp.replace(path)
 
 
 def load(path: Path) -> TrainConfig:

@@ -58,3 +58,18 @@ def final_table(row: dict[str, Any], run_dir: Path, curve: Path | None) -> Table
     if curve is not None:
         table.add_row("learning curve", str(curve))
     return table
+
+
+def per_task_table(result: dict[str, Any], title: str = "per-task success"):
+    """A ``rich`` table of :func:`~taskrl.training.per_task.evaluate_per_task`'s result, with the mean over tasks last."""
+    table = Table(title=title)
+    table.add_column("#", justify="right")
+    table.add_column("task")
+    table.add_column("success", justify="right")
+    table.add_column("episodes", justify="right")
+    table.add_column("return", justify="right")
+    for name, row in result["tasks"].items():
+        table.add_row(str(row["index"]), name, f"{row['success_rate']:.2f}", str(row["episodes"]), f"{row['mean_return']:.1f}")
+    table.add_section()
+    table.add_row("", "[bold]mean over tasks", f"[bold]{result['mean_success_rate']:.3f}", "", "")
+    return table

@@ -9,10 +9,11 @@ returns, averaged over the updates since the previous row, e.g. DQN's ``loss`` a
     eval_return      mean undiscounted evaluation return
     eval_length      mean evaluation episode length
     train_success    success rate of training episodes finished since the last row
-    epsilon          exploration rate at this point
     env_steps_per_s  collection + learning throughput since the last row
     updates_per_s    gradient updates per second since the last row
-    loss, q_mean     (DQN) mean TD loss and mean Q(s, a) of the sampled batches
+then the agent's own: its update scalars (DQN's ``loss`` and ``q_mean``, SAC's ``critic_loss``,
+``actor_loss``, ``alpha``, ``entropy``, ...) and its exploration level where it has a schedule
+(DQN's ``epsilon``, QT-Opt's ``random_action_prob``); multi-task runs add ``success/<task>``.
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ from typing import Any
 
 COLUMNS = [
     "env_steps", "updates", "wall_seconds", "success_rate", "eval_return", "eval_length",
-    "train_success", "epsilon", "env_steps_per_s", "updates_per_s",
+    "train_success", "env_steps_per_s", "updates_per_s",
 ]
 
 

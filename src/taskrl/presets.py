@@ -4,13 +4,17 @@ from __future__ import annotations
 
 import dataclasses
 
-from taskrl.config import ConfigError, TrainConfig, with_overrides
+from taskrl.config import TrainConfig, with_overrides
+from taskrl.errors import ConfigError
 
 # Goal reaching with continuous actions: the hindsight paper's Fetch settings where they apply
-# (gamma 0.98, lr 1e-3, batch 256, relabelling future with k = 4; episodes never end on success).
-_CONTINUOUS_HER = {"her": "future", "her_k": 4, "terminate_on_success": False, "batch_size": 256}
-_SAC = {"algo": "sac", "epsilon_start": 1.0, "epsilon_end": 1.0}  # > 0: sample the policy while collecting
-_QTOPT = {"algo": "qtopt", "epsilon_start": 0.3, "epsilon_end": 0.1, "epsilon_decay_steps": 20_000}
+# (gamma 0.98, lr 1e-3, batch 256, relabelling future with k = 4; episodes never end on success,
+# the default of PointReach and Fetch). Each algorithm explores its own way (its section's
+# defaults): SAC samples its policy, QT-Opt takes random actions with a probability decaying
+# 0.3 -> 0.1 over 20k env steps.
+_CONTINUOUS_HER = {"her": "future", "her_k": 4, "batch_size": 256}
+_SAC = {"algo": "sac"}
+_QTOPT = {"algo": "qtopt"}
 _POINTREACH = {**_CONTINUOUS_HER, "env": "pointreach", "num_envs": 16, "updates_per_step": 0.25,
                "learning_starts": 1_000, "eval_interval": 3_000, "total_steps": 40_000,
                "hidden_sizes": (64, 64), "lr": 1e-3, "gamma": 0.95}
@@ -25,7 +29,7 @@ _FETCHPUSH = {"env": "fetchpush", "num_envs": 8, "total_steps": 2_000_000, "eval
 # entropy explores, task-balanced batches. Meta-World: gamma 0.99, lr 3e-4, one copy per task at
 # 0.1 updates per env step (one update per step of all copies, as multi-task SAC on MT10 does),
 # language contexts projected to 50-d as CARE's context encoder does.
-_MULTITASK_SAC = {**_SAC, "her": "none", "sampling": "task_balanced", "terminate_on_success": False}
+_MULTITASK_SAC = {**_SAC, "her": "none", "sampling": "task_balanced"}
 _METAWORLD = {**_MULTITASK_SAC, "lr": 3e-4, "gamma": 0.99, "learning_starts": 5_000, "eval_episodes": 10,
               "checkpoint_interval": 100_000, "buffer_size": 1_000_000}
 _MT1 = {**_METAWORLD, "env": "mt1", "num_envs": 10, "hidden_sizes": (256, 256), "batch_size": 256,
@@ -38,7 +42,7 @@ _POINTREACH_MT = {**_MULTITASK_SAC, "env": "pointreach-mt", "reward": "dense", "
                   "hidden_sizes": (64, 64), "lr": 1e-3, "gamma": 0.95, "batch_size": 256}
 # Multi-task PPO: on-policy, so no replay, relabelling or task-balanced batches (every rollout holds
 # every copy's task in proportion to its copies: one copy per task on Meta-World).
-_PPO = {"algo": "ppo", "her": "none", "sampling": "uniform", "terminate_on_success": False}
+_PPO = {"algo": "ppo", "her": "none", "sampling": "uniform"}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -102,11 +106,11 @@ PRESETS: dict[str, Preset] = {
     ),
     "mt1-reach-sac": Preset(
         "SAC on Meta-World v3 reach (MT1: one task, goal positions resampled every episode), 10 copies",
-        {**_MT1, "mt1_task": "reach"},
+        {**_MT1, "task": "reach"},
     ),
     "mt1-push-sac": Preset(
         "SAC on Meta-World v3 push (MT1), 10 copies; needs more steps than reach",
-        {**_MT1, "mt1_task": "push", "total_steps": 1_000_000, "eval_interval": 25_000},
+        {**_MT1, "task": "push", "total_steps": 1_000_000, "eval_interval": 25_000},
     ),
     "mt10-sac-onehot": Preset(
         "multi-task SAC on Meta-World MT10: one network, one-hot task appended to the state, per-task temperature",

@@ -1,4 +1,4 @@
-"""A training run end to end: wiring, run directory, resume, and loading a trained agent.
+"""A training run end to end: build its parts, restore them, run the loop, report; load a trained agent.
 
 Run directory layout::
 
@@ -9,14 +9,21 @@ Run directory layout::
         checkpoints/latest   name of the newest checkpoint folder
         checkpoints/step_*/  agent / replay / loop parts (safetensors + JSON)
         learning_curve.png   success rate against env steps and wall-clock
-        per_task_success.json  multi-task runs: the last evaluation, per task (Meta-World's protocol)
+        per_task_success.json  multi-task runs: the last evaluation, per task
+        tasks.json           runs on a TaskSet given in Python: its tasks
+
+Everything env- or algorithm-specific comes from the registries (``taskrl.envs.registry``,
+``taskrl.agents.registry``): this file names no environment and no algorithm.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import datetime
+import importlib
 import json
+import shutil
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -25,42 +32,47 @@ import torch
 from rich.console import Console
 
 from taskrl import config as config_io
-from taskrl.agents.dqn import DQNAgent
-from taskrl.agents.ppo import PPOAgent
-from taskrl.agents.qtopt import QTOptAgent
-from taskrl.agents.sac import SACAgent
-from taskrl.agents.td3 import TD3Agent
+from taskrl.agents.registry import algorithm
+from taskrl.agents.spec import AgentInputs
 from taskrl.checkpoint import load_checkpoint, save_checkpoint
 from taskrl.conditioning.networks import make_conditioning
-from taskrl.config import GYMNASIUM_IDS, METAWORLD_BENCHMARKS, MULTITASK_ENVS, ON_POLICY_ALGOS, ConfigError, TrainConfig, validate, with_overrides
-from taskrl.console import ConsoleReporter, final_table
-from taskrl.envs import BitFlip, GymnasiumGoalEnv, MultiTaskPointReach, PointReach, evaluate_per_task, is_goal_env
+from taskrl.config import TrainConfig, check_fit, validate, with_overrides
+from taskrl.console import ConsoleReporter, final_table, per_task_table
 from taskrl.envs.base import BatchedEnv
-from taskrl.envs.multitask_point import DEFAULT_REGIONS
+from taskrl.envs.registry import ENV_FAMILIES, env_family, family_for_source
+from taskrl.envs.spec import EnvFamily, EnvRequest, env_kind
+from taskrl.errors import ConfigError
 from taskrl.logger import RunLogger
 from taskrl.plots import plot_learning_curve
 from taskrl.presets import preset_config
 from taskrl.replay import EpisodeReplay, HindsightRelabeler, TaskBalancedSampler
-from taskrl.training.bookkeeping import StopRequest
+from taskrl.training.bookkeeping import Bookkeeping, LoopState, StopRequest
 from taskrl.training.evaluation import evaluate
-from taskrl.training.offpolicy import LoopSchedule, LoopState, OffPolicyLoop
-from taskrl.training.onpolicy import OnPolicyLoop, OnPolicySchedule
+from taskrl.training.offpolicy import LoopSchedule, OffPolicyLoop
+from taskrl.training.onpolicy import OnPolicyLoop
+from taskrl.training.per_task import evaluate_per_task
+
+__all__ = ["Run", "RunParts", "build", "evaluate_run", "load", "make_agent", "train"]
 
 #: Observation keys the networks read, where the env has them (the task index is read separately).
 AGENT_INPUT_KEYS = ("observation", "desired_goal")
-Agent = DQNAgent | QTOptAgent | SACAgent | TD3Agent | PPOAgent
 EVAL_SEED_OFFSET = 1_000_003
 
 
 @dataclasses.dataclass
 class Run:
-    """The result of :func:`train`: where it was written, its settings, last metrics, and agent."""
+    """The result of :func:`train`: where it was written, its settings, last metrics, and agent.
+
+    Attributes:
+        notes: what changing ``env`` or ``algo`` on a preset kept or dropped (also printed).
+    """
 
     run_dir: Path
     config: TrainConfig
     metrics: dict[str, Any]
-    agent: Agent
+    agent: Any
     stopped_by: str | None = None  # "time limit", "SIGINT", "SIGTERM" when stopped early (resumable)
+    notes: list[str] = dataclasses.field(default_factory=list)
 
 
 # ---------------------------------------------------------------------- wiring
@@ -72,88 +84,66 @@ def resolve_device(name: str) -> torch.device:
     return torch.device(name)
 
 
-def metaworld_benchmark(config: TrainConfig) -> tuple[str, str | None]:
-    """``(benchmark, task)`` of a Meta-World run: ``("MT1", "reach")``, ``("MT10", None)``, ..."""
-    benchmark = METAWORLD_BENCHMARKS[config.env]
-    return benchmark, config.mt1_task if benchmark == "MT1" else None
+def action_kind(space: gym.spaces.Space) -> str | None:
+    """``discrete``, ``box`` or None (a space no algorithm here acts in)."""
+    if isinstance(space, gym.spaces.Discrete):
+        return "discrete"
+    return "box" if isinstance(space, gym.spaces.Box) else None
 
 
-def make_env(config: TrainConfig, num_envs: int, seed: int, device: torch.device, evaluation: bool = False) -> BatchedEnv:
-    """The run's batched environment: a native torch one, or gymnasium's through the adapter.
+def env_request(config: TrainConfig, device: torch.device, source: Any = None, evaluation: bool = False,
+                seed: int | None = None) -> EnvRequest:
+    """What the run asks of its env family (training envs, or the evaluation env)."""
+    if seed is None:
+        seed = config.seed + EVAL_SEED_OFFSET if evaluation else config.seed
+    return EnvRequest(num_envs=config.num_envs, seed=seed, device=device, evaluation=evaluation,
+                      eval_episodes=config.eval_episodes, run_seed=config.seed, source=source)
 
-    Multi-task evaluation envs give every copy a fixed task (per-task evaluation); Meta-World's
-    evaluation env uses the training goal positions (Meta-World's protocol evaluates on them), one
-    copy per task, and ``num_envs`` (training) must be a multiple of the number of tasks.
+
+def make_agent(config: TrainConfig, env: Any, device: torch.device) -> Any:
+    """The agent of ``config.algo`` for ``env``'s spaces (an env, or an object with its spaces).
+
+    The env is checked against the algorithm with the same rules as before building
+    (:func:`taskrl.config.check_fit`), now with the env's real kind and action space.
     """
-    if config.env == "pointreach-mt":
-        return MultiTaskPointReach(num_envs=num_envs, device=device, reward=config.reward,
-                                   task_sampling="fixed" if evaluation else "uniform",
-                                   terminate_on_success=config.terminate_on_success, seed=seed)
-    if config.env in METAWORLD_BENCHMARKS:
-        from taskrl.envs.metaworld_tasks import MetaWorldMultiTaskEnv, metaworld_task_set
-
-        benchmark, task = metaworld_benchmark(config)
-        num_tasks = len(metaworld_task_set(benchmark, task))
-        return MetaWorldMultiTaskEnv(benchmark, task, use_one_hot=True,
-                                     envs_per_task=1 if evaluation else max(1, num_envs // num_tasks),
-                                     max_episode_steps=config.max_episode_steps, seed=config.seed, device=device,
-                                     vector_strategy=config.vector_strategy)
-    if config.env == "bitflip":
-        return BitFlip(config.n_bits, num_envs=num_envs, device=device,
-                       terminate_on_success=config.terminate_on_success, seed=seed)
-    if config.env == "pointreach":
-        return PointReach(num_envs=num_envs, device=device, reward=config.reward,
-                          terminate_on_success=config.terminate_on_success, seed=seed)
-    return GymnasiumGoalEnv(GYMNASIUM_IDS[config.env], num_envs=num_envs, device=device,
-                            vector_strategy=config.vector_strategy, success_key="is_success")
-
-
-def make_agent(config: TrainConfig, env: BatchedEnv, device: torch.device) -> Agent:
-    """The agent of ``config.algo`` for ``env``'s spaces; a mismatch is a ConfigError naming ``algo``."""
+    check_fit(config, env_kind(env), action_kind(env.single_action_space))
+    if action_kind(env.single_action_space) is None:
+        raise ConfigError("env", f"actions must be Box or Discrete; {config.env!r} has {env.single_action_space}")
     space = env.single_observation_space
     keys = tuple(k for k in AGENT_INPUT_KEYS if k in space.spaces)
-    multitask = "task" in space.spaces
-    if "observation" not in keys or not (multitask or "desired_goal" in keys):
-        raise ConfigError("env", f"observations have keys {list(space.spaces)}; the agents here need 'observation' "
-                                 f"and either 'desired_goal' (goal-conditioned) or 'task' (multi-task)")
+    if "observation" not in keys:
+        raise ConfigError("env", f"observations have keys {list(space.spaces)}; the networks read 'observation' "
+                                 f"(with 'desired_goal' on goal envs and 'task' on multi-task envs)")
     input_dim = sum(int(torch.tensor(space[k].shape).prod()) for k in keys)
     task_set = getattr(env, "task_set", None)
     conditioning = None
-    if multitask and len(task_set) > 1:  # one task needs no context
+    if env_kind(env) == "multitask" and task_set is not None and len(task_set) > 1:  # one task needs no context
         conditioning = make_conditioning(config.conditioning, len(task_set), task_set.descriptions)
-    action_space = env.single_action_space
-    discrete = isinstance(action_space, gym.spaces.Discrete)
-    if config.algo == "ppo":  # Gaussian (Box) or categorical (Discrete) policy
-        return PPOAgent(keys, input_dim, action_space, config.ppo, device, conditioning)
-    if config.algo == "dqn":
-        if not discrete:
-            raise ConfigError("algo", f"dqn needs discrete actions but {config.env!r} has {action_space}; use qtopt or sac")
-        return DQNAgent(keys, input_dim, int(action_space.n), config.dqn, device)
-    if not isinstance(action_space, gym.spaces.Box):
-        raise ConfigError("algo", f"{config.algo} needs continuous (Box) actions but {config.env!r} has {action_space}; use dqn")
-    if config.algo == "sac":
-        return SACAgent(keys, input_dim, action_space, config.sac, device, conditioning)
-    agent_cls = {"qtopt": QTOptAgent, "td3": TD3Agent}[config.algo]
-    return agent_cls(keys, input_dim, action_space, getattr(config, config.algo), device)
+    inputs = AgentInputs(keys, input_dim, env.single_action_space)
+    return algorithm(config.algo).build(inputs, config.algo_settings, device, conditioning)
 
 
-def make_evaluator(config: TrainConfig, eval_env: BatchedEnv, agent: Agent, seed: int):
+def make_evaluator(config: TrainConfig, eval_env: BatchedEnv, agent: Any, seed: int):
     """``() -> metrics`` for the loop, and a holder of the last full result (per-task for multi-task envs).
 
-    Goal-conditioned envs: success at the step an episode ends, over ``eval_episodes`` episodes.
-    Multi-task envs: :func:`evaluate_per_task` with ``eval_episodes`` per task; Meta-World counts an
-    episode as a success if it succeeds at any step (its protocol); the native multi-task
-    PointReach at the final step (touring several regions must not count). ``success_rate`` is
-    the mean over tasks and every task adds a ``success/<name>`` column.
+    Single-task envs: success at the step an episode ends, one episode per evaluation copy.
+    Multi-task envs: :func:`evaluate_per_task` with ``eval_episodes`` per task and the family's
+    success criterion (any step on Meta-World, its protocol; the final step on the native
+    multi-task PointReach, where touring regions must not count). ``success_rate`` is the mean
+    over tasks and every task adds a ``success/<name>`` column.
     """
     last: dict[str, Any] = {}
-    policy = lambda o: agent.act(o)  # noqa: E731 (greedy: exploration 0)
+    family = env_family(config.env)
+    multitask = env_kind(eval_env) == "multitask"
+
+    def policy(obs):  # greedy: no exploration
+        return agent.act(obs)
 
     def run() -> dict[str, float]:
-        if config.env not in MULTITASK_ENVS:
+        if not multitask:
             return evaluate(policy, eval_env, seed)
         result = evaluate_per_task(policy, eval_env, config.eval_episodes, seed,
-                                   success="final" if config.env == "pointreach-mt" else "any")
+                                   success=family.success_criterion(config.env_settings))
         last.clear(), last.update(result)
         tasks = result["tasks"].values()
         return {
@@ -166,26 +156,139 @@ def make_evaluator(config: TrainConfig, eval_env: BatchedEnv, agent: Agent, seed
     return run, last
 
 
-def eval_env_copies(config: TrainConfig) -> int:
-    """Copies of the evaluation env: one episode each (goal envs), every task ``eval_episodes`` times at once
-    (native multi-task), or Meta-World's one copy per task."""
-    if config.env == "pointreach-mt":
-        return len(DEFAULT_REGIONS) * config.eval_episodes
-    return config.eval_episodes
-
-
 def make_relabeler(config: TrainConfig, env: BatchedEnv) -> HindsightRelabeler | None:
     if config.her == "none":
         return None
-    if not is_goal_env(env):
-        raise ConfigError("her", f"hindsight relabelling needs a goal env (achieved_goal, desired_goal, compute_reward); "
-                                 f"{config.env!r} is not one; use --her none")
     return HindsightRelabeler(env.compute_reward, config.her, config.her_k,
                               terminated_fn=getattr(env, "compute_terminated", None))
 
 
-def default_run_dir(preset: str) -> Path:
-    return Path("runs") / f"{preset}-{datetime.datetime.now():%Y%m%d-%H%M%S}"
+@dataclasses.dataclass
+class RunParts:
+    """Everything a run is made of, built from its config (:func:`build`)."""
+
+    config: TrainConfig
+    family: EnvFamily
+    device: torch.device
+    env: BatchedEnv
+    eval_env: BatchedEnv
+    agent: Any
+    generator: torch.Generator
+    replay: EpisodeReplay | None = None
+    relabel: HindsightRelabeler | None = None
+    sampler: TaskBalancedSampler | None = None
+
+    def close(self) -> None:
+        self.env.close()
+        self.eval_env.close()
+
+
+def build(config: TrainConfig, source: Any = None) -> RunParts:
+    """Envs, agent, replay, relabeller and sampler of a validated config (``source``: a Python
+    object the env family builds its envs from, e.g. a factory or a TaskSet)."""
+    if config.threads:
+        torch.set_num_threads(config.threads)
+    device = resolve_device(config.device)
+    torch.manual_seed(config.seed)
+    family = env_family(config.env)
+    env = family.make(config.env_settings, env_request(config, device, source))
+    eval_env = None
+    try:
+        eval_env = family.make(config.env_settings, env_request(config, device, source, evaluation=True))
+        agent = make_agent(config, env, device)
+        generator = torch.Generator(device=device)
+        generator.manual_seed(config.seed + 1)
+        parts = RunParts(config, family, device, env, eval_env, agent, generator)
+        if algorithm(config.algo).loop == "off_policy":
+            capacity = min(config.buffer_size, config.total_steps + 2 * env.num_envs * env.horizon)
+            parts.replay = EpisodeReplay(env.single_observation_space, env.single_action_space, capacity, env.horizon,
+                                         env.num_envs, device)
+            parts.relabel = make_relabeler(config, env)
+            if config.sampling == "task_balanced":
+                parts.sampler = TaskBalancedSampler(parts.replay, len(env.task_set))
+        return parts
+    except BaseException:
+        env.close()
+        if eval_env is not None:
+            eval_env.close()
+        raise
+
+
+def restore(parts: RunParts, run_dir: Path) -> LoopState:
+    """Load the last checkpoint of ``run_dir`` into the parts; the loop state to continue from."""
+    saved = load_checkpoint(run_dir / "checkpoints", ("agent", "replay", "loop"), parts.device)
+    parts.agent.load_state_dict(saved["agent"])
+    if "replay" in saved and parts.replay is not None:
+        parts.replay.load_state_dict(saved["replay"])
+    loop_saved = dict(saved["loop"])
+    parts.generator.set_state(loop_saved.pop("generator").cpu())
+    return LoopState(**loop_saved)
+
+
+def checkpointer(parts: RunParts, run_dir: Path) -> Callable[[LoopState], None]:
+    """``(loop state) -> None`` writing agent, loop and (``save_replay``) replay parts."""
+
+    def checkpoint(state: LoopState) -> None:
+        saved: dict[str, Any] = {
+            "agent": parts.agent.state_dict(),
+            "loop": {**dataclasses.asdict(state), "generator": parts.generator.get_state()},
+        }
+        if parts.config.save_replay and parts.replay is not None:
+            saved["replay"] = parts.replay.state_dict()
+        save_checkpoint(run_dir / "checkpoints", saved, state.env_steps)
+
+    return checkpoint
+
+
+# Loops by algorithm kind: (parts, bookkeeping) -> a loop with run(env_seed).
+def _off_policy_loop(parts: RunParts, books: Bookkeeping) -> OffPolicyLoop:
+    c = parts.config
+    schedule = LoopSchedule(total_steps=c.total_steps, batch_size=c.batch_size, learning_starts=c.learning_starts,
+                            updates_per_step=c.updates_per_step)
+    return OffPolicyLoop(parts.env, parts.agent, parts.replay, parts.relabel, schedule, books, parts.generator,
+                         sample=parts.sampler)
+
+
+def _on_policy_loop(parts: RunParts, books: Bookkeeping) -> OnPolicyLoop:
+    return OnPolicyLoop(parts.env, parts.agent, parts.config.total_steps, books, parts.generator)
+
+
+LOOPS: dict[str, Callable[[RunParts, Bookkeeping], Any]] = {"off_policy": _off_policy_loop, "on_policy": _on_policy_loop}
+
+
+def default_run_dir(name: str) -> Path:
+    return Path("runs") / f"{name}-{datetime.datetime.now():%Y%m%d-%H%M%S}"
+
+
+# ---------------------------------------------------------------------- configuration of a call
+def _env_source(overrides: dict[str, Any]) -> Any:
+    """Read ``env=`` of :func:`train`: a family name stays a setting, a gymnasium id becomes
+    ``env_id`` of the ``gym`` family, and a Python object (a factory, a TaskSet) is returned as
+    the source its family builds envs from."""
+    value = overrides.get("env")
+    if value is None or (isinstance(value, str) and value in ENV_FAMILIES):
+        return None
+    if isinstance(value, str):
+        overrides.update(env="gym", env_id=value)
+        return None
+    overrides["env"] = family_for_source(value).name
+    return value
+
+
+def import_env_module(name: str) -> None:
+    """Import the module that registers a user's gymnasium ids (``--env-module``)."""
+    if not name:
+        return
+    try:
+        importlib.import_module(name)
+    except ImportError as error:
+        raise ConfigError("env_module", f"cannot import {name!r}: {error}") from None
+
+
+def _note(console: Console | None, notes: list[str]) -> None:
+    out = console or Console(stderr=True)
+    for line in notes:
+        out.print(f"note: {line}", soft_wrap=True, markup=False)
 
 
 # ---------------------------------------------------------------------- training
@@ -208,64 +311,55 @@ def train(
             (``overrides`` still apply, e.g. a larger ``total_steps``).
         progress: show a progress bar and print the final table.
         tensorboard: write TensorBoard events.
-        console: where the final table goes (default stderr).
-        **overrides: any setting of :class:`taskrl.config.TrainConfig` by name (``n_bits=30``).
+        console: where the final table and notes go (default stderr).
+        **overrides: any setting by name (``n_bits=30``, ``lr=1e-3``; see ``taskrl train PRESET --help``).
+            ``env`` may also be a gymnasium id (``env="my/Slider-v0"``), a zero-argument factory
+            of a ``gymnasium.Env``, or a :class:`~taskrl.tasks.TaskSet`; a run on a Python object
+            needs the same ``env=`` again to resume (and to :func:`load`).
 
     Returns:
         a :class:`Run` with the run directory, configuration, final metrics and trained agent.
     """
+    overrides = dict(overrides)
+    source = _env_source(overrides)
+    notes: list[str] = []
     if resume is not None:
         run_dir = Path(resume)
         if not (run_dir / "config.json").exists():
             raise ConfigError("resume", f"{run_dir} is not a run directory (no config.json)")
-        config = validate(with_overrides(config_io.load(run_dir / "config.json"), overrides))
+        config = with_overrides(config_io.load(run_dir / "config.json"), overrides, notes)
     else:
-        config = validate(with_overrides(preset_config(preset), overrides))
+        config = with_overrides(preset_config(preset), overrides, notes)
         run_dir = Path(out) if out is not None else default_run_dir(preset)
         if (run_dir / "checkpoints").exists():
             raise ConfigError("out", f"{run_dir} already holds a run; pass --resume {run_dir} to continue it")
+    if resume is None or "env_module" in overrides:  # a resumed run imports only what the caller names
+        import_env_module(config.env_module)
+
+    created = not run_dir.exists()
+    try:
+        family = env_family(config.env)
+        if source is not None and resume is None and family.persist is not None:  # record the object in the run
+            run_dir.mkdir(parents=True, exist_ok=True)
+            config = with_overrides(config, family.persist(source, run_dir))
+        validate(config)
+        parts = build(config, source)
+    except BaseException:
+        if created:  # nothing of this call stays behind
+            shutil.rmtree(run_dir, ignore_errors=True)
+        raise
+    _note(console, notes)
     run_dir.mkdir(parents=True, exist_ok=True)
     config_io.save(config, run_dir / "config.json")
 
-    if config.threads:
-        torch.set_num_threads(config.threads)
-    device = resolve_device(config.device)
-    torch.manual_seed(config.seed)
-    env = make_env(config, config.num_envs, config.seed, device)
-    eval_env = make_env(config, eval_env_copies(config), config.seed + EVAL_SEED_OFFSET, device, evaluation=True)
-    agent = make_agent(config, env, device)
-    on_policy = config.algo in ON_POLICY_ALGOS
-    relabel = make_relabeler(config, env)
-    replay = None if on_policy else EpisodeReplay(
-        env.single_observation_space, env.single_action_space,
-        min(config.buffer_size, config.total_steps + 2 * env.num_envs * env.horizon), env.horizon, env.num_envs, device)
-    sampler = TaskBalancedSampler(replay, len(env.task_set)) if config.sampling == "task_balanced" and replay else None
-    generator = torch.Generator(device=device)
-    generator.manual_seed(config.seed + 1)
-
     state = LoopState(next_checkpoint=config.checkpoint_interval)
     if resume is not None:
-        saved = load_checkpoint(run_dir / "checkpoints", ("agent", "replay", "loop"), device)
-        agent.load_state_dict(saved["agent"])
-        if "replay" in saved and replay is not None:
-            replay.load_state_dict(saved["replay"])
-        loop_saved = dict(saved["loop"])
-        generator.set_state(loop_saved.pop("generator").cpu())
-        state = LoopState(**loop_saved)
-
+        state = restore(parts, run_dir)
     logger = RunLogger(run_dir, tensorboard=tensorboard, resume_from_step=state.env_steps if resume else None)
-
-    def checkpoint(loop_state: LoopState) -> None:
-        parts: dict[str, Any] = {
-            "agent": agent.state_dict(),
-            "loop": {**dataclasses.asdict(loop_state), "generator": generator.get_state()},
-        }
-        if config.save_replay and replay is not None:
-            parts["replay"] = replay.state_dict()
-        save_checkpoint(run_dir / "checkpoints", parts, loop_state.env_steps)
-
     rows: list[dict[str, Any]] = []
-    title = preset or f"{config.env}-{config.algo}"
+    title = preset if resume is None and preset else f"{config.env}-{config.algo}"
+    evaluator, last_eval = make_evaluator(config, parts.eval_env, parts.agent, config.seed + EVAL_SEED_OFFSET)
+    stop = StopRequest(config.max_hours)
     with ConsoleReporter(title, config.total_steps, state.env_steps, enabled=progress) as reporter:
 
         def on_log(row: dict[str, Any]) -> None:
@@ -273,84 +367,98 @@ def train(
             logger.log(row)
             reporter.update(row)
 
-        evaluator, last_eval = make_evaluator(config, eval_env, agent, config.seed + EVAL_SEED_OFFSET)
-        stop = StopRequest(config.max_hours)
-        callbacks = dict(evaluate=evaluator, on_log=on_log, on_checkpoint=checkpoint, generator=generator, stop=stop)
-        if on_policy:
-            loop = OnPolicyLoop(env, agent, OnPolicySchedule(config.total_steps, config.eval_interval,
-                                                             config.checkpoint_interval, config.stop_at_success), **callbacks)
-        else:
-            schedule = LoopSchedule(
-                total_steps=config.total_steps, batch_size=config.batch_size, learning_starts=config.learning_starts,
-                updates_per_step=config.updates_per_step, eval_interval=config.eval_interval,
-                checkpoint_interval=config.checkpoint_interval, stop_at_success=config.stop_at_success,
-                epsilon_start=config.epsilon_start, epsilon_end=config.epsilon_end,
-                epsilon_decay_steps=config.epsilon_decay_steps,
-            )
-            loop = OffPolicyLoop(env, agent, replay, relabel, schedule, sample=sampler, **callbacks)
+        books = Bookkeeping(state, evaluator, on_log, checkpointer(parts, run_dir), config.total_steps,
+                            config.eval_interval, config.checkpoint_interval, config.stop_at_success, parts.device, stop)
+        loop = LOOPS[algorithm(config.algo).loop](parts, books)
         try:
             with stop.on_signals():
-                state = loop.run(state, env_seed=config.seed + state.env_steps)
+                state = loop.run(env_seed=config.seed + state.env_steps)
         finally:
             logger.close()
-            env.close()
-            eval_env.close()
+            parts.close()
 
-    curve = plot_learning_curve(logger.path, run_dir / "learning_curve.png", title=f"{title} ({run_dir.name})")
+    final = report(config, run_dir, title, rows, state, last_eval, logger.path, progress, console, stop)
+    return Run(run_dir=run_dir, config=config, metrics=final, agent=parts.agent, stopped_by=stop.stopped_by, notes=notes)
+
+
+def report(config: TrainConfig, run_dir: Path, title: str, rows: list[dict[str, Any]], state: LoopState,
+           last_eval: dict[str, Any], metrics_csv: Path, progress: bool, console: Console | None,
+           stop: StopRequest) -> dict[str, Any]:
+    """The learning curve, the per-task result of multi-task runs, the final table; returns the last row."""
+    out = console or Console(stderr=True)
+    curve = plot_learning_curve(metrics_csv, run_dir / "learning_curve.png", title=f"{title} ({run_dir.name})")
     if last_eval:  # multi-task: the per-task table of the last evaluation, printed and saved
-        from taskrl.envs.metaworld_tasks import per_task_table
-
         (run_dir / "per_task_success.json").write_text(json.dumps({"env_steps": state.env_steps, **last_eval}, indent=2) + "\n")
         if progress:
-            (console or Console(stderr=True)).print(per_task_table(last_eval, f"per-task success at {state.env_steps:,} env steps"))
+            out.print(per_task_table(last_eval, f"per-task success at {state.env_steps:,} env steps"))
     final = rows[-1] if rows else {"env_steps": state.env_steps, "updates": state.updates,
                                    "wall_seconds": state.wall_seconds, "success_rate": state.last_success}
     if progress:
-        (console or Console(stderr=True)).print(final_table({"eval_return": float("nan"), **final}, run_dir, curve))
+        out.print(final_table({"eval_return": float("nan"), **final}, run_dir, curve))
     if stop.stopped_by:
-        (console or Console(stderr=True)).print(
-            f"stopped early ({stop.stopped_by}) at {state.env_steps:,} env steps, checkpoint saved; "
-            f"continue with: taskrl train --resume {run_dir}", soft_wrap=True, markup=False)
-    return Run(run_dir=run_dir, config=config, metrics=final, agent=agent, stopped_by=stop.stopped_by)
+        out.print(f"stopped early ({stop.stopped_by}) at {state.env_steps:,} env steps, checkpoint saved; "
+                  f"continue with: taskrl train --resume {run_dir}", soft_wrap=True, markup=False)
+    return final
 
 
 # ---------------------------------------------------------------------- loading
-def load(run_dir: str | Path, device: str = "cpu") -> Agent:
-    """The trained agent of a run directory; ``agent.act(obs)`` takes the environment's observations.
-
-    Only safetensors and JSON are read: loading never executes code.
-    """
-    run_dir = Path(run_dir)
+def _saved_config(run_dir: Path, env: Any, env_module: str | None) -> tuple[TrainConfig, Any]:
+    """A run directory's config and the env source a caller passed for it."""
     if not (run_dir / "config.json").exists():
         raise ConfigError("run_dir", f"{run_dir} is not a run directory (no config.json)")
     config = config_io.load(run_dir / "config.json")
-    dev = resolve_device(device)
-    if config.env in METAWORLD_BENCHMARKS:  # spaces and task set only: building Meta-World takes seconds
-        from taskrl.envs.metaworld_tasks import metaworld_spec
+    if env_module:
+        import_env_module(env_module)
+    if env is not None and (not isinstance(env, str)):
+        return config, env
+    return config, None
 
-        env = metaworld_spec(*metaworld_benchmark(config))
+
+def load(run_dir: str | Path, device: str = "cpu", env: Any = None, env_module: str | None = None) -> Any:
+    """The trained agent of a run directory; ``agent.act(obs)`` takes the environment's observations.
+
+    Only safetensors and JSON are read: loading never executes code, and never imports a module
+    the run directory names (pass ``env_module`` to register a gymnasium id of yours first).
+
+    Args:
+        run_dir: a directory written by :func:`train`.
+        device: where the networks go.
+        env: the Python factory or TaskSet the run was trained on, if it was trained on one.
+        env_module: a module to import first (one that registers the run's gymnasium id).
+    """
+    run_dir = Path(run_dir)
+    config, source = _saved_config(run_dir, env, env_module)
+    dev = resolve_device(device)
+    family = env_family(config.env)
+    request = env_request(config, dev, source, evaluation=True)
+    request = dataclasses.replace(request, eval_episodes=1)
+    if family.spec is not None and source is None:  # spaces and task set only: building Meta-World takes seconds
+        spaces = family.spec(config.env_settings, request)
     else:
-        env = make_env(config, 1, 0, dev, evaluation=True)
-    agent = make_agent(config, env, dev)
-    env.close()
+        spaces = family.make(config.env_settings, request)
+    try:
+        agent = make_agent(config, spaces, dev)
+    finally:
+        spaces.close()
     agent.load_state_dict(load_checkpoint(run_dir / "checkpoints", ("agent",), dev)["agent"])
     return agent
 
 
-def evaluate_run(run_dir: str | Path, episodes: int = 100, seed: int | None = None, device: str = "cpu") -> dict[str, float]:
+def evaluate_run(run_dir: str | Path, episodes: int = 100, seed: int | None = None, device: str = "cpu",
+                 env: Any = None, env_module: str | None = None) -> dict[str, float]:
     """Re-evaluate a saved agent greedily on ``episodes`` fresh episodes (per task on multi-task envs)."""
     run_dir = Path(run_dir)
-    if not (run_dir / "config.json").exists():
-        raise ConfigError("run_dir", f"{run_dir} is not a run directory (no config.json)")
-    config = dataclasses.replace(config_io.load(run_dir / "config.json"), eval_episodes=episodes)
+    config, source = _saved_config(run_dir, env, env_module)
+    config = dataclasses.replace(config, eval_episodes=episodes)
     try:  # before loading anything
         validate(config)
     except ConfigError as error:  # the only setting this call changes is the episode count
         raise ConfigError("episodes" if error.field == "eval_episodes" else error.field, error.message) from None
-    agent = load(run_dir, device)
+    agent = load(run_dir, device, env=source, env_module=None)
     seed = config.seed + EVAL_SEED_OFFSET if seed is None else seed
-    env = make_env(config, eval_env_copies(config), seed, agent.device, evaluation=True)
+    family = env_family(config.env)
+    eval_env = family.make(config.env_settings, env_request(config, agent.device, source, evaluation=True, seed=seed))
     try:
-        return {**make_evaluator(config, env, agent, seed)[0](), "episodes": episodes}
+        return {**make_evaluator(config, eval_env, agent, seed)[0](), "episodes": episodes}
     finally:
-        env.close()
+        eval_env.close()

@@ -5,23 +5,40 @@ A :class:`TaskSpec` is one task: a version-free ``name`` (``reach``, ``pick-plac
 conditioning, e.g. CARE, embeds) and its ``index`` in the task set (the integer that
 observations carry under the ``task`` key). A :class:`TaskSet` is the ordered list a run trains
 on; ``TaskSet.from_pairs([(name, description), ...])`` numbers the tasks in order.
+
+A task may also say where it runs (``env``): a gymnasium id (with ``env_kwargs``) or a zero-argument
+factory of a ``gymnasium.Env``; a task without one is a Meta-World task named by ``name``. A task
+file (JSON or YAML) lists the same, ``TaskSet.from_file(path)`` reads it::
+
+    tasks:
+      - {name: slide-left, description: Slide the block to the left end., env: my/Slider-v0, env_kwargs: {target: -0.8}}
+      - {name: slide-right, description: Slide the block to the right end., env: my/Slider-v0, env_kwargs: {target: 0.8}}
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator, Sequence
-from dataclasses import dataclass
+import json
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
 
 __all__ = ["TaskSet", "TaskSpec"]
+
+_ENTRY_KEYS = ("name", "description", "env", "env_kwargs")
 
 
 @dataclass(frozen=True)
 class TaskSpec:
-    """One task: ``name`` (version-free), ``description`` (a sentence), ``index`` (position in its set)."""
+    """One task: ``name`` (version-free), ``description`` (a sentence), ``index`` (position in its set),
+    and optionally where it runs: ``env`` (a gymnasium id or a zero-argument factory of a
+    ``gymnasium.Env``) with ``env_kwargs`` for ``gymnasium.make``."""
 
     name: str
     description: str
     index: int
+    env: str | Callable[[], Any] | None = field(default=None, compare=False)
+    env_kwargs: dict[str, Any] | None = field(default=None, compare=False, hash=False)
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name.strip():
@@ -30,6 +47,10 @@ class TaskSpec:
             raise ValueError(f"TaskSpec.description of {self.name!r} must be a non-empty sentence, got {self.description!r}")
         if isinstance(self.index, bool) or not isinstance(self.index, int) or self.index < 0:
             raise ValueError(f"TaskSpec.index of {self.name!r} must be an integer >= 0, got {self.index!r}")
+        if self.env is not None and not (isinstance(self.env, str) and self.env) and not callable(self.env):
+            raise ValueError(f"TaskSpec.env of {self.name!r} must be a gymnasium id or a factory of a gymnasium.Env, got {self.env!r}")
+        if self.env_kwargs is not None and (not isinstance(self.env_kwargs, dict) or not isinstance(self.env, str)):
+            raise ValueError(f"TaskSpec.env_kwargs of {self.name!r} must be a dict, with env a gymnasium id")
 
 
 class TaskSet(Sequence[TaskSpec]):
@@ -59,6 +80,51 @@ class TaskSet(Sequence[TaskSpec]):
     def from_pairs(cls, pairs: Iterable[tuple[str, str]]) -> TaskSet:
         """A task set from ``(name, description)`` pairs, indexed in order."""
         return cls(TaskSpec(name, description, i) for i, (name, description) in enumerate(pairs))
+
+    @classmethod
+    def from_entries(cls, entries: Iterable[dict[str, Any]], where: str = "tasks") -> TaskSet:
+        """A task set from dicts with ``name``, ``description`` and optionally ``env``, ``env_kwargs``."""
+        tasks = []
+        for i, entry in enumerate(entries):
+            if not isinstance(entry, dict):
+                raise ValueError(f"{where}: entry {i} must be a mapping with name and description, got {entry!r}")
+            unknown = sorted(set(entry) - set(_ENTRY_KEYS))
+            if unknown or "name" not in entry or "description" not in entry:
+                raise ValueError(f"{where}: entry {i} has keys {sorted(entry)}; allowed: {', '.join(_ENTRY_KEYS)} "
+                                 f"(name and description required)")
+            tasks.append(TaskSpec(entry["name"], entry["description"], i, entry.get("env"), entry.get("env_kwargs")))
+        return cls(tasks)
+
+    @classmethod
+    def from_file(cls, path: str | Path) -> TaskSet:
+        """Read a JSON or YAML task file: a list of tasks, or a mapping with a ``tasks`` list."""
+        path = Path(path)
+        if not path.is_file():
+            raise FileNotFoundError(f"task file {path} does not exist")
+        text = path.read_text()
+        if path.suffix.lower() in (".yaml", ".yml"):
+            import yaml
+
+            data = yaml.safe_load(text)  # safe_load builds plain data only: no code runs
+        else:
+            data = json.loads(text)
+        if isinstance(data, dict):
+            data = data.get("tasks")
+        if not isinstance(data, list):
+            raise ValueError(f"{path}: expected a list of tasks (or a mapping with a 'tasks' list)")
+        return cls.from_entries(data, where=str(path))
+
+    def to_entries(self, describe_factory: Callable[[Any], str] = repr) -> list[dict[str, Any]]:
+        """JSON-able entries; a factory ``env`` is written as ``describe_factory(env)``."""
+        out = []
+        for t in self._tasks:
+            entry: dict[str, Any] = {"name": t.name, "description": t.description}
+            if t.env is not None:
+                entry["env"] = t.env if isinstance(t.env, str) else describe_factory(t.env)
+            if t.env_kwargs:
+                entry["env_kwargs"] = dict(t.env_kwargs)
+            out.append(entry)
+        return out
 
     @property
     def names(self) -> list[str]:

@@ -30,6 +30,8 @@ from typing import Any
 import numpy as np
 import torch
 
+from taskrl.errors import require
+
 ScoreFn = Callable[[torch.Tensor], torch.Tensor]
 
 
@@ -58,6 +60,16 @@ class CEMConfig:
     first_samples: int = 0
     warm_std: float = 0.1
     warm_iterations: int = 1
+
+    def validate(self) -> None:
+        """Raise :class:`~taskrl.errors.ConfigError` naming the first bad setting."""
+        require(self.iterations >= 1, "iterations", f"must be >= 1 (got {self.iterations})")
+        require(1 <= self.elites <= self.samples, "elites", f"must be in [1, samples={self.samples}] (got {self.elites})")
+        require(self.init_std > 0, "init_std", f"must be > 0 (got {self.init_std})")
+        require(self.first_samples == 0 or self.first_samples >= self.elites, "first_samples",
+                f"must be 0 (same as samples) or >= elites={self.elites} (got {self.first_samples})")
+        require(self.warm_std > 0, "warm_std", f"must be > 0 (got {self.warm_std})")
+        require(self.warm_iterations >= 0, "warm_iterations", f"must be >= 0 (got {self.warm_iterations})")
 
 
 def action_bounds(action_space: Any, device: str | torch.device = "cpu") -> tuple[torch.Tensor, torch.Tensor]:

@@ -7,6 +7,9 @@ Each update regresses Q(s, a) onto the Bellman target
 
 Time-limit truncation still bootstraps: only ``terminated`` zeroes the next value. With rewards
 in {-1, 0} every return lies in [-1 / (1 - gamma), 0], so targets can be clipped there.
+
+Exploration is epsilon-greedy: while collecting, a uniformly random action with probability
+epsilon, decayed linearly from ``epsilon_start`` to ``epsilon_end`` over ``epsilon_decay_steps``.
 """
 
 from __future__ import annotations
@@ -18,7 +21,11 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from taskrl.agents.parts import ObservationInput, as_batch, gradient_step
+from taskrl.agents.base import Agent
+from taskrl.agents.spec import AlgorithmSpec
+from taskrl.agents.parts import (ObservationInput, check_learning_settings, check_non_negative, check_probability,
+                                 gradient_step, linear_schedule, negative_return_bounds, polyak_update, td_target)
+from taskrl.errors import one_of, require
 from taskrl.nets import mlp
 from taskrl.replay.batch import Batch, Obs
 
@@ -39,6 +46,9 @@ class DQNConfig:
         max_grad_norm: gradient-norm clip (0 disables).
         normalize_inputs: standardise network inputs with running mean/std from the
             training batches (clipped to +-5), as the hindsight paper's implementation does.
+        epsilon_start: probability of a uniformly random action when collecting starts.
+        epsilon_end: that probability after ``epsilon_decay_steps``.
+        epsilon_decay_steps: environment steps over which epsilon decays linearly (0: ``epsilon_end`` throughout).
     """
 
     lr: float = 1e-3
@@ -51,6 +61,17 @@ class DQNConfig:
     clip_target: bool = True
     max_grad_norm: float = 10.0
     normalize_inputs: bool = True
+    epsilon_start: float = 0.5
+    epsilon_end: float = 0.05
+    epsilon_decay_steps: int = 20_000
+
+    def validate(self) -> None:
+        """Raise :class:`~taskrl.errors.ConfigError` naming the first bad setting."""
+        check_learning_settings(self)
+        one_of(self.loss, ("huber", "mse"), "loss", "loss")
+        require(self.target_update_interval >= 1, "target_update_interval", f"must be >= 1 (got {self.target_update_interval})")
+        check_probability(self, "epsilon_start", "epsilon_end")
+        check_non_negative(self, "epsilon_decay_steps")
 
 
 class QNetwork(nn.Module):
@@ -64,7 +85,7 @@ class QNetwork(nn.Module):
         return self.body(x)
 
 
-class DQNAgent:
+class DQNAgent(Agent):
     """Deep Q-learning agent with a target network.
 
     Args:
@@ -75,7 +96,10 @@ class DQNAgent:
         device: torch device of the networks.
     """
 
+    checkpointed = {"q": "q", "q_target": "q_target", "normalize": "inputs.normalize", "optimizer": "optimizer"}
+
     def __init__(self, input_keys: tuple[str, ...], input_dim: int, n_actions: int, config: DQNConfig, device: str | torch.device = "cpu") -> None:
+        config.validate()
         self.config = config
         self.device = torch.device(device)
         self.n_actions = n_actions
@@ -92,21 +116,24 @@ class DQNAgent:
         self.updates = 0
 
     # ---------------------------------------------------------------- acting
-    @torch.no_grad()
-    def act(self, obs: Obs | dict[str, Any], epsilon: float = 0.0, generator: torch.Generator | None = None):
-        """Epsilon-greedy actions for a batch of observations.
+    def epsilon(self, env_steps: int) -> float:
+        """The exploration probability at ``env_steps`` (linear decay)."""
+        c = self.config
+        return linear_schedule(c.epsilon_start, c.epsilon_end, c.epsilon_decay_steps, env_steps)
 
-        Accepts the batched tensors of a native environment, or one numpy observation of a
-        gymnasium environment (then returns a Python int).
-        """
-        obs, single = as_batch(obs, self.device)
+    def exploration(self, env_steps: int) -> dict[str, float]:
+        return {"epsilon": self.epsilon(env_steps)}
+
+    def policy(self, obs: Obs, explore: bool, generator: torch.Generator | None, env_steps: int) -> torch.Tensor:
+        """argmax_a Q(s, a); while exploring, a uniformly random action with probability epsilon."""
         greedy = self.q(self.inputs(obs)).argmax(dim=1)
+        epsilon = self.epsilon(env_steps) if explore else 0.0
         if epsilon > 0.0:
             n = greedy.shape[0]
-            explore = torch.rand(n, generator=generator, device=self.device) < epsilon
+            pick = torch.rand(n, generator=generator, device=self.device) < epsilon
             random_actions = torch.randint(0, self.n_actions, (n,), generator=generator, device=self.device)
-            greedy = torch.where(explore, random_actions, greedy)
-        return int(greedy[0]) if single else greedy
+            greedy = torch.where(pick, random_actions, greedy)
+        return greedy
 
     # ---------------------------------------------------------------- learning
     def bellman_target(self, batch: Batch) -> torch.Tensor:
@@ -120,10 +147,8 @@ class DQNAgent:
                 next_value = next_q_target.gather(1, next_action).squeeze(1)
             else:
                 next_value = next_q_target.max(dim=1).values
-            target = batch.reward + cfg.gamma * (~batch.terminated).float() * next_value
-            if cfg.clip_target:
-                target = target.clamp(-1.0 / (1.0 - cfg.gamma), 0.0)
-        return target
+            clip = negative_return_bounds(cfg.gamma) if cfg.clip_target else None
+            return td_target(batch.reward, batch.terminated, next_value, cfg.gamma, clip)
 
     def update(self, batch: Batch) -> dict[str, torch.Tensor]:
         """One gradient step on the TD error; returns detached scalars (``loss``, ``q_mean``)."""
@@ -140,27 +165,16 @@ class DQNAgent:
             self.update_target()
         return {"loss": loss.detach(), "q_mean": q_taken.detach().mean()}
 
-    @torch.no_grad()
     def update_target(self) -> None:
         """theta_target <- tau * theta + (1 - tau) * theta_target (tau = 1: hard copy)."""
-        if self.config.tau >= 1.0:
-            torch._foreach_copy_(self._target_params, self._params)
-        else:
-            torch._foreach_lerp_(self._target_params, self._params, self.config.tau)
+        polyak_update(self._target_params, self._params, self.config.tau)
 
-    # ---------------------------------------------------------------- checkpointing
-    def state_dict(self) -> dict[str, Any]:
-        return {
-            "q": self.q.state_dict(),
-            "q_target": self.q_target.state_dict(),
-            "normalize": self.inputs.normalize.state_dict(),
-            "optimizer": self.optimizer.state_dict(),
-            "updates": self.updates,
-        }
 
-    def load_state_dict(self, state: dict[str, Any]) -> None:
-        self.q.load_state_dict(state["q"])
-        self.q_target.load_state_dict(state["q_target"])
-        self.inputs.normalize.load_state_dict(state["normalize"])
-        self.optimizer.load_state_dict(state["optimizer"])
-        self.updates = int(state["updates"])
+SPEC = AlgorithmSpec(
+    name="dqn",
+    description="deep Q-learning with a target network and double-Q (discrete actions)",
+    config=DQNConfig,
+    build=lambda inputs, config, device, conditioning: DQNAgent(inputs.keys, inputs.dim, int(inputs.action_space.n), config, device),
+    loop="off_policy",
+    actions=("discrete",),
+)

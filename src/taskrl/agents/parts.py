@@ -3,9 +3,12 @@
 - :class:`ObservationInput`: the network input (chosen observation keys -> float -> running
   normalisation), one module for the online and target networks alike;
 - :class:`ActionBox`: between an action box ``[low, high]`` and the ``[-1, 1]^A`` networks see;
+- :func:`td_target`: ``y = r + gamma (1 - terminated) v'``, optionally clipped;
+- :func:`polyak_update`: ``theta_target <- tau theta + (1 - tau) theta_target`` over parameter lists;
 - :func:`gradient_step`: zero the gradients, backpropagate, clip the norm, step;
-- :func:`as_batch`: one numpy observation of a gymnasium environment as a batch of one;
-- :func:`explore_in_box`: the hindsight paper's exploration for deterministic policies.
+- :func:`explore_in_box`: the hindsight paper's exploration for deterministic policies;
+- :func:`linear_schedule`: an exploration level decaying linearly with env steps;
+- :func:`check_learning_settings`: the checks every algorithm's section shares.
 """
 
 from __future__ import annotations
@@ -13,14 +16,14 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-import numpy as np
 import torch
 from torch import nn
 
 from taskrl.agents.cem import action_bounds
+from taskrl.errors import require
 from taskrl.nets import ObsConcat
 from taskrl.normalization import RunningNorm
-from taskrl.replay.batch import Obs
+from taskrl.types import Obs
 
 
 class ObservationInput(nn.Module):
@@ -34,6 +37,7 @@ class ObservationInput(nn.Module):
 
     def __init__(self, keys: Sequence[str], dim: int, normalize: bool) -> None:
         super().__init__()
+        self.keys, self.dim = tuple(keys), int(dim)
         self.encode = ObsConcat(keys)
         self.normalize = RunningNorm(dim) if normalize else nn.Identity()
 
@@ -68,6 +72,40 @@ class ActionBox:
         return self.center + self.half * unit
 
 
+def negative_return_bounds(gamma: float) -> tuple[float, float]:
+    """``[-1 / (1 - gamma), 0]``: where every discounted return lies when rewards are in {-1, 0}."""
+    return -1.0 / (1.0 - gamma), 0.0
+
+
+def td_target(reward: torch.Tensor, terminated: torch.Tensor, next_value: torch.Tensor, gamma: float,
+              clip: tuple[float, float] | None = None) -> torch.Tensor:
+    """``y = r + gamma * (1 - terminated) * v'``, clamped to ``clip`` when given.
+
+    Only ``terminated`` stops bootstrapping: a time-limit truncation still bootstraps from ``v'``.
+    """
+    target = reward.float() + gamma * (~terminated).float() * next_value
+    return target if clip is None else target.clamp(*clip)
+
+
+@torch.no_grad()
+def polyak_update(target: list[torch.Tensor], online: list[torch.Tensor], tau: float) -> None:
+    """``theta_target <- tau * theta + (1 - tau) * theta_target`` for every pair (``tau = 1``: copy).
+
+    One fused call over all parameters where torch has it (its ``_foreach`` kernels), else a loop.
+    """
+    if tau >= 1.0:
+        if hasattr(torch, "_foreach_copy_"):
+            torch._foreach_copy_(target, online)
+        else:  # pragma: no cover - older torch
+            for t, p in zip(target, online):
+                t.copy_(p)
+    elif hasattr(torch, "_foreach_lerp_"):
+        torch._foreach_lerp_(target, online, tau)
+    else:  # pragma: no cover - older torch
+        for t, p in zip(target, online):
+            t.lerp_(p, tau)
+
+
 def gradient_step(optimizer: torch.optim.Optimizer, loss: torch.Tensor, params: list[torch.Tensor], max_grad_norm: float) -> None:
     """``zero_grad -> backward -> clip_grad_norm (if max_grad_norm > 0) -> step``."""
     optimizer.zero_grad(set_to_none=True)
@@ -75,14 +113,6 @@ def gradient_step(optimizer: torch.optim.Optimizer, loss: torch.Tensor, params: 
     if max_grad_norm > 0:
         nn.utils.clip_grad_norm_(params, max_grad_norm, foreach=True)
     optimizer.step()
-
-
-def as_batch(obs: Obs | dict[str, Any], device: torch.device) -> tuple[Obs, bool]:
-    """``(batched obs, single)``: one numpy observation becomes a batch of one on ``device``."""
-    single = any(isinstance(v, np.ndarray) for v in obs.values())
-    if single:
-        obs = {k: torch.as_tensor(np.asarray(v), device=device).unsqueeze(0) for k, v in obs.items()}
-    return obs, single
 
 
 def explore_in_box(unit: torch.Tensor, noise_std: float, random_prob: float,
@@ -100,3 +130,39 @@ def explore_in_box(unit: torch.Tensor, noise_std: float, random_prob: float,
         uniform = torch.rand(n, dim, generator=generator, device=unit.device) * 2 - 1
         unit = torch.where(pick, uniform, unit)
     return unit
+
+
+def linear_schedule(start: float, end: float, decay_steps: int, env_steps: int) -> float:
+    """``start`` decaying linearly to ``end`` over ``decay_steps`` env steps (0: ``end`` from the start)."""
+    if decay_steps <= 0:
+        return end
+    frac = min(env_steps / decay_steps, 1.0)
+    return start + frac * (end - start)
+
+
+def check_learning_settings(config: Any, gamma_may_be_one: bool = False) -> None:
+    """The checks every algorithm's section shares: lr, gamma, network widths, gradient clip and,
+    where the section has them, the Polyak factor and target clipping's precondition."""
+    c = config
+    top = "1]" if gamma_may_be_one else "1)"
+    require(0.0 <= c.gamma <= 1.0 and (gamma_may_be_one or c.gamma < 1.0), "gamma", f"must be in [0, {top} (got {c.gamma})")
+    require(c.lr > 0, "lr", f"must be > 0 (got {c.lr})")
+    require(len(c.hidden_sizes) >= 1 and all(int(h) >= 1 for h in c.hidden_sizes), "hidden_sizes",
+            f"must be one or more positive widths (got {list(c.hidden_sizes)})")
+    require(c.max_grad_norm >= 0, "max_grad_norm", f"must be >= 0 (got {c.max_grad_norm})")
+    if hasattr(c, "tau"):
+        require(0.0 < c.tau <= 1.0, "tau", f"must be in (0, 1] (got {c.tau})")
+
+
+def check_probability(config: Any, *names: str) -> None:
+    """Each named setting must lie in [0, 1]."""
+    for name in names:
+        value = getattr(config, name)
+        require(0.0 <= value <= 1.0, name, f"must be in [0, 1] (got {value})")
+
+
+def check_non_negative(config: Any, *names: str) -> None:
+    """Each named setting must be >= 0."""
+    for name in names:
+        value = getattr(config, name)
+        require(value >= 0, name, f"must be >= 0 (got {value})")

@@ -52,9 +52,12 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from taskrl.agents.parts import ActionBox, ObservationInput, as_batch, gradient_step
+from taskrl.agents.base import Agent
+from taskrl.agents.parts import ActionBox, ObservationInput, check_learning_settings, gradient_step
+from taskrl.agents.spec import AlgorithmSpec
 from taskrl.conditioning.networks import TaskConditioning, network_for
-from taskrl.replay.batch import Obs
+from taskrl.errors import one_of, require
+from taskrl.types import Obs
 
 if TYPE_CHECKING:
     from taskrl.training.onpolicy import Rollout
@@ -101,27 +104,18 @@ class PPOConfig:
     max_grad_norm: float = 0.5
     normalize_inputs: bool = True
 
-
-def check_ppo_config(config: PPOConfig) -> None:
-    """Raise ``ValueError`` (naming the field) for settings PPO cannot run with."""
-    c = config
-    checks = (
-        (c.estimator in ESTIMATORS, "estimator", f"unknown {c.estimator!r}; allowed: {', '.join(ESTIMATORS)}"),
-        (c.lr > 0, "lr", f"must be > 0 (got {c.lr})"),
-        (0.0 <= c.gamma <= 1.0, "gamma", f"must be in [0, 1] (got {c.gamma})"),
-        (0.0 <= c.gae_lambda <= 1.0, "gae_lambda", f"must be in [0, 1] (got {c.gae_lambda})"),
-        (c.rollout_steps >= 1, "rollout_steps", f"must be >= 1 (got {c.rollout_steps})"),
-        (c.epochs >= 1, "epochs", f"must be >= 1 (got {c.epochs})"),
-        (c.minibatches >= 1, "minibatches", f"must be >= 1 (got {c.minibatches})"),
-        (c.clip_range > 0, "clip_range", f"must be > 0 (got {c.clip_range})"),
-        (c.value_coef > 0 or (c.value_coef == 0 and c.estimator == "reinforce"), "value_coef",
-         f"must be > 0 for ppo (GAE needs a value function), >= 0 for reinforce (got {c.value_coef})"),
-        (c.entropy_coef >= 0, "entropy_coef", f"must be >= 0 (got {c.entropy_coef})"),
-        (c.max_grad_norm >= 0, "max_grad_norm", f"must be >= 0 (got {c.max_grad_norm})"),
-    )
-    for ok, field, message in checks:
-        if not ok:
-            raise ValueError(f"{field}: {message}")
+    def validate(self) -> None:
+        """Raise :class:`~taskrl.errors.ConfigError` naming the first bad setting (gamma = 1 is allowed:
+        rollouts are finite)."""
+        one_of(self.estimator, ESTIMATORS, "estimator", "estimator")
+        check_learning_settings(self, gamma_may_be_one=True)
+        require(0.0 <= self.gae_lambda <= 1.0, "gae_lambda", f"must be in [0, 1] (got {self.gae_lambda})")
+        for name in ("rollout_steps", "epochs", "minibatches"):
+            require(getattr(self, name) >= 1, name, f"must be >= 1 (got {getattr(self, name)})")
+        require(self.clip_range > 0, "clip_range", f"must be > 0 (got {self.clip_range})")
+        require(self.value_coef > 0 or (self.value_coef == 0 and self.estimator == "reinforce"), "value_coef",
+                f"must be > 0 for ppo (GAE needs a value function), >= 0 for reinforce (got {self.value_coef})")
+        require(self.entropy_coef >= 0, "entropy_coef", f"must be >= 0 (got {self.entropy_coef})")
 
 
 # ---------------------------------------------------------------- returns and advantages
@@ -192,7 +186,7 @@ def explained_variance(prediction: torch.Tensor, target: torch.Tensor) -> torch.
 
 
 # ---------------------------------------------------------------- the agent
-class PPOAgent:
+class PPOAgent(Agent):
     """PPO or REINFORCE (``config.estimator``) with an optional task conditioning.
 
     Args:
@@ -206,9 +200,12 @@ class PPOAgent:
             and the value read the context ``encoder(obs[task_key])``. ``None``: plain MLPs.
     """
 
+    checkpointed = {"policy": "policy_net", "value": "value_net", "log_std": "log_std", "normalize": "inputs.normalize",
+                    "optimizer": "optimizer", "task_encoder": "task_encoder"}
+
     def __init__(self, input_keys: tuple[str, ...], input_dim: int, action_space: Any, config: PPOConfig,
                  device: str | torch.device = "cpu", conditioning: TaskConditioning | None = None) -> None:
-        check_ppo_config(config)
+        config.validate()
         self.config = config
         self.device = torch.device(device)
         self.conditioning = conditioning
@@ -220,13 +217,13 @@ class PPOAgent:
             self.box = ActionBox(action_space, self.device)
             self.action_dim = out_dim = self.box.dim
         self.inputs = ObservationInput(input_keys, input_dim, config.normalize_inputs).to(self.device)
-        self.policy = network_for(input_dim, out_dim, config.hidden_sizes, conditioning).to(self.device)
+        self.policy_net = network_for(input_dim, out_dim, config.hidden_sizes, conditioning).to(self.device)
         self.value_net = network_for(input_dim, 1, config.hidden_sizes, conditioning).to(self.device)
-        _scale_output_layer(self.policy, 0.01)   # near-uniform / zero-mean initial policy
+        _scale_output_layer(self.policy_net, 0.01)   # near-uniform / zero-mean initial policy
         self.task_encoder = conditioning.encoder.to(self.device) if conditioning is not None else None
         self.log_std = nn.Parameter(torch.full((out_dim,), float(config.init_log_std), device=self.device),
                                     requires_grad=not self.discrete)
-        self._params = [p for m in (self.policy, self.value_net, self.task_encoder) if m is not None
+        self._params = [p for m in (self.policy_net, self.value_net, self.task_encoder) if m is not None
                         for p in m.parameters() if p.requires_grad]
         if not self.discrete:
             self._params.append(self.log_std)
@@ -252,7 +249,7 @@ class PPOAgent:
 
     def _policy_output(self, feats) -> torch.Tensor:
         """Gaussian mean in [-1, 1] units, or Categorical logits."""
-        return self.policy(*feats)
+        return self.policy_net(*feats)
 
     def _value(self, feats) -> torch.Tensor:
         return self.value_net(*feats).squeeze(-1)
@@ -279,25 +276,18 @@ class PPOAgent:
         return self.box.from_unit(action.clamp(-1.0, 1.0))
 
     # ---------------------------------------------------------------- acting
-    @torch.no_grad()
-    def act(self, obs: Obs | dict[str, Any], exploration: float = 0.0, generator: torch.Generator | None = None):
-        """Environment actions: the mean (clipped to the box) or the argmax when ``exploration``
-        is 0, a sample of the policy when it is > 0 (its value is otherwise unused).
-
-        Accepts batched tensors, or one numpy observation of a gymnasium environment (then
-        returns a numpy action).
-        """
-        obs, single = as_batch(obs, self.device)
+    def policy(self, obs: Obs, explore: bool, generator: torch.Generator | None, env_steps: int) -> torch.Tensor:
+        """Environment actions: the mean (clipped to the box) or the argmax, or a sample of the policy
+        while exploring."""
         out = self._policy_output(self._features(obs))
-        if exploration > 0.0:
+        if explore:
             action = self._sample(out, generator)
         else:
             action = out.argmax(-1) if self.discrete else out
-        action = self._to_env(action)
-        return action[0].cpu().numpy() if single else action
+        return self._to_env(action)
 
     @torch.no_grad()
-    def explore(self, obs: Obs, generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    def rollout_step(self, obs: Obs, generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         """What collection stores: ``(env_action, action, log_prob, value)``; ``action`` is the
         policy's own sample (unclipped, in [-1, 1] units; or the 0-based index), ``env_action``
         what the environment is stepped with."""
@@ -381,30 +371,18 @@ class PPOAgent:
             metrics["policy_std"] = self.log_std.detach().exp().mean()
         return metrics
 
-    # ---------------------------------------------------------------- checkpointing
-    def state_dict(self) -> dict[str, Any]:
-        state = {
-            "policy": self.policy.state_dict(),
-            "value": self.value_net.state_dict(),
-            "log_std": self.log_std.detach().clone(),
-            "normalize": self.inputs.normalize.state_dict(),
-            "optimizer": self.optimizer.state_dict(),
-            "updates": self.updates,
-        }
-        if self.task_encoder is not None:
-            state["task_encoder"] = self.task_encoder.state_dict()
-        return state
 
-    def load_state_dict(self, state: dict[str, Any]) -> None:
-        self.policy.load_state_dict(state["policy"])
-        self.value_net.load_state_dict(state["value"])
-        with torch.no_grad():
-            self.log_std.copy_(torch.as_tensor(state["log_std"]))
-        self.inputs.normalize.load_state_dict(state["normalize"])
-        if self.task_encoder is not None:
-            self.task_encoder.load_state_dict(state["task_encoder"])
-        self.optimizer.load_state_dict(state["optimizer"])
-        self.updates = int(state["updates"])
+
+SPEC = AlgorithmSpec(
+    name="ppo",
+    description="PPO (GAE, clipped surrogate) or REINFORCE with reward-to-go, on-policy (Box or Discrete actions)",
+    config=PPOConfig,
+    build=lambda inputs, config, device, conditioning: PPOAgent(inputs.keys, inputs.dim, inputs.action_space, config, device,
+                                                                conditioning),
+    loop="on_policy",
+    actions=("box", "discrete"),
+    multitask=True,
+)
 
 
 def _scale_output_layer(net: nn.Module, gain: float) -> None:

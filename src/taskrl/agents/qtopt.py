@@ -22,6 +22,11 @@ loss is the log loss -(y log Q + (1 - y) log(1 - Q)).
 
 Actions: the networks see actions rescaled from the box [low, high] to [-1, 1]; CEM searches in
 that normalised box and acting maps the result back.
+
+Exploration while collecting: Gaussian noise of std ``noise_std`` around the CEM action and, with
+probability ``random_action_prob`` (decayed linearly to ``random_action_prob_end`` over
+``random_action_decay_steps``), a uniformly random action instead; the hindsight paper's Fetch
+exploration is ``noise_std=0.2`` with a constant 0.3.
 """
 
 from __future__ import annotations
@@ -33,9 +38,14 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from taskrl.agents.base import Agent
 from taskrl.agents.cem import CEMConfig, CrossEntropyMethod
-from taskrl.agents.parts import ActionBox, ObservationInput, as_batch, explore_in_box, gradient_step
-from taskrl.nets import mlp
+from taskrl.agents.parts import (ActionBox, ObservationInput, check_learning_settings, check_non_negative, check_probability,
+                                 explore_in_box, gradient_step, linear_schedule, negative_return_bounds, polyak_update,
+                                 td_target)
+from taskrl.agents.spec import AlgorithmSpec
+from taskrl.errors import one_of, require
+from taskrl.nets import StateActionQ
 from taskrl.replay.batch import Batch, Obs
 
 
@@ -54,8 +64,10 @@ class QTOptConfig:
         clip_target: clip targets to [-1/(1-gamma), 0] (for rewards in {-1, 0}; huber/mse only).
         max_grad_norm: gradient-norm clip (0 disables).
         normalize_inputs: standardise observation inputs with running mean/std (clipped to +-5).
-        noise_std: while collecting, std of Gaussian noise added to the CEM action (half-widths of
-            the box); the loop's exploration level is the probability of a uniformly random action.
+        noise_std: while collecting, std of Gaussian noise added to the CEM action (half-widths of the box).
+        random_action_prob: while collecting, probability of a uniformly random action instead, when collecting starts.
+        random_action_prob_end: that probability after ``random_action_decay_steps``.
+        random_action_decay_steps: environment steps over which it decays linearly (0: ``random_action_prob_end`` throughout).
         cem: cross-entropy-method settings, used both to act and in the Bellman target.
     """
 
@@ -69,55 +81,22 @@ class QTOptConfig:
     max_grad_norm: float = 10.0
     normalize_inputs: bool = True
     noise_std: float = 0.0
+    random_action_prob: float = 0.3
+    random_action_prob_end: float = 0.1
+    random_action_decay_steps: int = 20_000
     cem: CEMConfig = dataclasses.field(default_factory=CEMConfig)
 
-
-class StateActionQ(nn.Module):
-    """Q(x, a) = MLP([x, a]) -> one value per (state, action) pair.
-
-    ``score_actions(x, actions)`` evaluates N actions for each of B states in one call. It splits
-    the first layer, W [x; a] + b = (W_x x + b) + W_a a, so the state's share is computed once
-    per state instead of once per sample and no [B * N, in] copy of the states is built.
-    """
-
-    def __init__(self, in_dim: int, action_dim: int, hidden_sizes: tuple[int, ...]) -> None:
-        super().__init__()
-        self.in_dim = in_dim
-        self.body = mlp(in_dim + action_dim, hidden_sizes, 1)
-
-    def forward(self, x: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
-        """x [B, D], action [B, A] -> [B]."""
-        return self.body(torch.cat([x, action], dim=-1)).squeeze(-1)
-
-    def score_actions(self, x: torch.Tensor, actions: torch.Tensor, chunk_rows: int | None = None) -> torch.Tensor:
-        """x [B, D], actions [B, N, A] -> [B, N]: Q(x_b, a_bn) for all B * N pairs, for ``no_grad`` use (CEM).
-
-        On CPU the rows go through the network in chunks of about ``chunk_rows`` (default 2048 per
-        torch thread): a chunk's activations (2048 x 256 floats = 2 MiB) stay in cache between
-        layers, which measured 2x faster (one thread) than one pass over all 16384 rows of a
-        256-state, 64-sample CEM round. On GPU (or with ``chunk_rows=0``) it is one pass. Rows
-        stay 2-D (a 3-D input makes ``Linear`` ~35% slower on CPU) and ReLUs run in place.
-        """
-        b, n, _ = actions.shape
-        if chunk_rows is None:
-            chunk_rows = 0 if x.is_cuda else 2048 * torch.get_num_threads()
-        per_chunk = b if chunk_rows <= 0 else max(1, chunk_rows // n)
-        if per_chunk >= b:
-            return self._score(x, actions)
-        return torch.cat([self._score(x[i : i + per_chunk], actions[i : i + per_chunk]) for i in range(0, b, per_chunk)])
-
-    def _score(self, x: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
-        b, n, a = actions.shape
-        first = self.body[0]
-        state_part = F.linear(x, first.weight[:, : self.in_dim], first.bias)           # [b, H], once per state
-        h = actions.reshape(b * n, a) @ first.weight[:, self.in_dim :].T                # [b * n, H]
-        h.view(b, n, -1).add_(state_part.unsqueeze(1))
-        for layer in self.body[1:]:
-            h = h.relu_() if isinstance(layer, nn.ReLU) else layer(h)
-        return h.view(b, n)
+    def validate(self) -> None:
+        """Raise :class:`~taskrl.errors.ConfigError` naming the first bad setting."""
+        check_learning_settings(self)
+        one_of(self.loss, ("huber", "mse", "cross_entropy"), "loss", "loss")
+        require(self.target2_interval >= 1, "target2_interval", f"must be >= 1 (got {self.target2_interval})")
+        check_non_negative(self, "noise_std", "random_action_decay_steps")
+        check_probability(self, "random_action_prob", "random_action_prob_end")
+        self.cem.validate()
 
 
-class QTOptAgent:
+class QTOptAgent(Agent):
     """QT-Opt agent: a Q(s, a) network, two lagged target networks, CEM to act and to target.
 
     Args:
@@ -128,13 +107,11 @@ class QTOptAgent:
         device: torch device of the networks.
     """
 
+    checkpointed = {"q": "q", "q_target1": "q_target1", "q_target2": "q_target2", "normalize": "inputs.normalize",
+                    "optimizer": "optimizer"}
+
     def __init__(self, input_keys: tuple[str, ...], input_dim: int, action_space: Any, config: QTOptConfig, device: str | torch.device = "cpu") -> None:
-        if config.loss not in ("huber", "mse", "cross_entropy"):
-            raise ValueError(f"loss: unknown loss {config.loss!r}; allowed: huber, mse, cross_entropy")
-        if not 0.0 < config.tau <= 1.0:
-            raise ValueError(f"tau: must be in (0, 1] (got {config.tau})")
-        if config.target2_interval < 1:
-            raise ValueError(f"target2_interval: must be >= 1 (got {config.target2_interval})")
+        config.validate()
         self.config = config
         self.device = torch.device(device)
         self.box = ActionBox(action_space, self.device)
@@ -168,22 +145,22 @@ class QTOptAgent:
                                  init_mean=warm_start, generator=generator)
 
     # ---------------------------------------------------------------- acting
-    @torch.no_grad()
-    def act(self, obs: Obs | dict[str, Any], exploration: float = 0.0, generator: torch.Generator | None = None):
-        """CEM-greedy actions [B, A] in the action box; while collecting (``exploration`` > 0),
-        Gaussian noise of std ``noise_std`` around them and, with probability ``exploration`` per
-        state, a uniformly random action in the box instead (epsilon-greedy over a continuous box).
+    def random_action_prob(self, env_steps: int) -> float:
+        """The probability of a uniformly random action at ``env_steps`` while collecting."""
+        c = self.config
+        return linear_schedule(c.random_action_prob, c.random_action_prob_end, c.random_action_decay_steps, env_steps)
 
-        Accepts batched tensors, or one numpy observation of a gymnasium environment (then
-        returns a numpy action of shape [A]).
-        """
-        obs, single = as_batch(obs, self.device)
-        x = self.inputs(obs)
-        unit, _ = self.argmax(self.q, x, generator)
-        if exploration > 0.0:
-            unit = explore_in_box(unit, self.config.noise_std, exploration, generator)
-        action = self.box.from_unit(unit)
-        return action[0].cpu().numpy() if single else action
+    def exploration(self, env_steps: int) -> dict[str, float]:
+        return {"random_action_prob": self.random_action_prob(env_steps)}
+
+    def policy(self, obs: Obs, explore: bool, generator: torch.Generator | None, env_steps: int) -> torch.Tensor:
+        """CEM-greedy actions [B, A] in the action box; while exploring, Gaussian noise of std
+        ``noise_std`` around them and, with probability ``random_action_prob`` per state, a
+        uniformly random action in the box instead (epsilon-greedy over a continuous box)."""
+        unit, _ = self.argmax(self.q, self.inputs(obs), generator)
+        if explore:
+            unit = explore_in_box(unit, self.config.noise_std, self.random_action_prob(env_steps), generator)
+        return self.box.from_unit(unit)
 
     # ---------------------------------------------------------------- learning
     def bellman_target(self, batch: Batch, generator: torch.Generator | None = None,
@@ -202,11 +179,11 @@ class QTOptAgent:
             next_action, out1 = self.argmax(self.q_target1, next_x, generator, warm)  # out1 = Q_target1(s', a*), from CEM
             out2 = self.q_target2(next_x, next_action)
             next_value = self.q_value(torch.minimum(out1, out2))                       # sigmoid is monotone
-            target = batch.reward.float() + cfg.gamma * (~batch.terminated).float() * next_value
             if cfg.loss == "cross_entropy":
-                target = target.clamp(0.0, 1.0)
-            elif cfg.clip_target:
-                target = target.clamp(-1.0 / (1.0 - cfg.gamma), 0.0)
+                clip = (0.0, 1.0)
+            else:
+                clip = negative_return_bounds(cfg.gamma) if cfg.clip_target else None
+            target = td_target(batch.reward, batch.terminated, next_value, cfg.gamma, clip)
         return (target, self.box.from_unit(next_action)) if return_action else target
 
     def regress(self, batch: Batch, target: torch.Tensor) -> dict[str, torch.Tensor]:
@@ -234,28 +211,18 @@ class QTOptAgent:
         """Bellman target then regression: ``regress(batch, bellman_target(batch))``."""
         return self.regress(batch, self.bellman_target(batch, generator))
 
-    @torch.no_grad()
     def update_targets(self) -> None:
         """target1 <- tau * online + (1 - tau) * target1; every target2_interval updates target2 <- target1."""
-        torch._foreach_lerp_(self._target1_params, self._params, self.config.tau)
+        polyak_update(self._target1_params, self._params, self.config.tau)
         if self.updates % self.config.target2_interval == 0:
-            torch._foreach_copy_(self._target2_params, self._target1_params)
+            polyak_update(self._target2_params, self._target1_params, 1.0)
 
-    # ---------------------------------------------------------------- checkpointing
-    def state_dict(self) -> dict[str, Any]:
-        return {
-            "q": self.q.state_dict(),
-            "q_target1": self.q_target1.state_dict(),
-            "q_target2": self.q_target2.state_dict(),
-            "normalize": self.inputs.normalize.state_dict(),
-            "optimizer": self.optimizer.state_dict(),
-            "updates": self.updates,
-        }
 
-    def load_state_dict(self, state: dict[str, Any]) -> None:
-        self.q.load_state_dict(state["q"])
-        self.q_target1.load_state_dict(state["q_target1"])
-        self.q_target2.load_state_dict(state["q_target2"])
-        self.inputs.normalize.load_state_dict(state["normalize"])
-        self.optimizer.load_state_dict(state["optimizer"])
-        self.updates = int(state["updates"])
+SPEC = AlgorithmSpec(
+    name="qtopt",
+    description="QT-Opt: Q-learning over continuous actions with a CEM argmax and clipped double-Q targets",
+    config=QTOptConfig,
+    build=lambda inputs, config, device, conditioning: QTOptAgent(inputs.keys, inputs.dim, inputs.action_space, config, device),
+    loop="off_policy",
+    actions=("box",),
+)

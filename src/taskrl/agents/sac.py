@@ -41,8 +41,12 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from taskrl.agents.parts import ActionBox, ObservationInput, as_batch, gradient_step
+from taskrl.agents.base import Agent
+from taskrl.agents.parts import (ActionBox, ObservationInput, check_learning_settings, gradient_step, negative_return_bounds,
+                                 polyak_update, td_target)
+from taskrl.agents.spec import AlgorithmSpec
 from taskrl.conditioning.networks import TaskConditioning, network_for
+from taskrl.errors import require
 from taskrl.replay.batch import Batch, Obs
 
 _LOG_2PI = math.log(2 * math.pi)
@@ -81,6 +85,13 @@ class SACConfig:
     log_std_min: float = -5.0
     log_std_max: float = 2.0
     per_task_alpha: bool = True
+
+    def validate(self) -> None:
+        """Raise :class:`~taskrl.errors.ConfigError` naming the first bad setting."""
+        check_learning_settings(self)
+        require(self.init_alpha > 0, "init_alpha", f"must be > 0 (got {self.init_alpha})")
+        require(self.log_std_min < self.log_std_max, "log_std_min",
+                f"must be below log_std_max={self.log_std_max} (got {self.log_std_min})")
 
 
 def squashed_gaussian_log_prob(u: torch.Tensor, mean: torch.Tensor, log_std: torch.Tensor) -> torch.Tensor:
@@ -133,7 +144,7 @@ class Critic(nn.Module):
         return self.body(x, context, task, extra=action).squeeze(-1)
 
 
-class SACAgent:
+class SACAgent(Agent):
     """Soft actor-critic agent.
 
     Args:
@@ -146,12 +157,13 @@ class SACAgent:
             use; observations then carry the task index under ``conditioning.task_key``.
     """
 
+    checkpointed = {"actor": "actor", "critics": "critics", "critics_target": "critics_target", "log_alpha": "log_alpha",
+                    "normalize": "inputs.normalize", "task_encoder": "task_encoder", "actor_optimizer": "actor_optimizer",
+                    "critic_optimizer": "critic_optimizer", "alpha_optimizer": "alpha_optimizer"}
+
     def __init__(self, input_keys: tuple[str, ...], input_dim: int, action_space: Any, config: SACConfig, device: str | torch.device = "cpu",
                  conditioning: TaskConditioning | None = None) -> None:
-        if not 0.0 < config.tau <= 1.0:
-            raise ValueError(f"tau: must be in (0, 1] (got {config.tau})")
-        if config.init_alpha <= 0:
-            raise ValueError(f"init_alpha: must be > 0 (got {config.init_alpha})")
+        config.validate()
         self.config = config
         self.device = torch.device(device)
         self.box = ActionBox(action_space, self.device)
@@ -193,22 +205,13 @@ class SACAgent:
         return log_alpha[task] if task is not None and log_alpha.shape[0] > 1 else log_alpha[0]
 
     # ---------------------------------------------------------------- acting
-    @torch.no_grad()
-    def act(self, obs: Obs | dict[str, Any], exploration: float = 0.0, generator: torch.Generator | None = None):
-        """Actions [B, A] in the action box: the deterministic tanh(mean) when ``exploration`` is 0
-        (evaluation), a sample of the policy when it is > 0 (its value is otherwise unused: SAC
-        explores through its own entropy, so the training loop passes any positive value while
-        collecting).
-
-        Accepts batched tensors, or one numpy observation of a gymnasium environment (then
-        returns a numpy action of shape [A]).
-        """
-        obs, single = as_batch(obs, self.device)
+    def policy(self, obs: Obs, explore: bool, generator: torch.Generator | None, env_steps: int) -> torch.Tensor:
+        """Actions [B, A] in the action box: the deterministic tanh(mean) (evaluation), or a sample of
+        the policy while exploring (SAC explores through its own entropy; there is no other setting)."""
         x = self.inputs(obs)
         context, task = self.task_inputs(obs)
-        unit = self.actor.sample(x, generator, context, task)[0] if exploration > 0.0 else self.actor.mode(x, context, task)
-        action = self.box.from_unit(unit)
-        return action[0].cpu().numpy() if single else action
+        unit = self.actor.sample(x, generator, context, task)[0] if explore else self.actor.mode(x, context, task)
+        return self.box.from_unit(unit)
 
     # ---------------------------------------------------------------- learning
     def bellman_target(self, batch: Batch, generator: torch.Generator | None = None) -> torch.Tensor:
@@ -220,10 +223,8 @@ class SACAgent:
             next_action, next_log_prob = self.actor.sample(next_x, generator, context, task)
             next_q = torch.minimum(*(q(next_x, next_action, context, task) for q in self.critics_target))
             soft_value = next_q - self._row_alpha(task, self.alpha) * next_log_prob
-            target = batch.reward.float() + cfg.gamma * (~batch.terminated).float() * soft_value
-            if cfg.clip_target:
-                target = target.clamp(-1.0 / (1.0 - cfg.gamma), 0.0)
-        return target
+            clip = negative_return_bounds(cfg.gamma) if cfg.clip_target else None
+            return td_target(batch.reward, batch.terminated, soft_value, cfg.gamma, clip)
 
     def update(self, batch: Batch, generator: torch.Generator | None = None) -> dict[str, torch.Tensor]:
         """One critic, actor and temperature step; returns detached scalars
@@ -266,36 +267,18 @@ class SACAgent:
         for p in self._critic_params:
             p.requires_grad_(enabled)
 
-    @torch.no_grad()
     def update_target(self) -> None:
         """theta_target_i <- tau * theta_i + (1 - tau) * theta_target_i."""
-        torch._foreach_lerp_(self._target_params, self._critic_params, self.config.tau)
+        polyak_update(self._target_params, self._critic_params, self.config.tau)
 
-    # ---------------------------------------------------------------- checkpointing
-    def state_dict(self) -> dict[str, Any]:
-        return {
-            "actor": self.actor.state_dict(),
-            "critics": self.critics.state_dict(),
-            "critics_target": self.critics_target.state_dict(),
-            "log_alpha": self.log_alpha.detach().clone(),
-            "normalize": self.inputs.normalize.state_dict(),
-            **({"task_encoder": self.task_encoder.state_dict()} if self.task_encoder is not None else {}),
-            "actor_optimizer": self.actor_optimizer.state_dict(),
-            "critic_optimizer": self.critic_optimizer.state_dict(),
-            "alpha_optimizer": self.alpha_optimizer.state_dict(),
-            "updates": self.updates,
-        }
 
-    def load_state_dict(self, state: dict[str, Any]) -> None:
-        self.actor.load_state_dict(state["actor"])
-        self.critics.load_state_dict(state["critics"])
-        self.critics_target.load_state_dict(state["critics_target"])
-        with torch.no_grad():
-            self.log_alpha.copy_(torch.as_tensor(state["log_alpha"]).reshape(self.log_alpha.shape))
-        self.inputs.normalize.load_state_dict(state["normalize"])
-        if self.task_encoder is not None:
-            self.task_encoder.load_state_dict(state["task_encoder"])
-        self.actor_optimizer.load_state_dict(state["actor_optimizer"])
-        self.critic_optimizer.load_state_dict(state["critic_optimizer"])
-        self.alpha_optimizer.load_state_dict(state["alpha_optimizer"])
-        self.updates = int(state["updates"])
+SPEC = AlgorithmSpec(
+    name="sac",
+    description="soft actor-critic: twin critics, learned temperature (per task on multi-task envs)",
+    config=SACConfig,
+    build=lambda inputs, config, device, conditioning: SACAgent(inputs.keys, inputs.dim, inputs.action_space, config, device,
+                                                                conditioning),
+    loop="off_policy",
+    actions=("box",),
+    multitask=True,
+)

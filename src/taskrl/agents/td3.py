@@ -9,6 +9,10 @@ delayed actor updates.
 
 Actions are in [-1, 1] inside the agent (mu = tanh(MLP)) and rescaled to the box outside.
 ``terminated`` stops bootstrapping; time-limit truncation bootstraps.
+
+Exploration while collecting: a = clip(mu(s) + N(0, noise_std^2), -1, 1) (the paper: 0.1), and
+with probability ``random_action_prob`` a uniformly random action instead (the hindsight paper's
+Fetch exploration: noise 0.2, 30% random).
 """
 
 from __future__ import annotations
@@ -20,9 +24,12 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from taskrl.agents.qtopt import StateActionQ
-from taskrl.agents.parts import ActionBox, ObservationInput, as_batch, explore_in_box, gradient_step
-from taskrl.nets import mlp
+from taskrl.agents.base import Agent
+from taskrl.agents.parts import (ActionBox, ObservationInput, check_learning_settings, check_non_negative, check_probability,
+                                 explore_in_box, gradient_step, negative_return_bounds, polyak_update, td_target)
+from taskrl.agents.spec import AlgorithmSpec
+from taskrl.errors import require
+from taskrl.nets import StateActionQ, mlp
 from taskrl.replay.batch import Batch, Obs
 
 
@@ -41,6 +48,7 @@ class TD3Config:
         clip_target: clip targets to [-1/(1-gamma), 0] (for rewards in {-1, 0}).
         max_grad_norm: gradient-norm clip (0 disables).
         normalize_inputs: standardise observation inputs with running mean/std (clipped to +-5).
+        noise_std: while collecting, std of the Gaussian noise added to mu(s), in half-widths of the box (the paper: 0.1).
         random_action_prob: while collecting, the fraction of actions drawn uniformly from the box
             instead (the hindsight paper's Fetch exploration: 0.3, with Gaussian noise 0.2).
     """
@@ -55,7 +63,15 @@ class TD3Config:
     clip_target: bool = False
     max_grad_norm: float = 0.0
     normalize_inputs: bool = True
+    noise_std: float = 0.1
     random_action_prob: float = 0.0
+
+    def validate(self) -> None:
+        """Raise :class:`~taskrl.errors.ConfigError` naming the first bad setting."""
+        check_learning_settings(self)
+        require(self.policy_delay >= 1, "policy_delay", f"must be >= 1 (got {self.policy_delay})")
+        check_non_negative(self, "target_noise", "target_noise_clip", "noise_std")
+        check_probability(self, "random_action_prob")
 
 
 class DeterministicActor(nn.Module):
@@ -69,7 +85,7 @@ class DeterministicActor(nn.Module):
         return torch.tanh(self.body(x))
 
 
-class TD3Agent:
+class TD3Agent(Agent):
     """TD3 agent.
 
     Args:
@@ -80,11 +96,11 @@ class TD3Agent:
         device: torch device of the networks.
     """
 
+    checkpointed = {"actor": "actor", "actor_target": "actor_target", "critics": "critics", "critics_target": "critics_target",
+                    "normalize": "inputs.normalize", "actor_optimizer": "actor_optimizer", "critic_optimizer": "critic_optimizer"}
+
     def __init__(self, input_keys: tuple[str, ...], input_dim: int, action_space: Any, config: TD3Config, device: str | torch.device = "cpu") -> None:
-        if not 0.0 < config.tau <= 1.0:
-            raise ValueError(f"tau: must be in (0, 1] (got {config.tau})")
-        if config.policy_delay < 1:
-            raise ValueError(f"policy_delay: must be >= 1 (got {config.policy_delay})")
+        config.validate()
         self.config = config
         self.device = torch.device(device)
         self.box = ActionBox(action_space, self.device)
@@ -106,19 +122,14 @@ class TD3Agent:
         self.updates = 0
         self._last_actor_loss = torch.zeros((), device=self.device)
 
-    # ---------------------------------------------------------------- helpers
     # ---------------------------------------------------------------- acting
-    @torch.no_grad()
-    def act(self, obs: Obs | dict[str, Any], exploration: float = 0.0, generator: torch.Generator | None = None):
-        """mu(s) in the action box, plus Gaussian noise of std ``exploration`` x half-width (TD3's
-        0.1 while collecting), clipped to the box, and with ``random_action_prob`` a uniformly random
-        action instead. Accepts one numpy observation (returns numpy [A])."""
-        obs, single = as_batch(obs, self.device)
+    def policy(self, obs: Obs, explore: bool, generator: torch.Generator | None, env_steps: int) -> torch.Tensor:
+        """mu(s) in the action box; while exploring, plus Gaussian noise of std ``noise_std`` x half-width,
+        clipped to the box, and with probability ``random_action_prob`` a uniformly random action instead."""
         unit = self.actor(self.inputs(obs))
-        if exploration > 0.0:
-            unit = explore_in_box(unit, exploration, self.config.random_action_prob, generator)
-        action = self.box.from_unit(unit)
-        return action[0].cpu().numpy() if single else action
+        if explore:
+            unit = explore_in_box(unit, self.config.noise_std, self.config.random_action_prob, generator)
+        return self.box.from_unit(unit)
 
     # ---------------------------------------------------------------- learning
     def bellman_target(self, batch: Batch, generator: torch.Generator | None = None) -> torch.Tensor:
@@ -131,10 +142,8 @@ class TD3Agent:
                 eps = torch.randn(next_action.shape, generator=generator, device=self.device) * cfg.target_noise
                 next_action = (next_action + eps.clamp(-cfg.target_noise_clip, cfg.target_noise_clip)).clamp(-1.0, 1.0)
             next_q = torch.minimum(*(q(next_x, next_action) for q in self.critics_target))
-            target = batch.reward.float() + cfg.gamma * (~batch.terminated).float() * next_q
-            if cfg.clip_target:
-                target = target.clamp(-1.0 / (1.0 - cfg.gamma), 0.0)
-        return target
+            clip = negative_return_bounds(cfg.gamma) if cfg.clip_target else None
+            return td_target(batch.reward, batch.terminated, next_q, cfg.gamma, clip)
 
     def update(self, batch: Batch, generator: torch.Generator | None = None) -> dict[str, torch.Tensor]:
         """A critic step; every ``policy_delay`` updates also an actor step and the target update.
@@ -159,30 +168,16 @@ class TD3Agent:
             self.update_target()
         return {"critic_loss": critic_loss.detach(), "actor_loss": self._last_actor_loss, "q_mean": q1.detach().mean()}
 
-    @torch.no_grad()
     def update_target(self) -> None:
         """theta_target <- tau * theta + (1 - tau) * theta_target, actor and critics."""
-        torch._foreach_lerp_(self._target_params, self._online_params, self.config.tau)
+        polyak_update(self._target_params, self._online_params, self.config.tau)
 
-    # ---------------------------------------------------------------- checkpointing
-    def state_dict(self) -> dict[str, Any]:
-        return {
-            "actor": self.actor.state_dict(),
-            "actor_target": self.actor_target.state_dict(),
-            "critics": self.critics.state_dict(),
-            "critics_target": self.critics_target.state_dict(),
-            "normalize": self.inputs.normalize.state_dict(),
-            "actor_optimizer": self.actor_optimizer.state_dict(),
-            "critic_optimizer": self.critic_optimizer.state_dict(),
-            "updates": self.updates,
-        }
 
-    def load_state_dict(self, state: dict[str, Any]) -> None:
-        self.actor.load_state_dict(state["actor"])
-        self.actor_target.load_state_dict(state["actor_target"])
-        self.critics.load_state_dict(state["critics"])
-        self.critics_target.load_state_dict(state["critics_target"])
-        self.inputs.normalize.load_state_dict(state["normalize"])
-        self.actor_optimizer.load_state_dict(state["actor_optimizer"])
-        self.critic_optimizer.load_state_dict(state["critic_optimizer"])
-        self.updates = int(state["updates"])
+SPEC = AlgorithmSpec(
+    name="td3",
+    description="TD3: a deterministic actor, twin critics, target smoothing and delayed actor updates",
+    config=TD3Config,
+    build=lambda inputs, config, device, conditioning: TD3Agent(inputs.keys, inputs.dim, inputs.action_space, config, device),
+    loop="off_policy",
+    actions=("box",),
+)

@@ -28,7 +28,8 @@ from torch import nn
 
 from taskrl.conditioning.care import CAREEncoder
 from taskrl.conditioning.film import FiLMMLP
-from taskrl.conditioning.task_encoders import TaskEncoder, make_task_encoder
+from taskrl.conditioning.task_encoders import TASK_ENCODERS, TaskEncoder, make_task_encoder
+from taskrl.errors import one_of, require
 from taskrl.nets import mlp
 
 __all__ = ["ARCHITECTURES", "ConditionedMLP", "ConditioningConfig", "TaskConditioning", "make_conditioning", "network_for"]
@@ -62,6 +63,14 @@ class ConditioningConfig:
     projection_dim: int = 0
     care_encoders: int = 4
     care_encoder_dim: int = 64
+
+    def validate(self) -> None:
+        """Raise :class:`~taskrl.errors.ConfigError` naming the first bad setting."""
+        one_of(self.task_encoder, TASK_ENCODERS, "task_encoder", "task encoder")
+        one_of(self.architecture, ARCHITECTURES, "architecture", "architecture")
+        for name in ("embedding_dim", "care_encoders", "care_encoder_dim"):
+            require(getattr(self, name) >= 1, name, f"must be >= 1 (got {getattr(self, name)})")
+        require(self.projection_dim >= 0, "projection_dim", f"must be >= 0 (got {self.projection_dim})")
 
 
 class ConditionedMLP(nn.Module):

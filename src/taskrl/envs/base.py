@@ -15,7 +15,8 @@ from typing import Any
 import gymnasium as gym
 import torch
 
-Obs = dict[str, torch.Tensor]
+from taskrl.types import Obs
+
 StepResult = tuple[Obs, torch.Tensor, torch.Tensor, torch.Tensor, dict[str, Any]]
 
 

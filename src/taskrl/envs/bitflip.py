@@ -8,6 +8,7 @@ beyond about 13 bits.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import gymnasium as gym
@@ -15,6 +16,8 @@ import numpy as np
 import torch
 
 from taskrl.envs.base import GoalEnvMixin, NativeEnv, Obs, StepResult
+from taskrl.envs.spec import EnvFamily, EnvRequest
+from taskrl.errors import require
 
 
 class BitFlip(GoalEnvMixin, NativeEnv):
@@ -92,3 +95,36 @@ class BitFlip(GoalEnvMixin, NativeEnv):
         if not self.terminate_on_success:
             return super().compute_terminated(achieved_goal, desired_goal, info)
         return (achieved_goal == desired_goal).all(dim=-1)
+
+
+@dataclasses.dataclass
+class BitFlipSettings:
+    """Settings of the ``bitflip`` family.
+
+    Attributes:
+        n_bits: bit-string length (also the number of actions and the horizon).
+        terminate_on_success: end an episode when its target is reached.
+    """
+
+    n_bits: int = 15
+    terminate_on_success: bool = True
+
+    def validate(self) -> None:
+        require(self.n_bits >= 1, "n_bits", f"must be >= 1 (got {self.n_bits})")
+
+
+def _make_bitflip(settings: BitFlipSettings, request: EnvRequest) -> BitFlip:
+    return BitFlip(settings.n_bits, num_envs=request.copies, device=request.device,
+                   terminate_on_success=settings.terminate_on_success, seed=request.seed)
+
+
+FAMILY = EnvFamily(
+    name="bitflip",
+    description="bit flipping with a random start and target (the hindsight paper's task), native torch",
+    section="bitflip",
+    settings=BitFlipSettings,
+    make=_make_bitflip,
+    kind="goal",
+    actions="discrete",
+)
+

@@ -1,12 +1,13 @@
-"""Gymnasium environments (Fetch, Meta-World, ``taskrl/PointReach-v0``, ...) as batched envs.
+"""Gymnasium environments (Fetch, Meta-World, ``taskrl/PointReach-v0``, a user's own) as batched envs.
 
-:class:`GymnasiumVectorEnv` runs ``num_envs`` copies of any gymnasium env with ``Dict``
+:class:`GymnasiumVectorEnv` runs ``num_envs`` copies of any gymnasium env with ``Dict`` or ``Box``
 observations through gymnasium's vector API (sync or async) with same-step autoreset, and is the
 only place where gymnasium's numpy data becomes torch tensors. :class:`GymnasiumGoalEnv` adds the
 goal-env part (``achieved_goal`` / ``desired_goal`` and the goal functions).
 
 - observations: dict of numpy batches -> dict of tensors on ``device`` (float64 keys become
-  float32 by default, and ``single_observation_space`` says so, so replay storage agrees);
+  float32 by default, and ``single_observation_space`` says so, so replay storage agrees); a
+  plain ``Box`` observation becomes the ``observation`` key of a one-key dict;
 - autoreset: gymnasium puts the final observation of each finished episode in
   ``info["final_obs"]`` (an object array of per-env dicts, masked by ``info["_final_obs"]``) and
   the finished step's info in ``info["final_info"]``; the adapter returns ``info["final_obs"]``
@@ -31,6 +32,8 @@ from taskrl.envs.base import BatchedEnv, GoalEnvMixin, Obs, StepResult
 
 VectorStrategy = Literal["sync", "async"]
 VECTOR_STRATEGIES = ("sync", "async")
+#: ``success_key="auto"`` reads the first of these that the env's step info has (else: never a success).
+AUTO_SUCCESS_KEYS = ("is_success", "success")
 
 
 def _ensure_registered(env_id: str) -> None:
@@ -38,7 +41,7 @@ def _ensure_registered(env_id: str) -> None:
     if env_id in gym.registry or ":" in env_id:
         return
     if env_id.startswith("taskrl/"):
-        from taskrl.envs.gymnasium_env import register_gymnasium_envs
+        from taskrl.registration import register_gymnasium_envs
 
         register_gymnasium_envs()
         return
@@ -99,7 +102,8 @@ class GymnasiumVectorEnv(BatchedEnv):
         vector_strategy: ``"sync"`` (one process, ``SyncVectorEnv``) or ``"async"``
             (a worker process per copy, ``AsyncVectorEnv``).
         success_key: info key of per-step success (``"is_success"`` for Fetch and taskrl,
-            ``"success"`` for Meta-World); ``None`` reports no success (always False).
+            ``"success"`` for Meta-World); ``"auto"``: whichever of those the info has (always
+            False if neither); ``None`` reports no success (always False).
         max_episode_steps: time limit; default the env spec's ``max_episode_steps``. It is
             also ``horizon``.
         observation_dtype: floating observation keys are converted to this dtype (``None``
@@ -198,8 +202,10 @@ class GymnasiumVectorEnv(BatchedEnv):
             raise
 
         raw_space = self.vector_env.single_observation_space
+        self._wrap_obs = not isinstance(raw_space, gym.spaces.Dict)  # a Box: the "observation" key
+        raw_spaces = {"observation": raw_space} if self._wrap_obs else raw_space.spaces
         self.single_observation_space = gym.spaces.Dict(
-            {k: _convert_space(s, observation_dtype) for k, s in raw_space.spaces.items()}
+            {k: _convert_space(s, observation_dtype) for k, s in raw_spaces.items()}
         )
         self.single_action_space = self.vector_env.single_action_space
         self._obs_dtypes = {k: _torch_dtype(s) for k, s in self.single_observation_space.spaces.items()}
@@ -217,14 +223,21 @@ class GymnasiumVectorEnv(BatchedEnv):
         return spec.max_episode_steps if spec is not None else None
 
     def _check_env(self, space: gym.spaces.Space, unwrapped: gym.Env | None) -> None:
-        """Raise a ``ValueError`` when the env does not fit (here: a ``Dict`` observation space)."""
-        if not isinstance(space, gym.spaces.Dict):
+        """Raise a ``ValueError`` when the env does not fit: observations must be a ``Box`` or a
+        ``Dict`` of ``Box`` / ``Discrete`` entries (what the networks read)."""
+        entries = space.spaces if isinstance(space, gym.spaces.Dict) else {"observation": space}
+        bad = {k: type(s).__name__ for k, s in entries.items() if not isinstance(s, (gym.spaces.Box, gym.spaces.Discrete))}
+        if bad or (not isinstance(space, gym.spaces.Dict) and not isinstance(space, gym.spaces.Box)):
             raise ValueError(
-                f"env {self.env_id!r} must have a Dict observation space; found {type(space).__name__} "
-                f"(wrap it, e.g. with a gymnasium ObservationWrapper that returns a dict)"
+                f"env {self.env_id!r} has observation space {space}: taskrl reads a Box, or a Dict of Box "
+                f"(and Discrete task index) entries; wrap it, e.g. with gymnasium.wrappers.FlattenObservation"
             )
 
     # ---------------------------------------------------------------- conversion
+    def _as_dict(self, obs: dict[str, np.ndarray] | np.ndarray) -> dict[str, np.ndarray]:
+        """A plain Box observation as the ``observation`` key; a dict as it is."""
+        return {"observation": obs} if self._wrap_obs else obs
+
     def _to_torch(self, obs: dict[str, np.ndarray]) -> Obs:
         # torch.tensor copies: returned tensors never alias gymnasium's buffers or each other.
         return {k: torch.tensor(obs[k], dtype=dtype, device=self.device) for k, dtype in self._obs_dtypes.items()}
@@ -239,7 +252,7 @@ class GymnasiumVectorEnv(BatchedEnv):
             return obs
         final = {k: np.array(obs[k], copy=True) for k in self._obs_dtypes}
         for i in np.flatnonzero(ended):
-            last = info["final_obs"][i]
+            last = self._as_dict(info["final_obs"][i])
             for k in final:
                 final[k][i] = last[k]
         return final
@@ -247,6 +260,9 @@ class GymnasiumVectorEnv(BatchedEnv):
     def _success(self, info: dict[str, Any], ended: np.ndarray) -> np.ndarray:
         success = np.zeros(self.num_envs, dtype=bool)
         key = self.success_key
+        if key == "auto":
+            final_info = info.get("final_info") or {}
+            key = next((k for k in AUTO_SUCCESS_KEYS if k in info or k in final_info), None)
         if key is None:
             return success
         seen = np.zeros(self.num_envs, dtype=bool)
@@ -270,11 +286,12 @@ class GymnasiumVectorEnv(BatchedEnv):
     # ---------------------------------------------------------------- batched contract
     def reset(self, seed: int | None = None) -> Obs:
         obs, _ = self.vector_env.reset(seed=seed)
-        return self._to_torch(obs)
+        return self._to_torch(self._as_dict(obs))
 
     def step(self, action: torch.Tensor) -> StepResult:
         action_np = np.asarray(self._to_numpy(action), dtype=self._action_dtype).reshape(self._action_shape)
         obs, reward, terminated, truncated, info = self.vector_env.step(action_np)
+        obs = self._as_dict(obs)
         ended = np.logical_or(terminated, truncated)
         out = {
             "final_obs": self._to_torch(self._final_obs(obs, info)),

@@ -15,6 +15,9 @@ import torch
 
 from taskrl.envs.bitflip import BitFlip
 from taskrl.envs.point_reach import PointReach, RewardType
+from taskrl.registration import register_gymnasium_envs
+
+__all__ = ["BitFlipGymEnv", "PointReachGymEnv", "SingleCopyEnv", "register_gymnasium_envs"]
 
 
 class SingleCopyEnv(gym.Env):
@@ -110,21 +113,3 @@ class PointReachGymEnv(SingleCopyEnv):
         diff = np.asarray(achieved_goal, dtype=np.float32) - np.asarray(desired_goal, dtype=np.float32)
         reached = np.linalg.norm(diff, axis=-1) <= self._env.distance_threshold
         return reached if self._env.terminate_on_success else np.zeros_like(reached)
-
-
-def register_gymnasium_envs() -> None:
-    """Register the native environments under the ``taskrl/`` namespace (idempotent)."""
-    if "taskrl/BitFlip-v0" not in gym.registry:
-        gym.register(id="taskrl/BitFlip-v0", entry_point="taskrl.envs.gymnasium_env:BitFlipGymEnv")
-    if "taskrl/PointReach-v0" not in gym.registry:
-        gym.register(
-            id="taskrl/PointReach-v0",
-            entry_point="taskrl.envs.gymnasium_env:PointReachGymEnv",
-            max_episode_steps=50,
-        )
-    if "taskrl/MultiTaskPointReach-v0" not in gym.registry:
-        gym.register(
-            id="taskrl/MultiTaskPointReach-v0",
-            entry_point="taskrl.envs.multitask_point:MultiTaskPointReachGymEnv",
-            max_episode_steps=50,
-        )

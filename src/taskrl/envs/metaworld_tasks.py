@@ -12,9 +12,10 @@ Needs the ``metaworld`` extra (``pip install 'taskrl[metaworld]'``, Meta-World 3
   ``info["success"]``, goal positions drawn afresh at every reset. It is a
   :class:`~taskrl.envs.gymnasium_adapter.GymnasiumVectorEnv`, so numpy becomes torch, autoreset
   and final observations are handled in that one place.
-- :func:`evaluate_per_task`: Meta-World's protocol (per task, episodes over distinct goal
-  positions, success if reached at any step; headline = mean over tasks), for any batched env
-  whose observations carry ``task``.
+- the families ``mt1``, ``mt10`` and ``mt50`` (section ``metaworld``).
+
+Meta-World's evaluation protocol (per task, episodes over distinct goal positions, success if
+reached at any step) is :func:`taskrl.training.per_task.evaluate_per_task`.
 
 Meta-World settings chosen (see ``docs/multitask.md``): ``use_one_hot`` always passed explicitly;
 ``task_select="random"`` so every reset picks one of the task's 50 pre-drawn goal positions
@@ -25,19 +26,17 @@ version ``"v2"`` (its default); horizon 500 (Meta-World's ``max_path_length``), 
 from __future__ import annotations
 
 import dataclasses
-import json
-import math
 import warnings
-from collections.abc import Callable, Sequence
-from pathlib import Path
+from collections.abc import Sequence
 from typing import Any, Literal
 
 import gymnasium as gym
 import numpy as np
 import torch
 
-from taskrl.envs.base import BatchedEnv, Obs
-from taskrl.envs.gymnasium_adapter import GymnasiumVectorEnv, VectorStrategy
+from taskrl.envs.gymnasium_adapter import VECTOR_STRATEGIES, GymnasiumVectorEnv, VectorStrategy
+from taskrl.envs.spec import EnvFamily, EnvRequest
+from taskrl.errors import one_of, require
 from taskrl.tasks import TaskSet
 
 __all__ = [
@@ -47,11 +46,9 @@ __all__ = [
     "MT10_TASKS",
     "MT50_TASKS",
     "MetaWorldMultiTaskEnv",
-    "evaluate_per_task",
     "metaworld_id",
     "metaworld_spec",
     "metaworld_task_set",
-    "per_task_table",
     "version_free",
 ]
 
@@ -216,7 +213,7 @@ class MetaWorldTaskWrapper(gym.Wrapper):
     With ``use_one_hot``, the task index is read from Meta-World's one-hot (the last
     ``num_tasks`` entries of its observation) and checked against ``task_index``; otherwise it
     is ``task_index``. ``set_goal_schedules`` pins the goal positions of the next resets (used by
-    :func:`evaluate_per_task` to visit distinct goals); ``None`` restores random goals.
+    :func:`~taskrl.training.per_task.evaluate_per_task` to visit distinct goals); ``None`` restores random goals.
     """
 
     def __init__(self, env: gym.Env, slot: int, task_index: int, num_tasks: int, use_one_hot: bool) -> None:
@@ -435,187 +432,57 @@ class MetaWorldMultiTaskEnv(GymnasiumVectorEnv):
 
 
 # ---------------------------------------------------------------------------------------------
-# Evaluation: Meta-World's protocol, per task
+# The families: mt1, mt10, mt50
 # ---------------------------------------------------------------------------------------------
-@torch.no_grad()
-def evaluate_per_task(
-    policy: Callable[[Obs], torch.Tensor],
-    env: BatchedEnv | Callable[[], BatchedEnv],
-    episodes_per_task: int = METAWORLD_NUM_GOALS,
-    seed: int = 0,
-    task_set: TaskSet | None = None,
-    console: Any = None,
-    save_to: str | Path | None = None,
-    max_steps: int | None = None,
-    success: Literal["any", "final"] = "any",
-) -> dict[str, Any]:
-    """Per-task success following Meta-World's protocol; the headline is the mean over tasks.
+@dataclasses.dataclass
+class MetaWorldSettings:
+    """Settings of the Meta-World families (``mt1``, ``mt10``, ``mt50``).
 
-    For each task, ``episodes_per_task`` episodes are run (over distinct goal positions where
-    the env can pin them, as :class:`MetaWorldMultiTaskEnv` does: episode ``j`` of a task uses
-    goal ``j``, so ``episodes_per_task <= 50`` visits 50 distinct goals); an episode succeeds if
-    ``info["is_success"]`` is true at ANY of its steps. Works on any batched env whose
-    observations carry ``task``: with fixed tasks per slot (``slot_tasks``), each slot runs its
-    share of its task's episodes; otherwise episodes are counted by the task they started with
-    until every task has enough.
-
-    Args:
-        policy: ``obs -> action`` (greedy / deterministic actions are the caller's choice).
-        env: a batched env, or a zero-argument factory of one (closed afterwards).
-        episodes_per_task: episodes per task (Meta-World: 50, one per goal position).
-        seed: ``env.reset(seed)`` seed, so repeated evaluations are comparable.
-        task_set: names and descriptions of the tasks (default ``env.task_set``).
-        console: a ``rich`` console to print the table on (``None``: no printing).
-        save_to: write the result as JSON to this path.
-        max_steps: safety cap on env steps (default: generous, from the horizon).
-        success: ``"any"`` (Meta-World: reached at any step of the episode) or ``"final"``
-            (``is_success`` at the step the episode ends, as :func:`taskrl.training.evaluation.evaluate`).
-
-    Returns:
-        A JSON-able dict: ``mean_success_rate`` (the headline), ``episodes_per_task``,
-        ``distinct_goals`` (whether goal positions were pinned), and ``tasks``: one entry per
-        task with ``index``, ``description``, ``success_rate``, ``episodes``, ``mean_return``,
-        ``mean_length``.
+    Attributes:
+        task: the task of ``mt1`` (``reach``, ``push``, ... or with its ``-v3`` suffix).
+        max_episode_steps: episode length (Meta-World's own is 500).
+        vector_strategy: ``sync`` or ``async`` (one process per copy).
     """
-    if not isinstance(episodes_per_task, int) or episodes_per_task < 1:
-        raise ValueError(f"episodes_per_task must be an integer >= 1, got {episodes_per_task!r}")
-    if success not in ("any", "final"):
-        raise ValueError(f"success must be 'any' or 'final', got {success!r}")
-    owned = not isinstance(env, BatchedEnv)
-    if owned:
-        if not callable(env):
-            raise ValueError(f"env must be a batched env or a zero-argument factory of one, got {env!r}")
-        env = env()
-    try:
-        return _evaluate_per_task(policy, env, episodes_per_task, seed, task_set, console, save_to, max_steps, success)
-    finally:
-        if owned:
-            env.close()
+
+    task: str = "reach"
+    max_episode_steps: int = METAWORLD_HORIZON
+    vector_strategy: Literal["sync", "async"] = "sync"
+
+    def validate(self) -> None:
+        require(version_free(self.task) in MT50_TASKS, "task",
+                f"unknown Meta-World task {self.task!r}; allowed: {', '.join(MT50_TASKS)}")
+        require(self.max_episode_steps >= 1, "max_episode_steps", f"must be >= 1 (got {self.max_episode_steps})")
+        one_of(self.vector_strategy, VECTOR_STRATEGIES, "vector_strategy", "strategy")
 
 
-def _slot_quotas(slot_tasks: torch.Tensor, n: int) -> tuple[torch.Tensor, list[list[int]]]:
-    """Episodes each slot runs so that every task gets ``n``, and the goal indices of each slot."""
-    quotas = torch.zeros(slot_tasks.shape[0], dtype=torch.long)
-    goals: list[list[int]] = [[] for _ in range(slot_tasks.shape[0])]
-    for task in slot_tasks.unique().tolist():
-        slots = torch.nonzero(slot_tasks == task).flatten().tolist()
-        for j in range(n):  # goal j of the task goes to its (j mod copies)-th slot
-            goals[slots[j % len(slots)]].append(j)
-        for s in slots:
-            quotas[s] = len(goals[s])
-    return quotas, goals
+def _metaworld_family(benchmark: str, description: str) -> EnvFamily:
+    def task_of(settings: MetaWorldSettings) -> str | None:
+        return settings.task if benchmark == "MT1" else None
+
+    def make(settings: MetaWorldSettings, request: EnvRequest) -> MetaWorldMultiTaskEnv:
+        # Evaluation: one copy per task, its goal positions scheduled by the per-task evaluator.
+        num_tasks = len(metaworld_task_set(benchmark, task_of(settings)))
+        return MetaWorldMultiTaskEnv(benchmark, task_of(settings), use_one_hot=True,
+                                     envs_per_task=1 if request.evaluation else max(1, request.num_envs // num_tasks),
+                                     max_episode_steps=settings.max_episode_steps, seed=request.run_seed,
+                                     device=request.device, vector_strategy=settings.vector_strategy)
+
+    def check(settings: MetaWorldSettings, run: Any) -> None:
+        tasks = len(metaworld_task_set(benchmark, task_of(settings)))
+        require(run.num_envs % tasks == 0, "num_envs",
+                f"must be a multiple of the {tasks} tasks of {benchmark} (one or more copies per task; got {run.num_envs})")
+        require(run.eval_episodes <= METAWORLD_NUM_GOALS, "eval_episodes",
+                f"Meta-World has {METAWORLD_NUM_GOALS} goal positions per task: at most {METAWORLD_NUM_GOALS} "
+                f"episodes per task (got {run.eval_episodes})")
+
+    return EnvFamily(name=benchmark.lower(), description=description, section="metaworld", settings=MetaWorldSettings,
+                     make=make, kind="multitask", actions="box", per_task_success="any",
+                     spec=lambda settings, request: metaworld_spec(benchmark, task_of(settings)), check=check)
 
 
-def _evaluate_per_task(policy, env, n, seed, task_set, console, save_to, max_steps, criterion) -> dict[str, Any]:
-    task_set = task_set if task_set is not None else getattr(env, "task_set", None)
-    if task_set is None:
-        raise ValueError("evaluate_per_task needs the env's task_set (env.task_set) or task_set=...")
-    if "task" not in env.single_observation_space.spaces:
-        raise ValueError(f"evaluate_per_task needs observations with a 'task' key; found {list(env.single_observation_space.spaces)}")
-    num_tasks, num_envs = len(task_set), env.num_envs
-    slot_tasks = getattr(env, "slot_tasks", None)
-    pinned = False
-    quotas = None
-    if slot_tasks is not None:
-        slot_tasks = slot_tasks.detach().cpu().long()
-        missing = sorted(set(range(num_tasks)) - set(slot_tasks.tolist()))
-        if missing:
-            raise ValueError(f"no env slot runs tasks {[task_set[i].name for i in missing]}")
-        quotas, goals = _slot_quotas(slot_tasks, n)
-        if callable(getattr(env, "set_goal_schedules", None)):
-            available = env.goal_positions() if callable(getattr(env, "goal_positions", None)) else n
-            if n > available:
-                raise ValueError(f"episodes_per_task={n} exceeds the {available} distinct goal positions per task")
-            env.set_goal_schedules([g or None for g in goals])
-            pinned = True
-    if max_steps is None:
-        rounds = math.ceil(n * num_tasks / num_envs) if quotas is None else int(quotas.max())
-        max_steps = env.horizon * (rounds + 1) * (1 if quotas is not None else 20)
+FAMILIES = (
+    _metaworld_family("MT1", "Meta-World v3, one task (--task) with goal positions resampled every episode (metaworld extra)"),
+    _metaworld_family("MT10", "Meta-World v3 MT10: ten manipulation tasks, the task index in the observation (metaworld extra)"),
+    _metaworld_family("MT50", "Meta-World v3 MT50: fifty manipulation tasks (metaworld extra)"),
+)
 
-    successes = torch.zeros(num_tasks, dtype=torch.long)
-    episodes = torch.zeros(num_tasks, dtype=torch.long)
-    returns = torch.zeros(num_tasks, dtype=torch.float64)
-    lengths = torch.zeros(num_tasks, dtype=torch.float64)
-    done_slot = torch.zeros(num_envs, dtype=torch.long)  # episodes recorded per slot
-    try:
-        obs = env.reset(seed=seed)
-        ep_task = obs["task"].detach().cpu().long().clone()
-        ep_success = torch.zeros(num_envs, dtype=torch.bool)
-        ep_return = torch.zeros(num_envs, dtype=torch.float64)
-        ep_length = torch.zeros(num_envs, dtype=torch.long)
-        steps = 0
-        while True:
-            if quotas is not None and bool((done_slot >= quotas).all()):
-                break
-            if quotas is None and bool((episodes >= n).all()):
-                break
-            if steps >= max_steps:
-                short = [task_set[i].name for i in range(num_tasks) if episodes[i] < n]
-                raise RuntimeError(f"evaluation stopped after {steps} steps with too few episodes for tasks {short}")
-            obs, reward, terminated, truncated, info = env.step(policy(obs))
-            steps += 1
-            now = info["is_success"].detach().cpu().bool().clone()
-            ep_success = ep_success | now if criterion == "any" else now
-            ep_return += reward.detach().cpu().double()
-            ep_length += 1
-            ended = (terminated | truncated).detach().cpu()
-            for s in torch.nonzero(ended).flatten().tolist():
-                t = int(ep_task[s])
-                keep = done_slot[s] < quotas[s] if quotas is not None else episodes[t] < n
-                if keep:
-                    episodes[t] += 1
-                    successes[t] += int(ep_success[s])
-                    returns[t] += ep_return[s]
-                    lengths[t] += ep_length[s]
-                    done_slot[s] += 1
-            if bool(ended.any()):
-                ep_task[ended] = obs["task"].detach().cpu().long()[ended]
-                ep_success[ended], ep_return[ended], ep_length[ended] = False, 0.0, 0
-    finally:
-        if pinned:
-            env.set_goal_schedules(None)
-
-    tasks = {}
-    for spec in task_set:
-        k = max(int(episodes[spec.index]), 1)
-        tasks[spec.name] = {
-            "index": spec.index,
-            "description": spec.description,
-            "success_rate": float(successes[spec.index]) / k,
-            "episodes": int(episodes[spec.index]),
-            "mean_return": float(returns[spec.index]) / k,
-            "mean_length": float(lengths[spec.index]) / k,
-        }
-    result = {
-        "mean_success_rate": float(np.mean([v["success_rate"] for v in tasks.values()])),
-        "episodes_per_task": n,
-        "distinct_goals": pinned,
-        "success": "reached at any step" if criterion == "any" else "at the final step",
-        "tasks": tasks,
-    }
-    if console is not None:
-        console.print(per_task_table(result))
-    if save_to is not None:
-        path = Path(save_to)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(path.suffix + ".tmp")
-        tmp.write_text(json.dumps(result, indent=2) + "\n")
-        tmp.replace(path)
-    return result
-
-
-def per_task_table(result: dict[str, Any], title: str = "per-task success"):
-    """A ``rich`` table of :func:`evaluate_per_task`'s result, with the mean over tasks last."""
-    from rich.table import Table
-
-    table = Table(title=title)
-    table.add_column("#", justify="right")
-    table.add_column("task")
-    table.add_column("success", justify="right")
-    table.add_column("episodes", justify="right")
-    table.add_column("return", justify="right")
-    for name, row in result["tasks"].items():
-        table.add_row(str(row["index"]), name, f"{row['success_rate']:.2f}", str(row["episodes"]), f"{row['mean_return']:.1f}")
-    table.add_section()
-    table.add_row("", "[bold]mean over tasks", f"[bold]{result['mean_success_rate']:.3f}", "", "")
-    return table

@@ -38,7 +38,8 @@ import torch
 
 from taskrl.envs.base import NativeEnv, Obs, StepResult
 from taskrl.envs.gymnasium_env import SingleCopyEnv
-from taskrl.envs.point_reach import RewardType, _check_positive, check_point_env_args
+from taskrl.envs.point_reach import PointReachSettings, RewardType, _check_positive, check_point_env_args
+from taskrl.envs.spec import EnvFamily, EnvRequest
 from taskrl.tasks import TaskSet
 
 TaskSampling = Literal["uniform", "fixed"]
@@ -77,7 +78,7 @@ class MultiTaskPointReach(NativeEnv):
         centres: ``[K, 2]`` region centres.
         task: ``[num_envs]`` current task of every copy.
         slot_tasks: ``[num_envs]`` task of each copy with ``task_sampling="fixed"`` (``None`` when
-            uniform); :func:`~taskrl.envs.metaworld_tasks.evaluate_per_task` uses it.
+            uniform); :func:`~taskrl.training.per_task.evaluate_per_task` uses it.
     """
 
     def __init__(
@@ -219,3 +220,24 @@ class MultiTaskPointReachGymEnv(SingleCopyEnv):
             self._env.task[0] = index
             obs = self._to_numpy(self._env._obs())
         return obs, info
+
+
+def _make_multitask_point(settings: PointReachSettings, request: EnvRequest) -> MultiTaskPointReach:
+    # Evaluation: every task eval_episodes times at once, copy i always on task i % K.
+    copies = len(DEFAULT_REGIONS) * request.eval_episodes if request.evaluation else request.num_envs
+    return MultiTaskPointReach(num_envs=copies, device=request.device, reward=settings.reward,
+                               task_sampling="fixed" if request.evaluation else "uniform",
+                               terminate_on_success=settings.terminate_on_success, seed=request.seed)
+
+
+FAMILY = EnvFamily(
+    name="pointreach-mt",
+    description="multi-task point reaching: 5 regions named in words, the task index in the observation, native torch",
+    section="pointreach_mt",
+    settings=PointReachSettings,
+    make=_make_multitask_point,
+    kind="multitask",
+    actions="box",
+    per_task_success="final",  # touring several regions must not count
+)
+

@@ -13,6 +13,7 @@ position, ``desired_goal`` the goal.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Any, Literal
 
@@ -21,6 +22,8 @@ import numpy as np
 import torch
 
 from taskrl.envs.base import GoalEnvMixin, NativeEnv, Obs, StepResult
+from taskrl.envs.spec import EnvFamily, EnvRequest
+from taskrl.errors import one_of
 
 RewardType = Literal["sparse", "dense"]
 REWARD_TYPES = ("sparse", "dense")
@@ -128,3 +131,36 @@ class PointReach(GoalEnvMixin, NativeEnv):
         if not self.terminate_on_success:
             return super().compute_terminated(achieved_goal, desired_goal, info)
         return self.distance(achieved_goal, desired_goal) <= self.distance_threshold
+
+
+@dataclasses.dataclass
+class PointReachSettings:
+    """Settings of the ``pointreach`` family (and, as its own section, of ``pointreach-mt``).
+
+    Attributes:
+        reward: ``sparse`` (0 at the goal, else -1) or ``dense`` (-distance).
+        terminate_on_success: end an episode when its goal is reached (default: no, as Fetch).
+    """
+
+    reward: Literal["sparse", "dense"] = "sparse"
+    terminate_on_success: bool = False
+
+    def validate(self) -> None:
+        one_of(self.reward, REWARD_TYPES, "reward", "reward")
+
+
+def _make_point_reach(settings: PointReachSettings, request: EnvRequest) -> PointReach:
+    return PointReach(num_envs=request.copies, device=request.device, reward=settings.reward,
+                      terminate_on_success=settings.terminate_on_success, seed=request.seed)
+
+
+FAMILY = EnvFamily(
+    name="pointreach",
+    description="a 2-D point moving to a random goal (continuous actions), native torch",
+    section="pointreach",
+    settings=PointReachSettings,
+    make=_make_point_reach,
+    kind="goal",
+    actions="box",
+)
+

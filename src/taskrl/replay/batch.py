@@ -6,7 +6,9 @@ import dataclasses
 
 import torch
 
-Obs = dict[str, torch.Tensor]
+from taskrl.types import Obs
+
+__all__ = ["Batch", "Obs"]
 
 
 @dataclasses.dataclass

@@ -1,27 +1,31 @@
 """The off-policy loop: collect from batched environments -> store episodes -> relabel -> update.
 
-One iteration steps all ``num_envs`` environments once, stores the step, then performs
-``updates_per_step * num_envs`` gradient updates (fractions carry over), each on a freshly
-sampled and relabelled batch. Evaluation, logging and checkpointing run on env-step schedules.
+One iteration asks the agent for exploratory actions (``agent.act(obs, explore=True)``: each
+algorithm explores its own way), steps all ``num_envs`` environments once, stores the step, then
+performs ``updates_per_step * num_envs`` gradient updates (fractions carry over), each on a freshly
+sampled and relabelled batch. Evaluation, logging and checkpointing run on env-step schedules
+(:class:`~taskrl.training.bookkeeping.Bookkeeping`, given to the loop).
 """
 
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Callable, Protocol
+from typing import Callable, Protocol
 
 import torch
 
-from taskrl.envs.base import BatchedEnv, Obs
+from taskrl.envs.base import BatchedEnv
 from taskrl.replay.batch import Batch
 from taskrl.replay.episodes import EpisodeReplay
-from taskrl.training.bookkeeping import Bookkeeping, LoopState, StopRequest
+from taskrl.training.bookkeeping import Bookkeeping, LoopState
+from taskrl.types import Obs
 
 __all__ = ["LoopSchedule", "LoopState", "OffPolicyLoop"]
 
 
 class OffPolicyAgent(Protocol):
-    def act(self, obs: Obs, epsilon: float = 0.0, generator: torch.Generator | None = None) -> torch.Tensor: ...
+    def act(self, obs: Obs, explore: bool = False, generator: torch.Generator | None = None, env_steps: int = 0) -> torch.Tensor: ...
+    def exploration(self, env_steps: int) -> dict[str, float]: ...
     def update(self, batch: Batch) -> dict[str, torch.Tensor]: ...
 
 
@@ -30,40 +34,31 @@ Relabel = Callable[[Batch, EpisodeReplay, torch.Generator], Batch]
 
 @dataclasses.dataclass
 class LoopSchedule:
-    """When things happen, in environment steps."""
+    """When learning happens, in environment steps (evaluation and checkpoints: the Bookkeeping's).
+
+    Attributes:
+        total_steps: environment steps to train for.
+        batch_size: transitions per gradient update.
+        learning_starts: environment steps collected before the first update.
+        updates_per_step: gradient updates per environment step (fractions accumulate).
+    """
 
     total_steps: int
     batch_size: int
     learning_starts: int
     updates_per_step: float
-    eval_interval: int
-    checkpoint_interval: int
-    stop_at_success: float = 0.0
-    epsilon_start: float = 0.0
-    epsilon_end: float = 0.0
-    epsilon_decay_steps: int = 0
-
-    def epsilon(self, env_steps: int) -> float:
-        """Linear decay from ``epsilon_start`` to ``epsilon_end`` over ``epsilon_decay_steps``."""
-        if self.epsilon_decay_steps <= 0:
-            return self.epsilon_end
-        frac = min(env_steps / self.epsilon_decay_steps, 1.0)
-        return self.epsilon_start + frac * (self.epsilon_end - self.epsilon_start)
 
 
 class OffPolicyLoop:
-    """Runs collection and learning until ``total_steps`` or ``stop_at_success``.
+    """Runs collection and learning until ``total_steps`` or the bookkeeping says the run is finished.
 
     Args:
         env: training environments.
-        agent: anything with ``act`` and ``update``.
+        agent: anything with ``act``, ``exploration`` and ``update``.
         replay: episode storage shared by collection and sampling.
         relabel: optional ``relabel(batch, replay, generator)`` applied to every sampled batch.
-        schedule: step counts for learning, evaluation and checkpoints.
-        evaluate: ``() -> metrics`` run on the evaluation schedule (must return ``success_rate``).
-        on_log: called with each metrics row (to CSV, TensorBoard, the console).
-        on_checkpoint: called with the loop state when a checkpoint is due.
-        stop: ends the run early and cleanly (a time limit, Ctrl-C); its ``stopped_by`` says why.
+        schedule: step counts for learning.
+        books: the run's bookkeeping (metric rows, evaluation, early stop, checkpoints).
         generator: generator for sampling and exploration.
         sample: ``sample(batch_size, generator) -> Batch`` drawing from ``replay`` (default
             ``replay.sample``: uniform over transitions; e.g. a ``TaskBalancedSampler``).
@@ -76,33 +71,25 @@ class OffPolicyLoop:
         replay: EpisodeReplay,
         relabel: Relabel | None,
         schedule: LoopSchedule,
-        evaluate: Callable[[], dict[str, float]],
-        on_log: Callable[[dict[str, Any]], None],
-        on_checkpoint: Callable[[LoopState], None],
+        books: Bookkeeping,
         generator: torch.Generator,
-        stop: StopRequest | None = None,
         sample: Callable[[int, torch.Generator], Batch] | None = None,
     ) -> None:
         self.env, self.agent, self.replay, self.relabel = env, agent, replay, relabel
         self.sample = sample if sample is not None else replay.sample
-        self.schedule, self.evaluate = schedule, evaluate
-        self.on_log, self.on_checkpoint = on_log, on_checkpoint
-        self.generator = generator
-        self.stop = stop
+        self.schedule, self.books, self.generator = schedule, books, generator
 
     def sample_batch(self) -> Batch:
         batch = self.sample(self.schedule.batch_size, self.generator)
         return self.relabel(batch, self.replay, self.generator) if self.relabel else batch
 
-    def run(self, state: LoopState, env_seed: int) -> LoopState:
-        s, env, agent, replay = self.schedule, self.env, self.agent, self.replay
-        books = Bookkeeping(state, self.evaluate, self.on_log, self.on_checkpoint, s.total_steps, s.eval_interval,
-                            s.checkpoint_interval, s.stop_at_success, env.device, self.stop)
+    def run(self, env_seed: int) -> LoopState:
+        s, env, agent, replay, books = self.schedule, self.env, self.agent, self.replay, self.books
+        state = books.state
         obs = env.reset(seed=env_seed)
         replay.start(obs)
         while state.env_steps < s.total_steps:
-            epsilon = s.epsilon(state.env_steps)
-            action = agent.act(obs, epsilon, self.generator)
+            action = agent.act(obs, explore=True, generator=self.generator, env_steps=state.env_steps)
             next_obs, reward, terminated, truncated, info = env.step(action)
             replay.add(action, reward, terminated, truncated, info["final_obs"], next_obs)
             done = terminated | truncated
@@ -117,6 +104,6 @@ class OffPolicyLoop:
                 for _ in range(n_updates):
                     books.add_update(agent.update(self.sample_batch()))
 
-            if books.after_step({"epsilon": epsilon}):
+            if books.after_step(agent.exploration(state.env_steps)):
                 break
         return books.close()

@@ -12,12 +12,13 @@ off-policy loop (:class:`~taskrl.training.bookkeeping.Bookkeeping`).
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Callable, Protocol
+from typing import Protocol
 
 import torch
 
-from taskrl.envs.base import BatchedEnv, Obs
-from taskrl.training.bookkeeping import Bookkeeping, LoopState, StopRequest
+from taskrl.envs.base import BatchedEnv
+from taskrl.training.bookkeeping import Bookkeeping, LoopState
+from taskrl.types import Obs
 
 
 @dataclasses.dataclass
@@ -56,32 +57,14 @@ class OnPolicyAgent(Protocol):
     rollout_steps: int
     updates: int
 
-    def explore(self, obs: Obs, generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]: ...
+    def rollout_step(self, obs: Obs, generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]: ...
     def value(self, obs: Obs) -> torch.Tensor: ...
     def update(self, rollout: Rollout, generator: torch.Generator | None = None) -> dict[str, torch.Tensor]: ...
 
 
-@dataclasses.dataclass
-class OnPolicySchedule:
-    """When things happen, in environment steps (checked after every rollout, so a run takes
-    whole rollouts: it may overshoot ``total_steps`` by less than one).
-
-    Attributes:
-        total_steps: environment steps to train for (summed over environments).
-        eval_interval: environment steps between evaluations.
-        checkpoint_interval: environment steps between checkpoints (also one at the end).
-        stop_at_success: stop once evaluation success reaches this (0 = train to total_steps).
-    """
-
-    total_steps: int
-    eval_interval: int
-    checkpoint_interval: int
-    stop_at_success: float = 0.0
-
-
 def collect_rollout(env: BatchedEnv, agent: OnPolicyAgent, obs: Obs, steps: int,
                     generator: torch.Generator | None = None) -> tuple[Rollout, Obs, torch.Tensor, torch.Tensor]:
-    """Step ``env`` ``steps`` times from ``obs`` with ``agent.explore``.
+    """Step ``env`` ``steps`` times from ``obs`` with ``agent.rollout_step``.
 
     Returns ``(rollout, next_obs, episodes_ended, episodes_succeeded)``; the counts are 0-d
     tensors (success is ``info["is_success"]`` at the step an episode ends).
@@ -91,7 +74,7 @@ def collect_rollout(env: BatchedEnv, agent: OnPolicyAgent, obs: Obs, steps: int,
     ended = torch.zeros((), device=env.device)
     succeeded = torch.zeros((), device=env.device)
     for _ in range(steps):
-        env_action, action, log_prob, value = agent.explore(obs, generator)
+        env_action, action, log_prob, value = agent.rollout_step(obs, generator)
         next_obs, reward, terminated, truncated, info = env.step(env_action)
         final_value = torch.zeros_like(value)
         if bool(truncated.any()):  # time limits are rare steps: no value pass on the others
@@ -111,42 +94,28 @@ def collect_rollout(env: BatchedEnv, agent: OnPolicyAgent, obs: Obs, steps: int,
 
 
 class OnPolicyLoop:
-    """Runs collection and learning until ``total_steps`` or ``stop_at_success``.
+    """Runs collection and learning until ``total_steps`` or the bookkeeping says the run is finished
+    (checked after every rollout, so a run takes whole rollouts: it may overshoot ``total_steps``
+    by less than one).
 
     Args:
         env: training environments.
-        agent: anything with ``rollout_steps``, ``updates``, ``explore``, ``value`` and ``update``
+        agent: anything with ``rollout_steps``, ``updates``, ``rollout_step``, ``value`` and ``update``
             (e.g. :class:`~taskrl.agents.ppo.PPOAgent`).
-        schedule: step counts for evaluation and checkpoints.
-        evaluate: ``() -> metrics`` run on the evaluation schedule (must return ``success_rate``).
-        on_log: called with each metrics row (to CSV, TensorBoard, the console).
-        on_checkpoint: called with the loop state when a checkpoint is due.
-        stop: ends the run early and cleanly (a time limit, Ctrl-C); its ``stopped_by`` says why.
+        total_steps: environment steps to train for (summed over environments).
+        books: the run's bookkeeping (metric rows, evaluation, early stop, checkpoints).
         generator: generator for action sampling and minibatch order.
     """
 
-    def __init__(
-        self,
-        env: BatchedEnv,
-        agent: OnPolicyAgent,
-        schedule: OnPolicySchedule,
-        evaluate: Callable[[], dict[str, float]],
-        on_log: Callable[[dict[str, Any]], None],
-        on_checkpoint: Callable[[LoopState], None],
-        generator: torch.Generator,
-        stop: StopRequest | None = None,
-    ) -> None:
-        self.env, self.agent, self.schedule, self.evaluate = env, agent, schedule, evaluate
-        self.on_log, self.on_checkpoint = on_log, on_checkpoint
-        self.generator = generator
-        self.stop = stop
+    def __init__(self, env: BatchedEnv, agent: OnPolicyAgent, total_steps: int, books: Bookkeeping,
+                 generator: torch.Generator) -> None:
+        self.env, self.agent, self.total_steps, self.books, self.generator = env, agent, total_steps, books, generator
 
-    def run(self, state: LoopState, env_seed: int) -> LoopState:
-        s, env, agent = self.schedule, self.env, self.agent
-        books = Bookkeeping(state, self.evaluate, self.on_log, self.on_checkpoint, s.total_steps, s.eval_interval,
-                            s.checkpoint_interval, s.stop_at_success, env.device, self.stop)
+    def run(self, env_seed: int) -> LoopState:
+        env, agent, books = self.env, self.agent, self.books
+        state = books.state
         obs = env.reset(seed=env_seed)
-        while state.env_steps < s.total_steps:
+        while state.env_steps < self.total_steps:
             rollout, obs, ended, succeeded = collect_rollout(env, agent, obs, agent.rollout_steps, self.generator)
             books.add_episodes(ended, succeeded)
             books.add_steps(rollout.num_steps)

@@ -1,0 +1,152 @@
+"""What every agent shares: acting on any form of observation, and one save / load of its parts.
+
+An agent subclasses :class:`Agent` and implements
+
+- ``policy(obs, explore, generator, env_steps) -> actions``: actions for a batch of observation
+  tensors, greedy when ``explore`` is False, with the algorithm's own exploration when True (DQN's
+  epsilon, QT-Opt's random actions, TD3's noise, SAC's and PPO's sampling), decayed by
+  ``env_steps`` where its schedule says so;
+- ``update(batch) -> dict of scalars``;
+- ``checkpointed``: checkpoint name -> attribute path of each module, optimiser or tensor to save.
+
+and gets :meth:`Agent.act`, :meth:`Agent.exploration`, :meth:`Agent.state_dict` and
+:meth:`Agent.load_state_dict`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+from typing import Any, ClassVar
+
+import numpy as np
+import torch
+
+from taskrl.agents.parts import ObservationInput
+from taskrl.types import Obs
+
+__all__ = ["Agent", "ObservationForm", "batch_observations"]
+
+
+@dataclasses.dataclass(frozen=True)
+class ObservationForm:
+    """How an observation came in, so actions go back out the same way.
+
+    Attributes:
+        single: one observation (no batch dimension): the action has none either.
+        numpy: numpy (or plain Python) data: actions come back as numpy (an ``int`` for one discrete action).
+    """
+
+    single: bool
+    numpy: bool
+
+    def restore(self, action: torch.Tensor) -> Any:
+        """Actions ``[B, ...]`` in this form."""
+        if not self.numpy:
+            return action[0] if self.single else action
+        out = action.detach().cpu().numpy()
+        if not self.single:
+            return out
+        first = out[0]
+        return int(first) if first.ndim == 0 and np.issubdtype(first.dtype, np.integer) else first
+
+
+def batch_observations(obs: Any, inputs: ObservationInput, device: torch.device) -> tuple[Obs, ObservationForm]:
+    """``(batched tensors on device, form)`` of any of:
+
+    - a batch of tensors (``{key: [B, ...]}``, what native envs and the loops give);
+    - one observation as numpy (``gymnasium.make(...)``: ``{key: array}``);
+    - a batch of numpy observations (``gymnasium.make_vec(...)``: ``{key: [B, ...] array}``);
+    - a bare array or tensor (an env without a dict space, e.g. Meta-World's own ``gymnasium.make``),
+      read as the ``observation`` key.
+
+    An observation is one (not a batch) when the keys the networks read hold exactly one input's
+    worth of numbers, unless every one of them has a leading dimension of 1 (a batch of one).
+    """
+    if not isinstance(obs, Mapping):
+        obs = {"observation": obs}
+    numpy = any(not isinstance(v, torch.Tensor) for v in obs.values())
+    tensors = {k: v.to(device) if isinstance(v, torch.Tensor) else torch.as_tensor(np.asarray(v), device=device)
+               for k, v in obs.items()}
+    missing = [k for k in inputs.keys if k not in tensors]
+    if missing:
+        raise ValueError(f"observation lacks {missing}: the agent reads {list(inputs.keys)}, got {list(tensors)}")
+    read = [tensors[k] for k in inputs.keys]
+    total = sum(t.numel() for t in read)
+    if total % inputs.dim:
+        raise ValueError(f"observation holds {total} numbers under {list(inputs.keys)}: not a multiple of the "
+                         f"agent's input size {inputs.dim}")
+    batch_of_one = all(t.ndim >= 2 and t.shape[0] == 1 for t in read)
+    single = total == inputs.dim and not batch_of_one
+    if single:
+        tensors = {k: t.unsqueeze(0) for k, t in tensors.items()}
+    return tensors, ObservationForm(single=single, numpy=numpy)
+
+
+class Agent:
+    """Base of every agent (see the module docstring).
+
+    Attributes:
+        device: where the networks live.
+        inputs: the observation input module (keys read, normalisation).
+        updates: gradient updates made.
+        checkpointed: checkpoint name -> dotted attribute path (``"normalize": "inputs.normalize"``);
+            ``None``-valued attributes (an absent task encoder) are skipped.
+    """
+
+    device: torch.device
+    inputs: ObservationInput
+    updates: int = 0
+    checkpointed: ClassVar[dict[str, str]] = {}
+
+    # ---------------------------------------------------------------- acting
+    @torch.no_grad()
+    def act(self, obs: Any, explore: bool = False, generator: torch.Generator | None = None, env_steps: int = 0) -> Any:
+        """Actions for ``obs``: one observation or a batch, numpy or tensors (see :func:`batch_observations`).
+
+        Args:
+            obs: observations as an env gives them; actions come back in the same form (numpy in,
+                numpy out; one observation in, one action out; tensors in, tensors out).
+            explore: use the algorithm's exploration (collection) instead of its greedy action (evaluation).
+            generator: random generator for exploration.
+            env_steps: training progress, for exploration that decays with env steps.
+        """
+        batch, form = batch_observations(obs, self.inputs, self.device)
+        return form.restore(self.policy(batch, explore, generator, env_steps))
+
+    def policy(self, obs: Obs, explore: bool, generator: torch.Generator | None, env_steps: int) -> torch.Tensor:
+        """Actions ``[B, ...]`` for a batch of observation tensors (implemented by each agent)."""
+        raise NotImplementedError
+
+    def exploration(self, env_steps: int) -> dict[str, float]:
+        """The exploration levels in force at ``env_steps`` (logged with each metrics row)."""
+        return {}
+
+    # ---------------------------------------------------------------- checkpointing
+    def _parts(self) -> dict[str, Any]:
+        parts = {}
+        for name, path in self.checkpointed.items():
+            obj: Any = self
+            for attr in path.split("."):
+                obj = getattr(obj, attr)
+            if obj is not None:
+                parts[name] = obj
+        return parts
+
+    def state_dict(self) -> dict[str, Any]:
+        """Every checkpointed module, optimiser and tensor, and the update count."""
+        state: dict[str, Any] = {}
+        for name, obj in self._parts().items():
+            state[name] = obj.detach().clone() if isinstance(obj, torch.Tensor) else obj.state_dict()
+        state["updates"] = self.updates
+        return state
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Restore what :meth:`state_dict` saved (tensors in place, so optimisers keep their references)."""
+        for name, obj in self._parts().items():
+            if isinstance(obj, torch.Tensor):
+                with torch.no_grad():
+                    obj.copy_(torch.as_tensor(state[name]).reshape(obj.shape))
+            else:
+                obj.load_state_dict(state[name])
+        self.updates = int(state["updates"])

@@ -1,0 +1,48 @@
+"""What the registry knows about an algorithm: :class:`AlgorithmSpec` (each agent's file declares its ``SPEC``)."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from typing import Any, Literal
+
+import gymnasium as gym
+import torch
+
+__all__ = ["AgentInputs", "AlgorithmSpec", "LoopKind"]
+
+LoopKind = Literal["off_policy", "on_policy"]
+
+
+@dataclasses.dataclass(frozen=True)
+class AgentInputs:
+    """What an agent is built for: the observation keys its networks read, their flattened size,
+    and the action space."""
+
+    keys: tuple[str, ...]
+    dim: int
+    action_space: gym.spaces.Space
+
+
+@dataclasses.dataclass(frozen=True)
+class AlgorithmSpec:
+    """One algorithm, as runs and the command line see it.
+
+    Attributes:
+        name: the value of ``--algo`` and the name of its settings section.
+        description: one line for ``--help``.
+        config: its settings dataclass (a ``validate()`` method raises ``ConfigError``).
+        build: ``build(inputs, config, device, conditioning) -> agent``; ``conditioning`` is a
+            ``TaskConditioning`` on multi-task envs, else None.
+        loop: ``off_policy`` (replay, relabelling) or ``on_policy`` (rollouts).
+        actions: the action spaces it supports: ``discrete`` (``Discrete``), ``box`` (``Box``).
+        multitask: whether it can condition its networks on a task (multi-task envs).
+    """
+
+    name: str
+    description: str
+    config: type
+    build: Callable[[AgentInputs, Any, torch.device, Any], Any]
+    loop: LoopKind
+    actions: tuple[str, ...]
+    multitask: bool = False

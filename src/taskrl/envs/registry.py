@@ -1,0 +1,54 @@
+"""The environment families a run can use, by name: one :class:`~taskrl.envs.spec.EnvFamily` each.
+
+Each family is declared in its environment's own file; adding one is that file plus one line in
+:data:`BUILT_IN`. A user's own family enters through :func:`register_env_family`; a user's own
+gymnasium environment needs no family at all (``--env-id``, the ``gym`` family).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from taskrl.envs import bitflip, fetch, gymnasium_family, metaworld_tasks, multitask_point, point_reach, task_sets
+from taskrl.envs.spec import EnvFamily
+from taskrl.errors import ConfigError
+
+__all__ = ["ENV_FAMILIES", "env_family", "family_for_source", "register_env_family"]
+
+BUILT_IN: tuple[EnvFamily, ...] = (
+    bitflip.FAMILY,
+    point_reach.FAMILY,
+    *fetch.FAMILIES,
+    multitask_point.FAMILY,
+    *metaworld_tasks.FAMILIES,
+    gymnasium_family.FAMILY,
+    task_sets.FAMILY,
+)
+
+#: name -> family, in registration order.
+ENV_FAMILIES: dict[str, EnvFamily] = {family.name: family for family in BUILT_IN}
+
+
+def register_env_family(family: EnvFamily, replace: bool = False) -> EnvFamily:
+    """Make ``family`` available as ``--env family.name``."""
+    if family.name in ENV_FAMILIES and not replace:
+        raise ValueError(f"an env family named {family.name!r} is already registered (pass replace=True)")
+    ENV_FAMILIES[family.name] = family
+    return family
+
+
+def env_family(name: str) -> EnvFamily:
+    """The family called ``name``; a :class:`ConfigError` on ``env`` listing the registered ones otherwise."""
+    if name not in ENV_FAMILIES:
+        raise ConfigError("env", f"unknown env {name!r}; allowed: {', '.join(ENV_FAMILIES)} "
+                                 f"(or any gymnasium id with --env-id)")
+    return ENV_FAMILIES[name]
+
+
+def family_for_source(obj: Any) -> EnvFamily:
+    """The family that builds envs from the Python object ``obj`` (a TaskSet, a factory)."""
+    for family in ENV_FAMILIES.values():
+        if family.accepts is not None and family.accepts(obj):
+            return family
+    raise ConfigError("env", f"cannot train on {obj!r}: pass an env family name, a gymnasium id, a factory of a "
+                             f"gymnasium.Env, or a TaskSet")

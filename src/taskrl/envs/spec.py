@@ -1,0 +1,103 @@
+"""What the registry knows about an environment family: :class:`EnvFamily`, and what a run asks
+of it: :class:`EnvRequest`. Each family's file declares its families next to its environments."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any, Literal
+
+import gymnasium as gym
+import torch
+
+from taskrl.envs.base import BatchedEnv, is_goal_env
+
+__all__ = ["EnvFamily", "EnvKind", "EnvRequest", "env_kind"]
+
+#: ``goal``: observations carry achieved / desired goals and the env has ``compute_reward`` (hindsight
+#: relabelling applies); ``multitask``: observations carry a task index under ``task``; ``plain``: neither.
+EnvKind = Literal["goal", "multitask", "plain"]
+
+
+def env_kind(env: Any) -> EnvKind:
+    """The kind of a built env (or of anything with its spaces)."""
+    if is_goal_env(env):
+        return "goal"
+    space = env.single_observation_space
+    return "multitask" if isinstance(space, gym.spaces.Dict) and "task" in space.spaces else "plain"
+
+
+@dataclasses.dataclass(frozen=True)
+class EnvRequest:
+    """What a run asks of an env family.
+
+    Attributes:
+        num_envs: training copies (evaluation envs choose their own from ``eval_episodes``).
+        seed: seed of the env's random generator.
+        device: where its tensors live.
+        evaluation: build the evaluation env (fixed tasks per copy, goal schedules).
+        eval_episodes: evaluation episodes (per task on multi-task envs).
+        run_seed: the run's seed (Meta-World draws its goal positions from it).
+        source: a Python object the env is built from instead of a name (a factory of a
+            ``gymnasium.Env``, a :class:`~taskrl.tasks.TaskSet`), for families that accept one.
+    """
+
+    num_envs: int
+    seed: int
+    device: torch.device
+    evaluation: bool = False
+    eval_episodes: int = 1
+    run_seed: int = 0
+    source: Any = None
+
+    @property
+    def copies(self) -> int:
+        """Copies of a single-task env: ``num_envs`` for training, one per episode for evaluation."""
+        return self.eval_episodes if self.evaluation else self.num_envs
+
+
+@dataclasses.dataclass(frozen=True)
+class EnvFamily:
+    """One environment family, as runs and the command line see it.
+
+    Attributes:
+        name: the value of ``--env``.
+        description: one line for ``--help``.
+        section: the name of its settings section in ``config.json`` (families may share one).
+        settings: its settings dataclass; a ``validate()`` method raises ``ConfigError``.
+        make: ``make(settings, request) -> BatchedEnv``.
+        kind: ``goal``, ``multitask`` or ``plain``; ``None`` when only the built env can tell (any
+            gymnasium id), and then it is checked once the env is built.
+        actions: ``discrete`` or ``box`` when known before building.
+        per_task_success: multi-task evaluation's success criterion, ``any`` step (Meta-World's
+            protocol) or the ``final`` step; or a function of the settings giving one.
+        spec: ``spec(settings, request) -> object with single_observation_space, single_action_space
+            (and task_set)``: what loading an agent needs, without building a slow env.
+        check: ``check(settings, run_config)``: rules between the section and run-level settings
+            (e.g. ``num_envs`` a multiple of the tasks).
+        selected_by: a setting of the section that selects this family when given alone
+            (``--env-id X`` trains on the gymnasium id X).
+        accepts: ``accepts(obj) -> bool``: the Python objects this family builds envs from.
+        persist: ``persist(obj, run_dir) -> settings``: how a run records such an object in its
+            settings (and files of its own in the run directory), so the run can be resumed and loaded.
+    """
+
+    name: str
+    description: str
+    section: str
+    settings: type
+    make: Callable[[Any, EnvRequest], BatchedEnv]
+    kind: EnvKind | None = None
+    actions: Literal["discrete", "box"] | None = None
+    per_task_success: str | Callable[[Any], str] = "final"
+    spec: Callable[[Any, EnvRequest], Any] | None = None
+    check: Callable[[Any, Any], None] | None = None
+    selected_by: str | None = None
+    accepts: Callable[[Any], bool] | None = None
+    persist: Callable[[Any, Path], dict[str, Any]] | None = None
+
+    def success_criterion(self, settings: Any) -> str:
+        """``any`` or ``final``: when a multi-task evaluation episode counts as a success."""
+        rule = self.per_task_success
+        return rule(settings) if callable(rule) else rule

@@ -1,0 +1,29 @@
+"""The one error a bad setting raises, wherever it is checked: :class:`ConfigError`.
+
+Every config section checks itself (``section.validate()``) with :func:`require`, so a rule is
+written once and reads the same from the command line (one line, exit code 2) and from Python.
+"""
+
+from __future__ import annotations
+
+__all__ = ["ConfigError", "one_of", "require"]
+
+
+class ConfigError(ValueError):
+    """A bad configuration value; ``field`` names the offending setting, ``message`` the allowed values."""
+
+    def __init__(self, field: str, message: str) -> None:
+        super().__init__(f"{field}: {message}")
+        self.field = field
+        self.message = message
+
+
+def require(ok: bool, field: str, message: str) -> None:
+    """Raise :class:`ConfigError` for ``field`` with ``message`` unless ``ok``."""
+    if not ok:
+        raise ConfigError(field, message)
+
+
+def one_of(value: object, allowed: tuple, field: str, what: str = "value") -> None:
+    """``value`` must be one of ``allowed``; the error lists them."""
+    require(value in allowed, field, f"unknown {what} {value!r}; allowed: {', '.join(map(str, allowed))}")
