@@ -38,6 +38,10 @@ def test_presets_lists_each_with_a_description(capsys):
         (["train", "mt10-sac-care", "--num-envs", "12"], "--num-envs must be a multiple of the 10 tasks"),
         (["train", "mt10-ppo-onehot", "--estimator", "a2c"], "'ppo', 'reinforce'"),
         (["train", "pointreach-mt-sac-onehot", "--algo", "dqn"], "allowed: sac, ppo"),
+        (["train", "bitflip-her", "--env", "my/Slider-v0"], "a gymnasium id goes to --env-id"),
+        (["train", "bitflip-her", "--algo", "a2c"], "'dqn', 'qtopt', 'sac', 'td3', 'ppo'"),
+        (["train", "pointreach-sac-her", "--env-id", "nobody/Nothing-v0"], "--env-module"),
+        (["train", "pointreach-sac-her", "--env-module", "no_such_module_here"], "--env-module cannot import"),
     ],
 )
 def test_bad_input_gets_one_line_naming_the_allowed_values_and_exit_2(capsys, args, expected):
@@ -72,6 +76,36 @@ def test_train_then_eval_from_the_command_line(tmp_path):
     assert ev.returncode == 0, ev.stderr
     result = json.loads(ev.stdout)
     assert result["episodes"] == 50 and 0.0 <= result["success_rate"] <= 1.0
+
+
+def test_a_rule_is_checked_in_one_place_ppo_runs_with_gamma_one(capsys, tmp_path):
+    code, stdout, err = run_cli(capsys, "train", "bitflip-her", "--algo", "ppo", "--gamma", "1.0", "--n-bits", "4",
+                                "--num-envs", "4", "--rollout-steps", "8", "--total-steps", "64", "--eval-episodes", "4",
+                                "--out", str(tmp_path / "ppo"), "--no-progress", "--no-tensorboard")
+    assert code == 0, err
+    assert "her=future) is off" in err  # what switching to an on-policy algorithm changed, said
+    saved = json.loads((tmp_path / "ppo" / "config.json").read_text())
+    assert saved["ppo"]["gamma"] == 1.0 and saved["her"] == "none"
+    code, _, err = run_cli(capsys, "train", "bitflip-her", "--algo", "ppo", "--her", "future", "--out", str(tmp_path / "x"))
+    assert code == 2 and "--her ppo learns on-policy" in err  # asked for explicitly: refused, one line
+
+
+def test_algo_on_a_preset_keeps_shared_settings_and_uses_its_own_exploration(capsys, tmp_path):
+    code, _, err = run_cli(capsys, "train", "pointreach-sac-her", "--algo", "td3", "--total-steps", "64", "--eval-episodes", "4",
+                           "--out", str(tmp_path / "td3"), "--no-progress", "--no-tensorboard")
+    assert code == 0, err
+    assert "note: --algo td3: kept lr=0.001, gamma=0.95, hidden_sizes=(64, 64) from sac" in err
+    td3 = json.loads((tmp_path / "td3" / "config.json").read_text())["td3"]
+    assert (td3["noise_std"], td3["random_action_prob"], td3["lr"]) == (0.1, 0.0, 0.001)
+
+
+def test_help_lists_the_env_families_and_the_active_sections_settings(capsys):
+    with pytest.raises(SystemExit):
+        main(["train", "mt10-sac-care", "--help"])
+    out = capsys.readouterr().out
+    assert "--task " in out and "--max-episode-steps" in out and "--care-encoders" in out  # Meta-World's and SAC's
+    assert "--n-bits" not in out  # bit flipping's, not this run's
+    assert "gym (any gymnasium environment" in out.replace("\n", " ")
 
 
 def test_flags_follow_the_presets_algorithm(capsys):

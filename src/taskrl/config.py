@@ -306,10 +306,14 @@ def with_overrides(config: TrainConfig, overrides: dict[str, Any], notes: list[s
             notes.append(f"--env {env}: {config.env}'s {', '.join(f'{k}={v}' for k, v in changed.items())} "
                          f"do{'es' if len(changed) == 1 else ''} not apply")
         env_settings = family.settings()
-    algo_settings = config.algo_settings
+    algo_settings, her = config.algo_settings, config.her
     if algo != config.algo:
         algo_settings = _switch_algorithm(config.algo_settings, config.algo, algo, notes)
-    data = to_dict(dataclasses.replace(config, env=env, algo=algo, env_settings=env_settings, algo_settings=algo_settings))
+        if algorithm(algo).loop != "off_policy" and her != "none" and "her" not in overrides:
+            notes.append(f"--algo {algo}: learns on-policy, so the preset's hindsight relabelling (her={her}) is off")
+            her = "none"
+    data = to_dict(dataclasses.replace(config, env=env, algo=algo, her=her, env_settings=env_settings,
+                                       algo_settings=algo_settings))
     paths = {path[-1]: path for path, _, _ in leaf_fields(env, algo)}
     overrides.pop("env", None), overrides.pop("algo", None)
     unknown = sorted(set(overrides) - set(paths))
