@@ -105,7 +105,7 @@ def test_help_lists_the_env_families_and_the_active_sections_settings(capsys):
     out = capsys.readouterr().out
     assert "--task " in out and "--max-episode-steps" in out and "--care-encoders" in out  # Meta-World's and SAC's
     assert "--n-bits" not in out  # bit flipping's, not this run's
-    assert "gym (any gymnasium environment" in out.replace("\n", " ")
+    assert "gym (any gymnasium environment" in " ".join(out.split())
 
 
 def test_flags_follow_the_presets_algorithm(capsys):
