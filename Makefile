@@ -4,7 +4,7 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.taskrl-installed
 
-.PHONY: demo test install clean bench
+.PHONY: demo test lint install clean bench
 
 # torch is pinned first so the project's `torch>=2.3` is satisfied by the local CPU build
 # instead of pulling a multi-GB CUDA build.
@@ -21,7 +21,11 @@ demo: $(STAMP)
 	rm -rf runs/demo
 	$(VENV)/bin/taskrl train bitflip-her --out runs/demo
 
-test: $(STAMP)
+lint: $(STAMP)
+	$(VENV)/bin/ruff check src tests benchmarks
+	$(VENV)/bin/ruff format --check src tests benchmarks
+
+test: lint
 	$(PY) -m pytest -q
 
 clean:

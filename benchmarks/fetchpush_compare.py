@@ -47,22 +47,23 @@ def run_one(preset: str, seed: int, budget: int, hours: float, root: Path = OUT)
 
 
 def summarise(run_dir: Path) -> dict:
+    from taskrl.config import load
     from taskrl.logger import read_metrics
 
-    config = json.loads((run_dir / "config.json").read_text())
+    config = load(run_dir / "config.json")  # also reads runs saved before the registries
     rows = [r for r in read_metrics(run_dir / "metrics.csv") if r["success_rate"] is not None]
     reached = next((r for r in rows if r["success_rate"] >= TARGET), None)
     learning = [r for r in rows if r["updates_per_s"]]
     last = rows[-1]
-    section = config.get(config["algo"], {})
-    if config["algo"] == "sac":
+    section = config.algo_settings
+    if config.algo == "sac":
         exploration = "policy entropy"
     else:
-        eps = f"{config['epsilon_start']}" + (f"->{config['epsilon_end']}" if config["epsilon_end"] != config["epsilon_start"] else "")
-        exploration = f"{eps} random, noise {section.get('noise_std', 0.0)}"
+        start, end = section.random_action_prob, section.random_action_prob_end
+        exploration = f"{start}{f'->{end}' if end != start else ''} random, noise {section.noise_std}"
     return {
-        "run": run_dir.name, "algo": config["algo"], "seed": config["seed"],
-        "hidden": section.get("hidden_sizes"), "updates_per_step": config["updates_per_step"], "exploration": exploration,
+        "run": run_dir.name, "algo": config.algo, "seed": config.seed,
+        "hidden": list(section.hidden_sizes), "updates_per_step": config.updates_per_step, "exploration": exploration,
         "env_steps": last["env_steps"], "updates": last["updates"], "hours": last["wall_seconds"] / 3600,
         "last_success": last["success_rate"], "best_success": max(r["success_rate"] for r in rows),
         "steps_to_target": reached["env_steps"] if reached else None,

@@ -26,7 +26,6 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
 import torch
 
 import taskrl
@@ -97,7 +96,7 @@ def updates_per_second(batch_size: int, hidden: tuple[int, ...], n_bits: int = 1
     from taskrl.run import make_agent, make_env, make_relabeler
 
     cfg = with_overrides(preset_config("bitflip-her"), {"n_bits": n_bits, "batch_size": batch_size, "hidden_sizes": tuple(hidden)})
-    env = make_env(cfg, 16, 0, torch.device("cpu"))
+    env = make_env(cfg, "cpu", num_envs=16, seed=0)
     agent, relabel = make_agent(cfg, env, torch.device("cpu")), make_relabeler(cfg, env)
     replay = EpisodeReplay(env.single_observation_space, env.single_action_space, 100_000, env.horizon, 16)
     obs = env.reset(seed=0)

@@ -75,8 +75,8 @@ def profile(seconds: float = 20.0) -> str:
              "updates per env step | learning share of a training step | env steps/s implied |", "|---|---|---|---|---|---|---|"]
     for preset, hidden, batch in (("mt10-sac-onehot", (400, 400, 400), 1280), ("mt10-sac-onehot", (256, 256), 640)):
         config = validate(preset_config(preset))
-        config.sac.hidden_sizes = hidden
-        env = make_env(config, 10, 0, torch.device("cpu"))
+        config.algo_settings.hidden_sizes = hidden
+        env = make_env(config, "cpu", num_envs=10, seed=0)
         agent = make_agent(config, env, torch.device("cpu"))
         obs = env.reset(seed=0)
         low, high = (torch.as_tensor(b) for b in (env.single_action_space.low, env.single_action_space.high))
@@ -87,7 +87,7 @@ def profile(seconds: float = 20.0) -> str:
         sim = (time.perf_counter() - start) / steps * 1e3
         start, acts = time.perf_counter(), 0
         while time.perf_counter() - start < seconds / 8:
-            agent.act(obs, 1.0)
+            agent.act(obs, explore=True)
             acts += 1
         act = (time.perf_counter() - start) / (acts * 10) * 1e3
         idx = torch.randint(10, (batch,))

@@ -77,7 +77,7 @@ def main() -> None:
         agent = QTOptAgent(("observation", "desired_goal"), STATE_DIM, low_high,
                            dataclasses.replace(QTOptConfig(), hidden_sizes=hidden, cem=cem, normalize_inputs=False))
         previous = agent.bellman_target(batch, return_action=True)[1] if warm else None
-        seconds = timed(lambda: agent.bellman_target(batch, warm_start=previous))
+        seconds = timed(lambda agent=agent, previous=previous: agent.bellman_target(batch, warm_start=previous))
         rows = BATCH * sum(rounds) + BATCH  # CEM rows, plus the second target network at a*
         bound = network_flops(rows, hidden) / (gflops * 1e9)
         lines.append(f"| {name} | {hidden} | {seconds * 1e3:.1f} | {bound * 1e3:.1f} | {seconds / bound:.2f}x | {1 / seconds:.0f} |")

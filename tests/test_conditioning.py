@@ -12,9 +12,9 @@ from taskrl.conditioning import (
     LanguageTaskEncoder,
     LearnedTaskEmbedding,
     OneHotTaskEncoder,
+    language,
     make_task_encoder,
 )
-from taskrl.conditioning import language
 
 TASKS = torch.tensor([2, 0, 1, 2])
 

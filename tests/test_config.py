@@ -4,8 +4,7 @@ import json
 import pytest
 
 from taskrl.agents.registry import ALGORITHMS
-from taskrl.config import (TrainConfig, field_help, from_dict, leaf_fields, load, to_dict, validate,
-                           with_overrides)
+from taskrl.config import TrainConfig, field_help, from_dict, leaf_fields, load, to_dict, validate, with_overrides
 from taskrl.envs.registry import ENV_FAMILIES
 from taskrl.errors import ConfigError
 from taskrl.presets import PRESETS, preset_config

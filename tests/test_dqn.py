@@ -2,9 +2,9 @@ import numpy as np
 import pytest
 import torch
 
+from agent_batches import onehot_batch
 from taskrl.agents.dqn import DQNAgent, DQNConfig
 from taskrl.replay.batch import Batch
-from agent_batches import onehot_batch
 
 
 def make_agent(**cfg):

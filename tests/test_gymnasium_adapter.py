@@ -16,7 +16,7 @@ def test_shapes_dtypes_devices_and_horizon():
         assert isinstance(env.single_action_space, gym.spaces.Box)
         obs = env.reset(seed=0)
         assert set(obs) == set(env.single_observation_space.spaces)
-        for k, v in obs.items():
+        for v in obs.values():
             assert v.shape == (3, 2) and v.dtype == torch.float32 and v.device == env.device
         nxt, reward, terminated, truncated, info = env.step(torch.zeros(3, 2))
         assert reward.shape == (3,) and reward.dtype == torch.float32
@@ -169,7 +169,7 @@ def test_env_factory_and_non_vectorised_goal_functions():
         GymnasiumGoalEnv(_ScalarGoalEnv, num_envs=2)
     with GymnasiumGoalEnv(_ScalarGoalEnv, num_envs=2, max_episode_steps=3) as env:
         assert env.horizon == 3 and env.single_observation_space["observation"].dtype == np.float32
-        obs = env.reset(seed=0)
+        env.reset(seed=0)
         _, reward, terminated, _, info = env.step(torch.tensor([1, 1]))
         final = info["final_obs"]
         torch.testing.assert_close(env.compute_reward(final["achieved_goal"], final["desired_goal"]), reward)

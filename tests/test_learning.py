@@ -1,7 +1,6 @@
 """End-to-end learning gates: small budgets, fixed seeds, thresholds a broken learner cannot reach."""
 
 import gymnasium as gym
-import numpy as np
 
 import taskrl
 

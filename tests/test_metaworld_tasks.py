@@ -5,6 +5,7 @@ import pytest
 import torch
 from rich.console import Console
 
+from taskrl.console import per_task_table
 from taskrl.envs.metaworld_tasks import (
     METAWORLD_DESCRIPTIONS,
     MT10_TASKS,
@@ -14,7 +15,6 @@ from taskrl.envs.metaworld_tasks import (
     metaworld_task_set,
     version_free,
 )
-from taskrl.console import per_task_table
 from taskrl.training.per_task import evaluate_per_task
 
 

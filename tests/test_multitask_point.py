@@ -7,9 +7,9 @@ from gymnasium.utils.env_checker import check_env
 
 from taskrl.agents.sac import SACAgent, SACConfig
 from taskrl.envs import GymnasiumVectorEnv, MultiTaskPointReach, is_goal_env
-from taskrl.training.per_task import evaluate_per_task
 from taskrl.envs.multitask_point import DEFAULT_REGIONS
 from taskrl.replay.batch import Batch
+from taskrl.training.per_task import evaluate_per_task
 
 
 def oracle(env: MultiTaskPointReach):

@@ -18,11 +18,11 @@ from taskrl.checkpoint import flatten_state, unflatten_state
 from taskrl.conditioning.networks import ConditioningConfig, make_conditioning
 from taskrl.config import field_docs
 from taskrl.envs import MultiTaskPointReach
-from taskrl.training.per_task import evaluate_per_task
 from taskrl.envs.base import BatchedEnv
-from taskrl.training.offpolicy import LoopState
 from taskrl.training.bookkeeping import Bookkeeping
+from taskrl.training.offpolicy import LoopState
 from taskrl.training.onpolicy import OnPolicyLoop, collect_rollout
+from taskrl.training.per_task import evaluate_per_task
 
 # Two environments, three steps. Env 0 is truncated at t=1 (time limit: bootstrap from
 # V(final_obs) = 10) and runs on after the rollout (bootstrap from last_value = 4). Env 1

@@ -4,10 +4,10 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from agent_batches import bandit_batch, onehot_batch
 from taskrl.agents.cem import CEMConfig
 from taskrl.agents.qtopt import QTOptAgent, QTOptConfig, StateActionQ
 from taskrl.checkpoint import flatten_state, unflatten_state
-from agent_batches import bandit_batch, onehot_batch
 
 
 class Stub(nn.Module):

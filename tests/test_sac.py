@@ -6,10 +6,10 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from agent_batches import bandit_batch, onehot_batch
 from taskrl.agents.sac import SACAgent, SACConfig, SquashedGaussianActor, squashed_gaussian_log_prob
 from taskrl.checkpoint import flatten_state, unflatten_state
 from taskrl.replay.batch import Batch
-from agent_batches import bandit_batch, onehot_batch
 
 
 class ConstQ(nn.Module):

@@ -4,10 +4,10 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from agent_batches import bandit_batch
 from taskrl.agents.td3 import TD3Agent, TD3Config
 from taskrl.checkpoint import flatten_state, unflatten_state
 from taskrl.replay.batch import Batch
-from agent_batches import bandit_batch
 
 
 class LinearQ(nn.Module):

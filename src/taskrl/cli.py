@@ -17,7 +17,8 @@ import difflib
 import json
 import sys
 import typing
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 COMMANDS = ("train", "eval", "presets", "solve")
 POSITIONAL = ("preset", "run_dir")
@@ -48,7 +49,7 @@ def _add_config_flags(parser: argparse.ArgumentParser, env: str, algo: str) -> N
     docs["env"] += " Choices: " + "; ".join(f"{f.name} ({f.description})" for f in ENV_FAMILIES.values())
     docs["algo"] += " Choices: " + "; ".join(f"{a.name} ({a.description})" for a in ALGORITHMS.values())
     choices = {"env": tuple(ENV_FAMILIES), "algo": tuple(ALGORITHMS)}
-    for path, field, tp in leaf_fields(env, algo):
+    for path, _field, tp in leaf_fields(env, algo):
         name = path[-1]
         kwargs: dict[str, Any] = {"dest": name, "default": argparse.SUPPRESS, "help": docs.get(name, "")}
         origin = typing.get_origin(tp)

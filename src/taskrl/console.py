@@ -29,7 +29,7 @@ class ConsoleReporter:
         )
         self.task = self.progress.add_task(title, total=total_steps, completed=start_step, success="-", speed="")
 
-    def __enter__(self) -> "ConsoleReporter":
+    def __enter__(self) -> ConsoleReporter:
         self.progress.start()
         return self
 

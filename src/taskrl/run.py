@@ -52,7 +52,7 @@ from taskrl.training.offpolicy import LoopSchedule, OffPolicyLoop
 from taskrl.training.onpolicy import OnPolicyLoop
 from taskrl.training.per_task import evaluate_per_task
 
-__all__ = ["Run", "RunParts", "build", "evaluate_run", "load", "make_agent", "train"]
+__all__ = ["Run", "RunParts", "build", "evaluate_run", "load", "make_agent", "make_env", "train"]
 
 #: Observation keys the networks read, where the env has them (the task index is read separately).
 AGENT_INPUT_KEYS = ("observation", "desired_goal")
@@ -98,6 +98,24 @@ def env_request(config: TrainConfig, device: torch.device, source: Any = None, e
         seed = config.seed + EVAL_SEED_OFFSET if evaluation else config.seed
     return EnvRequest(num_envs=config.num_envs, seed=seed, device=device, evaluation=evaluation,
                       eval_episodes=config.eval_episodes, run_seed=config.seed, source=source)
+
+
+def make_env(config: TrainConfig, device: str | torch.device = "cpu", num_envs: int | None = None, seed: int | None = None,
+             evaluation: bool = False, source: Any = None) -> BatchedEnv:
+    """The run's training env (or, with ``evaluation``, its evaluation env), built by its env family.
+
+    Args:
+        config: a validated configuration.
+        device: where the env's tensors live.
+        num_envs: training copies (default ``config.num_envs``).
+        seed: the env's seed (default the run's, or its evaluation seed).
+        evaluation: the evaluation env (one copy per episode, or fixed tasks per copy).
+        source: the Python object (factory, TaskSet) the run's family builds from, if any.
+    """
+    request = env_request(config, torch.device(device), source, evaluation, seed)
+    if num_envs is not None:
+        request = dataclasses.replace(request, num_envs=num_envs)
+    return env_family(config.env).make(config.env_settings, request)
 
 
 def make_agent(config: TrainConfig, env: Any, device: torch.device) -> Any:
@@ -191,10 +209,10 @@ def build(config: TrainConfig, source: Any = None) -> RunParts:
     device = resolve_device(config.device)
     torch.manual_seed(config.seed)
     family = env_family(config.env)
-    env = family.make(config.env_settings, env_request(config, device, source))
+    env = make_env(config, device, source=source)
     eval_env = None
     try:
-        eval_env = family.make(config.env_settings, env_request(config, device, source, evaluation=True))
+        eval_env = make_env(config, device, evaluation=True, source=source)
         agent = make_agent(config, env, device)
         generator = torch.Generator(device=device)
         generator.manual_seed(config.seed + 1)
@@ -456,8 +474,7 @@ def evaluate_run(run_dir: str | Path, episodes: int = 100, seed: int | None = No
         raise ConfigError("episodes" if error.field == "eval_episodes" else error.field, error.message) from None
     agent = load(run_dir, device, env=source, env_module=None)
     seed = config.seed + EVAL_SEED_OFFSET if seed is None else seed
-    family = env_family(config.env)
-    eval_env = family.make(config.env_settings, env_request(config, agent.device, source, evaluation=True, seed=seed))
+    eval_env = make_env(config, agent.device, seed=seed, evaluation=True, source=source)
     try:
         return {**make_evaluator(config, eval_env, agent, seed)[0](), "episodes": episodes}
     finally:

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from tabular_helpers import lp_optimal_values, random_mdp
 
 from taskrl.tabular import (
     FiniteMDP,
@@ -18,7 +19,6 @@ from taskrl.tabular import (
     uniform_policy,
     value_iteration,
 )
-from tabular_helpers import lp_optimal_values, random_mdp
 
 mdp_params = st.tuples(
     st.integers(0, 2**31 - 1),  # seed

@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from tabular_helpers import random_mdp
 
 from taskrl.tabular import (
     FiniteMDP,
@@ -13,7 +14,6 @@ from taskrl.tabular import (
     sample_transitions,
     value_iteration,
 )
-from tabular_helpers import random_mdp
 
 
 def q_star(mdp):

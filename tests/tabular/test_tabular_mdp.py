@@ -5,9 +5,9 @@ import re
 import numpy as np
 import pytest
 import scipy.sparse as sp
+from tabular_helpers import random_mdp
 
 from taskrl.tabular import FiniteMDP, check_policy, policy_chain
-from tabular_helpers import random_mdp
 
 
 def _good():

@@ -15,16 +15,25 @@ epsilon, decayed linearly from ``epsilon_start`` to ``epsilon_end`` over ``epsil
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Literal
+from typing import Literal
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 
 from taskrl.agents.base import Agent
+from taskrl.agents.parts import (
+    ObservationInput,
+    check_learning_settings,
+    check_non_negative,
+    check_probability,
+    gradient_step,
+    linear_schedule,
+    negative_return_bounds,
+    polyak_update,
+    td_target,
+)
 from taskrl.agents.spec import AlgorithmSpec
-from taskrl.agents.parts import (ObservationInput, check_learning_settings, check_non_negative, check_probability,
-                                 gradient_step, linear_schedule, negative_return_bounds, polyak_update, td_target)
 from taskrl.errors import one_of, require
 from taskrl.nets import mlp
 from taskrl.replay.batch import Batch, Obs

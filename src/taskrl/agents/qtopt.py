@@ -36,13 +36,22 @@ from typing import Any, Literal
 
 import torch
 import torch.nn.functional as F
-from torch import nn
 
 from taskrl.agents.base import Agent
 from taskrl.agents.cem import CEMConfig, CrossEntropyMethod
-from taskrl.agents.parts import (ActionBox, ObservationInput, check_learning_settings, check_non_negative, check_probability,
-                                 explore_in_box, gradient_step, linear_schedule, negative_return_bounds, polyak_update,
-                                 td_target)
+from taskrl.agents.parts import (
+    ActionBox,
+    ObservationInput,
+    check_learning_settings,
+    check_non_negative,
+    check_probability,
+    explore_in_box,
+    gradient_step,
+    linear_schedule,
+    negative_return_bounds,
+    polyak_update,
+    td_target,
+)
 from taskrl.agents.spec import AlgorithmSpec
 from taskrl.errors import one_of, require
 from taskrl.nets import StateActionQ

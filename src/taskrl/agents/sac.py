@@ -42,8 +42,15 @@ import torch.nn.functional as F
 from torch import nn
 
 from taskrl.agents.base import Agent
-from taskrl.agents.parts import (ActionBox, ObservationInput, check_learning_settings, gradient_step, negative_return_bounds,
-                                 polyak_update, td_target)
+from taskrl.agents.parts import (
+    ActionBox,
+    ObservationInput,
+    check_learning_settings,
+    gradient_step,
+    negative_return_bounds,
+    polyak_update,
+    td_target,
+)
 from taskrl.agents.spec import AlgorithmSpec
 from taskrl.conditioning.networks import TaskConditioning, network_for
 from taskrl.errors import require

@@ -25,8 +25,18 @@ import torch.nn.functional as F
 from torch import nn
 
 from taskrl.agents.base import Agent
-from taskrl.agents.parts import (ActionBox, ObservationInput, check_learning_settings, check_non_negative, check_probability,
-                                 explore_in_box, gradient_step, negative_return_bounds, polyak_update, td_target)
+from taskrl.agents.parts import (
+    ActionBox,
+    ObservationInput,
+    check_learning_settings,
+    check_non_negative,
+    check_probability,
+    explore_in_box,
+    gradient_step,
+    negative_return_bounds,
+    polyak_update,
+    td_target,
+)
 from taskrl.agents.spec import AlgorithmSpec
 from taskrl.errors import require
 from taskrl.nets import StateActionQ, mlp

@@ -21,8 +21,8 @@ goal-env part (``achieved_goal`` / ``desired_goal`` and the goal functions).
 from __future__ import annotations
 
 import functools
-from collections.abc import Sequence
-from typing import Any, Callable, Literal
+from collections.abc import Callable, Sequence
+from typing import Any, Literal
 
 import gymnasium as gym
 import numpy as np

@@ -33,5 +33,5 @@ class Batch:
     def __len__(self) -> int:
         return self.reward.shape[0]
 
-    def replace(self, **changes) -> "Batch":
+    def replace(self, **changes) -> Batch:
         return dataclasses.replace(self, **changes)

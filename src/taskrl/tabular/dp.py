@@ -249,7 +249,7 @@ def evaluate_policy_iterative(
     gP_pi, R_pi = policy_chain(mdp, policy)
     V = np.zeros(mdp.n_states) if values is None else _as_values(mdp, values)
     delta, k = np.inf, 0
-    for k in range(1, max_iterations + 1):
+    for k in range(1, max_iterations + 1):  # noqa: B007 (k: the iterations run, reported after the loop)
         V_new = R_pi + gP_pi @ V  # Bellman expectation operator T_pi
         delta = float(np.abs(V_new - V).max(initial=0.0))
         V = V_new
@@ -398,7 +398,7 @@ def value_iteration(
     S, A = mdp.n_states, mdp.n_actions
     V = np.zeros(S) if values is None else _as_values(mdp, values)
     delta, k = np.inf, 0
-    for k in range(1, max_iterations + 1):
+    for k in range(1, max_iterations + 1):  # noqa: B007 (k: the iterations run, reported after the loop)
         Q = gP @ V  # gamma * sum_s' P(s'|s, a) V(s'), action-major [A * S]
         Q += R
         V_new = Q.reshape(A, S).max(axis=0)  # max over A contiguous rows: cheap

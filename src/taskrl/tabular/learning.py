@@ -5,8 +5,9 @@ from __future__ import annotations
 import bisect
 import random
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
@@ -326,7 +327,7 @@ def fitted_q_iteration(
     gP = sp.csr_matrix((w, (pair, data.next_states)), shape=(S * A, S))
     Q = np.full(S * A, float(q_init))
     delta, k = np.inf, 0
-    for k in range(1, max_iterations + 1):
+    for k in range(1, max_iterations + 1):  # noqa: B007 (k: the iterations run, reported after the loop)
         V = Q.reshape(S, A).max(axis=1)
         Q_new = np.where(seen, r_mean + gP @ V, Q)  # unseen pairs keep their initial value
         delta = float(np.abs(Q_new - Q).max(initial=0.0))

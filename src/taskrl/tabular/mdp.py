@@ -18,9 +18,10 @@ Conventions (every algorithm in :mod:`taskrl.tabular` follows them):
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
@@ -294,7 +295,7 @@ class FiniteMDP:
 
     # ------------------------------------------------------------------ constructors
     @classmethod
-    def from_gymnasium(cls, env: Any, gamma: float = 0.99, **make_kwargs: Any) -> "FiniteMDP":
+    def from_gymnasium(cls, env: Any, gamma: float = 0.99, **make_kwargs: Any) -> FiniteMDP:
         """Build the MDP from a gymnasium toy-text environment's transition table ``env.P``.
 
         Works for any environment whose unwrapped form has ``P[s][a] = [(prob, s', reward,

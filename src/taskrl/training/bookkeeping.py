@@ -14,7 +14,8 @@ import dataclasses
 import signal
 import threading
 import time
-from typing import Any, Callable, Iterator
+from collections.abc import Callable, Iterator
+from typing import Any
 
 import torch
 
@@ -62,7 +63,7 @@ class StopRequest:
         return self.stopped_by is not None
 
     @contextlib.contextmanager
-    def on_signals(self) -> Iterator["StopRequest"]:
+    def on_signals(self) -> Iterator[StopRequest]:
         """Turn SIGINT / SIGTERM into a stop request while the block runs (main thread only)."""
         if threading.current_thread() is not threading.main_thread():
             yield self

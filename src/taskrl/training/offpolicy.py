@@ -10,7 +10,8 @@ sampled and relabelled batch. Evaluation, logging and checkpointing run on env-s
 from __future__ import annotations
 
 import dataclasses
-from typing import Callable, Protocol
+from collections.abc import Callable
+from typing import Protocol
 
 import torch
 
@@ -89,7 +90,8 @@ class OffPolicyLoop:
         obs = env.reset(seed=env_seed)
         replay.start(obs)
         while state.env_steps < s.total_steps:
-            action = agent.act(obs, explore=True, generator=self.generator, env_steps=state.env_steps)
+            acted_at = state.env_steps
+            action = agent.act(obs, explore=True, generator=self.generator, env_steps=acted_at)
             next_obs, reward, terminated, truncated, info = env.step(action)
             replay.add(action, reward, terminated, truncated, info["final_obs"], next_obs)
             done = terminated | truncated
@@ -104,6 +106,6 @@ class OffPolicyLoop:
                 for _ in range(n_updates):
                     books.add_update(agent.update(self.sample_batch()))
 
-            if books.after_step(agent.exploration(state.env_steps)):
+            if books.after_step(agent.exploration(acted_at)):  # the level this step explored with
                 break
         return books.close()
