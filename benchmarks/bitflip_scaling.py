@@ -18,18 +18,45 @@ import tempfile
 from pathlib import Path
 
 # The child reports its own peak resident memory when it exits.
-CHILD = ("import json, resource, sys; from taskrl.cli import main; code = main(sys.argv[1:]); "
-         "print(json.dumps({'peak_rss_kib': resource.getrusage(resource.RUSAGE_SELF).ru_maxrss}), file=sys.stderr); "
-         "sys.exit(code)")
+CHILD = (
+    "import json, resource, sys; from taskrl.cli import main; code = main(sys.argv[1:]); "
+    "print(json.dumps({'peak_rss_kib': resource.getrusage(resource.RUSAGE_SELF).ru_maxrss}), file=sys.stderr); "
+    "sys.exit(code)"
+)
 BUDGETS = {10: 50_000, 13: 100_000, 15: 100_000, 20: 150_000, 30: 300_000, 40: 600_000, 50: 2_000_000}
 
 
 def run(n_bits: int, her: str, budget: int, seed: int, threads: int, extra: list[str]) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
-        cmd = [sys.executable, "-c", CHILD, "train", "bitflip-her", "--out", f"{tmp}/run", "--no-progress",
-               "--no-tensorboard", "--n-bits", str(n_bits), "--her", her, "--total-steps", str(budget),
-               "--seed", str(seed), "--stop-at-success", "0.9", "--eval-interval", str(max(1_000, budget // 100)),
-               "--threads", str(threads), "--no-save-replay", "--checkpoint-interval", str(10**12), *extra]
+        cmd = [
+            sys.executable,
+            "-c",
+            CHILD,
+            "train",
+            "bitflip-her",
+            "--out",
+            f"{tmp}/run",
+            "--no-progress",
+            "--no-tensorboard",
+            "--n-bits",
+            str(n_bits),
+            "--her",
+            her,
+            "--total-steps",
+            str(budget),
+            "--seed",
+            str(seed),
+            "--stop-at-success",
+            "0.9",
+            "--eval-interval",
+            str(max(1_000, budget // 100)),
+            "--threads",
+            str(threads),
+            "--no-save-replay",
+            "--checkpoint-interval",
+            str(10**12),
+            *extra,
+        ]
         proc = subprocess.run(cmd, capture_output=True, text=True)
         out, err = proc.stdout, proc.stderr
         if proc.returncode != 0:
@@ -42,9 +69,15 @@ def run(n_bits: int, her: str, budget: int, seed: int, threads: int, extra: list
 def run_measured(n_bits: int, her: str, budget: int, seed: int, threads: int, extra: list[str]) -> dict:
     metrics = run(n_bits, her, budget, seed, threads, extra)
     return {
-        "n_bits": n_bits, "her": her, "seed": seed, "budget": budget,
-        "solved": metrics["success_rate"] >= 0.9, "success_rate": metrics["success_rate"],
-        "env_steps": metrics["env_steps"], "wall_seconds": metrics["wall_seconds"], "updates": metrics["updates"],
+        "n_bits": n_bits,
+        "her": her,
+        "seed": seed,
+        "budget": budget,
+        "solved": metrics["success_rate"] >= 0.9,
+        "success_rate": metrics["success_rate"],
+        "env_steps": metrics["env_steps"],
+        "wall_seconds": metrics["wall_seconds"],
+        "updates": metrics["updates"],
         "peak_rss_mib": metrics["peak_rss_mib"],
     }
 
@@ -67,23 +100,29 @@ def main() -> None:
         rows.append(run_measured(n, "none", BUDGETS.get(n, 100_000 * n), args.seed, args.threads, args.extra))
         print(json.dumps(rows[-1]), flush=True)
 
-    lines = ["| n bits | method | budget (env steps) | solved (>= 90%) | final success | env steps | training seconds | peak RSS (MiB) |",
-             "|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "| n bits | method | budget (env steps) | solved (>= 90%) | final success | env steps | training seconds | peak RSS (MiB) |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     for r in sorted(rows, key=lambda r: (r["her"] == "none", r["n_bits"])):
         method = "DQN + HER (future, k=4)" if r["her"] != "none" else "plain DQN"
         rss = f"{r['peak_rss_mib']:.0f}"
-        lines.append(f"| {r['n_bits']} | {method} | {r['budget']:,} | {'yes' if r['solved'] else 'no'} | "
-                     f"{r['success_rate']:.2f} | {r['env_steps']:,} | {r['wall_seconds']:.1f} | {rss} |")
+        lines.append(
+            f"| {r['n_bits']} | {method} | {r['budget']:,} | {'yes' if r['solved'] else 'no'} | "
+            f"{r['success_rate']:.2f} | {r['env_steps']:,} | {r['wall_seconds']:.1f} | {rss} |"
+        )
     table = "\n".join(lines)
     print(table)
     if args.write:
         sys.path.insert(0, str(Path(__file__).parent))
         from common import append_results
 
-        append_results("Bit flipping with random goals: DQN + HER against plain DQN",
-                       f"Preset `bitflip-her` (plain DQN: `--her none`), seed {args.seed}, torch threads {args.threads}; "
-                       "a run stops at 90% greedy success on 100 fixed evaluation episodes or at its budget. "
-                       "Training seconds exclude evaluation.\n\n" + table)
+        append_results(
+            "Bit flipping with random goals: DQN + HER against plain DQN",
+            f"Preset `bitflip-her` (plain DQN: `--her none`), seed {args.seed}, torch threads {args.threads}; "
+            "a run stops at 90% greedy success on 100 fixed evaluation episodes or at its budget. "
+            "Training seconds exclude evaluation.\n\n" + table,
+        )
 
 
 if __name__ == "__main__":

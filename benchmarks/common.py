@@ -81,8 +81,10 @@ def median_table(runs: list[dict], keys: list, libs: list[str], key_name: str) -
     """Markdown table of medians per (key, library); unsolved runs count at their budget."""
     import statistics
 
-    lines = [f"| {key_name} | library | solved (seeds) | median env steps to 90% | median seconds to 90% | median env steps/s |",
-             "|---|---|---|---|---|---|"]
+    lines = [
+        f"| {key_name} | library | solved (seeds) | median env steps to 90% | median seconds to 90% | median env steps/s |",
+        "|---|---|---|---|---|---|",
+    ]
     medians = {}
     for key in keys:
         for lib in libs:
@@ -94,9 +96,13 @@ def median_table(runs: list[dict], keys: list, libs: list[str], key_name: str) -
             medians[(key, lib)] = (steps, secs, sps, solved == len(rs))
             lines.append(f"| {key} | {lib} | {solved}/{len(rs)} | {steps:,.0f} | {secs:.1f} | {sps:,.0f} |")
     if set(libs) == {"taskrl", "sb3"}:
-        lines += ["", "Ratios of medians (training env steps/s: each library with its own settings, learning included):", "",
-                  f"| {key_name} | wall-clock ratio (SB3 / taskrl) | env-step ratio (SB3 / taskrl) | env steps/s ratio (taskrl / SB3) |",
-                  "|---|---|---|---|"]
+        lines += [
+            "",
+            "Ratios of medians (training env steps/s: each library with its own settings, learning included):",
+            "",
+            f"| {key_name} | wall-clock ratio (SB3 / taskrl) | env-step ratio (SB3 / taskrl) | env steps/s ratio (taskrl / SB3) |",
+            "|---|---|---|---|",
+        ]
         for key in keys:
             t, s = medians[(key, "taskrl")], medians[(key, "sb3")]
             note = "" if s[3] else " (SB3 did not solve every seed: its time is the budget, so the ratio is a lower bound)"

@@ -62,10 +62,17 @@ def summarise(run_dir: Path) -> dict:
         start, end = section.random_action_prob, section.random_action_prob_end
         exploration = f"{start}{f'->{end}' if end != start else ''} random, noise {section.noise_std}"
     return {
-        "run": run_dir.name, "algo": config.algo, "seed": config.seed,
-        "hidden": list(section.hidden_sizes), "updates_per_step": config.updates_per_step, "exploration": exploration,
-        "env_steps": last["env_steps"], "updates": last["updates"], "hours": last["wall_seconds"] / 3600,
-        "last_success": last["success_rate"], "best_success": max(r["success_rate"] for r in rows),
+        "run": run_dir.name,
+        "algo": config.algo,
+        "seed": config.seed,
+        "hidden": list(section.hidden_sizes),
+        "updates_per_step": config.updates_per_step,
+        "exploration": exploration,
+        "env_steps": last["env_steps"],
+        "updates": last["updates"],
+        "hours": last["wall_seconds"] / 3600,
+        "last_success": last["success_rate"],
+        "best_success": max(r["success_rate"] for r in rows),
         "steps_to_target": reached["env_steps"] if reached else None,
         "hours_to_target": reached["wall_seconds"] / 3600 if reached else None,
         "env_steps_per_s": last["env_steps"] / max(last["wall_seconds"], 1e-9),
@@ -99,14 +106,19 @@ def curves_png(results: list[dict], path: Path) -> None:
 
 
 def table(results: list[dict]) -> str:
-    lines = ["| run | network | exploration | updates / env step | env steps | training hours | env steps/s | updates/s | "
-             "best success | last success | env steps to 90% | hours to 90% |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "| run | network | exploration | updates / env step | env steps | training hours | env steps/s | updates/s | "
+        "best success | last success | env steps to 90% | hours to 90% |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for r in results:
         to_steps = f"{r['steps_to_target']:,}" if r["steps_to_target"] else "not reached"
         to_hours = f"{r['hours_to_target']:.2f}" if r["hours_to_target"] else "-"
-        lines.append(f"| {r['run']} | {tuple(r['hidden'] or ())} | {r['exploration']} | {r['updates_per_step']} | {r['env_steps']:,} | "
-                     f"{r['hours']:.2f} | {r['env_steps_per_s']:.0f} | {r['updates_per_s']:.1f} | {r['best_success']:.2f} | "
-                     f"{r['last_success']:.2f} | {to_steps} | {to_hours} |")
+        lines.append(
+            f"| {r['run']} | {tuple(r['hidden'] or ())} | {r['exploration']} | {r['updates_per_step']} | {r['env_steps']:,} | "
+            f"{r['hours']:.2f} | {r['env_steps_per_s']:.0f} | {r['updates_per_s']:.1f} | {r['best_success']:.2f} | "
+            f"{r['last_success']:.2f} | {to_steps} | {to_hours} |"
+        )
     return "\n".join(lines)
 
 
@@ -115,12 +127,19 @@ def main() -> None:
     parser.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
     parser.add_argument("--seeds", type=int, nargs="+", default=[0])
     parser.add_argument("--budget", type=int, default=2_000_000, help="env steps per run")
-    parser.add_argument("--hours", type=float, default=0.0, help="stop each run after this many hours here (0: run to the budget)")
+    parser.add_argument(
+        "--hours", type=float, default=0.0, help="stop each run after this many hours here (0: run to the budget)"
+    )
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--report", action="store_true", help="train nothing; report the runs as they stand")
     parser.add_argument("--out", type=Path, default=OUT, help="run directories <preset>-s<seed> (resumed when present)")
-    parser.add_argument("--extra", type=Path, nargs="*", default=[],
-                        help="more run directories to report beside them (e.g. a variant trained with other settings)")
+    parser.add_argument(
+        "--extra",
+        type=Path,
+        nargs="*",
+        default=[],
+        help="more run directories to report beside them (e.g. a variant trained with other settings)",
+    )
     parser.add_argument("--figure", type=Path, default=HERE / "figures" / "fetchpush_sac_qtopt.png")
     parser.add_argument("--write", action="store_true")
     args = parser.parse_args()
@@ -129,8 +148,7 @@ def main() -> None:
     jobs = [(p, s) for s in args.seeds for p in args.methods]
     if not args.report:
         with ProcessPoolExecutor(args.workers) as pool:
-            list(pool.map(run_one, *zip(*jobs), [args.budget] * len(jobs), [args.hours] * len(jobs),
-                          [args.out] * len(jobs)))
+            list(pool.map(run_one, *zip(*jobs), [args.budget] * len(jobs), [args.hours] * len(jobs), [args.out] * len(jobs)))
     run_dirs = [args.out / f"{p}-s{s}" for p, s in jobs] + list(args.extra)
     results = [summarise(d) for d in run_dirs if (d / "metrics.csv").exists()]
     (args.out / "results.json").write_text(json.dumps(results, indent=2))
@@ -144,7 +162,8 @@ def main() -> None:
             "FetchPush-v4: SAC + HER and QT-Opt + HER side by side",
             f"Budget {args.budget:,} env steps per run, seeds {args.seeds}, one run per core (one torch thread each); "
             f"evaluation: 100 episodes every 25k env steps, success at the final step. "
-            f"Curves: `benchmarks/figures/{args.figure.name}`.\n\n{text}")
+            f"Curves: `benchmarks/figures/{args.figure.name}`.\n\n{text}",
+        )
 
 
 if __name__ == "__main__":

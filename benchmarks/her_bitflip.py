@@ -37,13 +37,27 @@ from taskrl.training.evaluation import evaluate
 
 def taskrl_time_to_success(n_bits: int, seed: int, budget: int, eval_interval: int, target: float) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
-        run = taskrl.train("bitflip-her", out=Path(tmp) / "run", n_bits=n_bits, seed=seed, total_steps=budget,
-                           eval_interval=eval_interval, stop_at_success=target, tensorboard=False,
-                           checkpoint_interval=10**12, save_replay=False)
+        run = taskrl.train(
+            "bitflip-her",
+            out=Path(tmp) / "run",
+            n_bits=n_bits,
+            seed=seed,
+            total_steps=budget,
+            eval_interval=eval_interval,
+            stop_at_success=target,
+            tensorboard=False,
+            checkpoint_interval=10**12,
+            save_replay=False,
+        )
         m = run.metrics
     solved = m["success_rate"] >= target
-    return {"solved": solved, "env_steps": m["env_steps"], "seconds": m["wall_seconds"],
-            "env_steps_per_s": m["env_steps"] / max(m["wall_seconds"], 1e-9), "final_success": m["success_rate"]}
+    return {
+        "solved": solved,
+        "env_steps": m["env_steps"],
+        "seconds": m["wall_seconds"],
+        "env_steps_per_s": m["env_steps"] / max(m["wall_seconds"], 1e-9),
+        "final_success": m["success_rate"],
+    }
 
 
 def sb3_model(n_bits: int, seed: int, budget: int, batch_size: int = 32, net_arch=(64, 64)):
@@ -54,13 +68,22 @@ def sb3_model(n_bits: int, seed: int, budget: int, batch_size: int = 32, net_arc
     n_envs = 2
     env = make_vec_env(lambda: gym.make("taskrl/BitFlip-v0", n_bits=n_bits), n_envs=n_envs, seed=seed)
     return DQN(
-        "MultiInputPolicy", env,
+        "MultiInputPolicy",
+        env,
         replay_buffer_class=HerReplayBuffer,
         replay_buffer_kwargs=dict(n_sampled_goal=4, goal_selection_strategy="future"),
-        learning_rate=2e-3, train_freq=1, gradient_steps=n_envs, learning_starts=100,
-        exploration_final_eps=0.05, exploration_fraction=min(1.0, 20_000 / budget),
-        target_update_interval=100, batch_size=batch_size,
-        buffer_size=int(1e5), policy_kwargs=dict(net_arch=list(net_arch)), seed=seed, verbose=0,
+        learning_rate=2e-3,
+        train_freq=1,
+        gradient_steps=n_envs,
+        learning_starts=100,
+        exploration_final_eps=0.05,
+        exploration_fraction=min(1.0, 20_000 / budget),
+        target_update_interval=100,
+        batch_size=batch_size,
+        buffer_size=int(1e5),
+        policy_kwargs=dict(net_arch=list(net_arch)),
+        seed=seed,
+        verbose=0,
     )
 
 
@@ -68,6 +91,7 @@ def sb3_policy(model):
     def act(obs):
         np_obs = {k: v.cpu().numpy() for k, v in obs.items()}
         return torch.as_tensor(model.predict(np_obs, deterministic=True)[0])
+
     return act
 
 
@@ -75,8 +99,9 @@ def sb3_time_to_success(n_bits: int, seed: int, budget: int, eval_interval: int,
     model = sb3_model(n_bits, seed, budget)
     eval_seed = seed + EVAL_SEED_OFFSET  # the episodes taskrl evaluates on for this seed
     eval_env = BitFlip(n_bits, num_envs=100, seed=eval_seed)
-    return sb3_learn_until(model, lambda m: evaluate(sb3_policy(m), eval_env, eval_seed)["success_rate"],
-                           eval_interval, target, budget)
+    return sb3_learn_until(
+        model, lambda m: evaluate(sb3_policy(m), eval_env, eval_seed)["success_rate"], eval_interval, target, budget
+    )
 
 
 def updates_per_second(batch_size: int, hidden: tuple[int, ...], n_bits: int = 15, n_updates: int = 600) -> dict:
@@ -95,7 +120,9 @@ def updates_per_second(batch_size: int, hidden: tuple[int, ...], n_bits: int = 1
     from taskrl.replay import EpisodeReplay
     from taskrl.run import make_agent, make_env, make_relabeler
 
-    cfg = with_overrides(preset_config("bitflip-her"), {"n_bits": n_bits, "batch_size": batch_size, "hidden_sizes": tuple(hidden)})
+    cfg = with_overrides(
+        preset_config("bitflip-her"), {"n_bits": n_bits, "batch_size": batch_size, "hidden_sizes": tuple(hidden)}
+    )
     env = make_env(cfg, "cpu", num_envs=16, seed=0)
     agent, relabel = make_agent(cfg, env, torch.device("cpu")), make_relabeler(cfg, env)
     replay = EpisodeReplay(env.single_observation_space, env.single_action_space, 100_000, env.horizon, 16)
@@ -116,7 +143,13 @@ def updates_per_second(batch_size: int, hidden: tuple[int, ...], n_bits: int = 1
     for _ in range(n_updates):
         one()
     ours = n_updates / (time.perf_counter() - start)
-    return {"batch_size": batch_size, "hidden": list(hidden), "sb3_updates_per_s": sb3, "taskrl_updates_per_s": ours, "ratio": ours / sb3}
+    return {
+        "batch_size": batch_size,
+        "hidden": list(hidden),
+        "sb3_updates_per_s": sb3,
+        "taskrl_updates_per_s": ours,
+        "ratio": ours / sb3,
+    }
 
 
 def collection_steps_per_second(n_bits: int = 15, steps: int = 30_000) -> dict:
@@ -131,9 +164,18 @@ def collection_steps_per_second(n_bits: int = 15, steps: int = 30_000) -> dict:
     out = {"n_bits": n_bits, "sb3_env_steps_per_s": sb3}
     for num_envs in (16, 256):
         with tempfile.TemporaryDirectory() as tmp:
-            run = taskrl.train("bitflip-her", out=Path(tmp) / "run", n_bits=n_bits, num_envs=num_envs,
-                               total_steps=steps * 4, learning_starts=10**12, eval_interval=10**12,
-                               tensorboard=False, checkpoint_interval=10**12, save_replay=False)
+            run = taskrl.train(
+                "bitflip-her",
+                out=Path(tmp) / "run",
+                n_bits=n_bits,
+                num_envs=num_envs,
+                total_steps=steps * 4,
+                learning_starts=10**12,
+                eval_interval=10**12,
+                tensorboard=False,
+                checkpoint_interval=10**12,
+                save_replay=False,
+            )
         out[f"taskrl_env_steps_per_s_{num_envs}_envs"] = run.metrics["env_steps"] / run.metrics["wall_seconds"]
     return out
 
@@ -143,8 +185,9 @@ def main() -> None:
     parser.add_argument("--n-bits", type=int, nargs="+", default=[15, 20, 25])
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--libs", nargs="+", default=["taskrl", "sb3"], choices=["taskrl", "sb3"])
-    parser.add_argument("--budget", type=int, nargs="+", default=None,
-                        help="env-step cap per n (default 150k for n<=15, else 400k)")
+    parser.add_argument(
+        "--budget", type=int, nargs="+", default=None, help="env-step cap per n (default 150k for n<=15, else 400k)"
+    )
     parser.add_argument("--eval-interval", type=int, default=1_000)
     parser.add_argument("--target", type=float, default=0.9)
     parser.add_argument("--threads", type=int, default=1, help="torch threads for both libraries")
@@ -179,22 +222,35 @@ def main() -> None:
     table, _ = median_table(results["runs"], args.n_bits, args.libs, "n bits")
     lines = [table]
     if results["throughput"]:
-        lines += ["", "Gradient updates/s (sampling + relabelling + one update), equal batch size and network:", "",
-                  "| batch | hidden | SB3 updates/s | taskrl updates/s | ratio |", "|---|---|---|---|---|"]
+        lines += [
+            "",
+            "Gradient updates/s (sampling + relabelling + one update), equal batch size and network:",
+            "",
+            "| batch | hidden | SB3 updates/s | taskrl updates/s | ratio |",
+            "|---|---|---|---|---|",
+        ]
         for t in results["throughput"]:
-            lines.append(f"| {t['batch_size']} | {t['hidden']} | {t['sb3_updates_per_s']:,.0f} | {t['taskrl_updates_per_s']:,.0f} | {t['ratio']:.1f}x |")
+            lines.append(
+                f"| {t['batch_size']} | {t['hidden']} | {t['sb3_updates_per_s']:,.0f} | {t['taskrl_updates_per_s']:,.0f} | {t['ratio']:.1f}x |"
+            )
         c = results["collection"]
-        lines += ["", "Collection only (act + env step + store, no learning), n = 15:", "",
-                  "| SB3 (2 envs, DummyVecEnv) | taskrl (16 envs) | taskrl (256 envs) | ratio (16 envs) | ratio (256 envs) |",
-                  "|---|---|---|---|---|",
-                  f"| {c['sb3_env_steps_per_s']:,.0f} | {c['taskrl_env_steps_per_s_16_envs']:,.0f} | {c['taskrl_env_steps_per_s_256_envs']:,.0f} | "
-                  f"{c['taskrl_env_steps_per_s_16_envs'] / c['sb3_env_steps_per_s']:.0f}x | {c['taskrl_env_steps_per_s_256_envs'] / c['sb3_env_steps_per_s']:.0f}x |"]
+        lines += [
+            "",
+            "Collection only (act + env step + store, no learning), n = 15:",
+            "",
+            "| SB3 (2 envs, DummyVecEnv) | taskrl (16 envs) | taskrl (256 envs) | ratio (16 envs) | ratio (256 envs) |",
+            "|---|---|---|---|---|",
+            f"| {c['sb3_env_steps_per_s']:,.0f} | {c['taskrl_env_steps_per_s_16_envs']:,.0f} | {c['taskrl_env_steps_per_s_256_envs']:,.0f} | "
+            f"{c['taskrl_env_steps_per_s_16_envs'] / c['sb3_env_steps_per_s']:.0f}x | {c['taskrl_env_steps_per_s_256_envs'] / c['sb3_env_steps_per_s']:.0f}x |",
+        ]
     table = "\n".join(lines)
     print(table)
     if args.write:
-        append_results("DQN + hindsight relabelling vs Stable-Baselines3 (random-goal bit flipping)",
-                       f"Seeds {args.seeds}, eval every {args.eval_interval} env steps on 100 fixed episodes, "
-                       f"torch threads = {args.threads} for both, evaluation excluded from both clocks.\n\n{table}")
+        append_results(
+            "DQN + hindsight relabelling vs Stable-Baselines3 (random-goal bit flipping)",
+            f"Seeds {args.seeds}, eval every {args.eval_interval} env steps on 100 fixed episodes, "
+            f"torch threads = {args.threads} for both, evaluation excluded from both clocks.\n\n{table}",
+        )
 
 
 if __name__ == "__main__":

@@ -32,12 +32,26 @@ ENV_ID = "FetchReach-v4"
 
 def taskrl_time_to_success(seed: int, budget: int, eval_interval: int, target: float) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
-        run = taskrl.train("fetchreach-sac-her", out=Path(tmp) / "run", seed=seed, total_steps=budget,
-                           hidden_sizes=(64, 64), eval_interval=eval_interval, stop_at_success=target,
-                           tensorboard=False, checkpoint_interval=10**12, save_replay=False)
+        run = taskrl.train(
+            "fetchreach-sac-her",
+            out=Path(tmp) / "run",
+            seed=seed,
+            total_steps=budget,
+            hidden_sizes=(64, 64),
+            eval_interval=eval_interval,
+            stop_at_success=target,
+            tensorboard=False,
+            checkpoint_interval=10**12,
+            save_replay=False,
+        )
     m = run.metrics
-    return {"solved": m["success_rate"] >= target, "env_steps": m["env_steps"], "seconds": m["wall_seconds"],
-            "env_steps_per_s": m["env_steps"] / max(m["wall_seconds"], 1e-9), "final_success": m["success_rate"]}
+    return {
+        "solved": m["success_rate"] >= target,
+        "env_steps": m["env_steps"],
+        "seconds": m["wall_seconds"],
+        "env_steps_per_s": m["env_steps"] / max(m["wall_seconds"], 1e-9),
+        "final_success": m["success_rate"],
+    }
 
 
 def sb3_time_to_success(seed: int, budget: int, eval_interval: int, target: float) -> dict:
@@ -46,10 +60,20 @@ def sb3_time_to_success(seed: int, budget: int, eval_interval: int, target: floa
     from stable_baselines3 import SAC, HerReplayBuffer
 
     gym.register_envs(gymnasium_robotics)
-    model = SAC("MultiInputPolicy", gym.make(ENV_ID), replay_buffer_class=HerReplayBuffer,
-                replay_buffer_kwargs=dict(n_sampled_goal=4, goal_selection_strategy="future"),
-                learning_rate=1e-3, batch_size=256, gamma=0.95, learning_starts=1000, buffer_size=int(1e6),
-                policy_kwargs=dict(net_arch=[64, 64]), seed=seed, verbose=0)
+    model = SAC(
+        "MultiInputPolicy",
+        gym.make(ENV_ID),
+        replay_buffer_class=HerReplayBuffer,
+        replay_buffer_kwargs=dict(n_sampled_goal=4, goal_selection_strategy="future"),
+        learning_rate=1e-3,
+        batch_size=256,
+        gamma=0.95,
+        learning_starts=1000,
+        buffer_size=int(1e6),
+        policy_kwargs=dict(net_arch=[64, 64]),
+        seed=seed,
+        verbose=0,
+    )
     eval_seed = seed + EVAL_SEED_OFFSET
     eval_env = GymnasiumGoalEnv(ENV_ID, num_envs=100)
 
@@ -57,6 +81,7 @@ def sb3_time_to_success(seed: int, budget: int, eval_interval: int, target: floa
         def act(obs):
             np_obs = {k: v.cpu().numpy() for k, v in obs.items()}
             return torch.as_tensor(m.predict(np_obs, deterministic=True)[0])
+
         return evaluate(act, eval_env, eval_seed)["success_rate"]
 
     try:
@@ -91,9 +116,11 @@ def main() -> None:
     table, _ = median_table(runs, [ENV_ID], args.libs, "env")
     print(table)
     if args.write:
-        append_results("SAC + hindsight relabelling vs Stable-Baselines3 (FetchReach-v4)",
-                       f"Seeds {args.seeds}, eval every {args.eval_interval} env steps on 100 fixed episodes, "
-                       f"torch threads = {args.threads} for both, evaluation excluded from both clocks.\n\n{table}")
+        append_results(
+            "SAC + hindsight relabelling vs Stable-Baselines3 (FetchReach-v4)",
+            f"Seeds {args.seeds}, eval every {args.eval_interval} env steps on 100 fixed episodes, "
+            f"torch threads = {args.threads} for both, evaluation excluded from both clocks.\n\n{table}",
+        )
 
 
 if __name__ == "__main__":

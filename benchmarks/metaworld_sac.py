@@ -48,10 +48,22 @@ def sac_update_flops(batch: int, hidden: int) -> float:
 def taskrl_throughput(num_envs: int, updates_per_step: float, learning_starts: int, steps: int, seed: int) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "run"
-        taskrl.train("mt1-reach-sac", out=out, seed=seed, num_envs=num_envs, updates_per_step=updates_per_step,
-                     hidden_sizes=(256, 256), batch_size=256, learning_starts=learning_starts,
-                     total_steps=learning_starts + steps, eval_interval=learning_starts, eval_episodes=1,
-                     tensorboard=False, checkpoint_interval=10**12, save_replay=False)
+        taskrl.train(
+            "mt1-reach-sac",
+            out=out,
+            seed=seed,
+            num_envs=num_envs,
+            updates_per_step=updates_per_step,
+            hidden_sizes=(256, 256),
+            batch_size=256,
+            learning_starts=learning_starts,
+            total_steps=learning_starts + steps,
+            eval_interval=learning_starts,
+            eval_episodes=1,
+            tensorboard=False,
+            checkpoint_interval=10**12,
+            save_replay=False,
+        )
         last = read_metrics(out / "metrics.csv")[-1]  # the row covering the learning phase only
     return {"env_steps_per_s": last["env_steps_per_s"], "updates_per_s": last["updates_per_s"]}
 
@@ -63,8 +75,18 @@ def sb3_throughput(learning_starts: int, steps: int, seed: int) -> dict:
     from stable_baselines3.common.callbacks import BaseCallback
 
     env = gym.make("Meta-World/MT1", env_name=TASK, seed=seed)
-    model = SAC("MlpPolicy", env, learning_rate=3e-4, batch_size=256, gamma=0.99, learning_starts=learning_starts,
-                buffer_size=1_000_000, policy_kwargs=dict(net_arch=[256, 256]), seed=seed, verbose=0)
+    model = SAC(
+        "MlpPolicy",
+        env,
+        learning_rate=3e-4,
+        batch_size=256,
+        gamma=0.99,
+        learning_starts=learning_starts,
+        buffer_size=1_000_000,
+        policy_kwargs=dict(net_arch=[256, 256]),
+        seed=seed,
+        verbose=0,
+    )
     marks: dict[str, float] = {}
 
     class Clock(BaseCallback):
@@ -81,8 +103,12 @@ def sb3_throughput(learning_starts: int, steps: int, seed: int) -> dict:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--learning-starts", type=int, default=5_000,
-                        help="random steps first; >= 10 x 500 so that 10 copies have finished episodes to learn from")
+    parser.add_argument(
+        "--learning-starts",
+        type=int,
+        default=5_000,
+        help="random steps first; >= 10 x 500 so that 10 copies have finished episodes to learn from",
+    )
     parser.add_argument("--steps", type=int, default=3_000, help="env steps of the learning phase that is timed")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=1, help="torch threads for both libraries")
@@ -99,20 +125,27 @@ def main() -> None:
     base = rows["sb3 (1 env, 1 update / env step)"]
     lines = ["| run | env steps/s | updates/s | env steps/s ratio to SB3 | updates/s ratio to SB3 |", "|---|---|---|---|---|"]
     for name, r in rows.items():
-        lines.append(f"| {name} | {r['env_steps_per_s']:.0f} | {r['updates_per_s']:.0f} | "
-                     f"{r['env_steps_per_s'] / base['env_steps_per_s']:.2f}x | {r['updates_per_s'] / base['updates_per_s']:.2f}x |")
+        lines.append(
+            f"| {name} | {r['env_steps_per_s']:.0f} | {r['updates_per_s']:.0f} | "
+            f"{r['env_steps_per_s'] / base['env_steps_per_s']:.2f}x | {r['updates_per_s'] / base['updates_per_s']:.2f}x |"
+        )
     gflops = matmul_gflops()
     bound_ms = sac_update_flops(256, 256) / gflops / 1e6
-    lines += ["", f"FLOP bound of one update (256x256, batch 256, {sac_update_flops(256, 256) / 1e6:.0f} MFLOP) at the measured "
-                  f"{gflops:.0f} GFLOP/s: {bound_ms:.1f} ms, i.e. at most {1e3 / bound_ms:.0f} updates/s on this core "
-                  f"({1e3 / bound_ms / base['updates_per_s']:.1f}x SB3's rate) with one update per env step."]
+    lines += [
+        "",
+        f"FLOP bound of one update (256x256, batch 256, {sac_update_flops(256, 256) / 1e6:.0f} MFLOP) at the measured "
+        f"{gflops:.0f} GFLOP/s: {bound_ms:.1f} ms, i.e. at most {1e3 / bound_ms:.0f} updates/s on this core "
+        f"({1e3 / bound_ms / base['updates_per_s']:.1f}x SB3's rate) with one update per env step.",
+    ]
     table = "\n".join(lines)
     print(json.dumps(rows, indent=2))
     print(table)
     if args.write:
-        append_results("SAC throughput on Meta-World reach-v3 vs Stable-Baselines3",
-                       f"Actor and critics (256, 256), batch 256, torch threads = {args.threads} for both; {L} random steps "
-                       f"untimed, then {N} env steps of learning timed (evaluation excluded).\n\n{table}")
+        append_results(
+            "SAC throughput on Meta-World reach-v3 vs Stable-Baselines3",
+            f"Actor and critics (256, 256), batch 256, torch threads = {args.threads} for both; {L} random steps "
+            f"untimed, then {N} env steps of learning timed (evaluation excluded).\n\n{table}",
+        )
 
 
 if __name__ == "__main__":

@@ -30,16 +30,32 @@ HERE = Path(__file__).resolve().parent
 OUT = HERE / "out" / "mt10"
 
 
-def run_one(preset: str, seed: int, budget: int, hidden: tuple[int, ...], batch_size: int, eval_interval: int,
-            eval_episodes: int, root: Path = OUT) -> dict:
+def run_one(
+    preset: str,
+    seed: int,
+    budget: int,
+    hidden: tuple[int, ...],
+    batch_size: int,
+    eval_interval: int,
+    eval_episodes: int,
+    root: Path = OUT,
+) -> dict:
     import torch
 
     import taskrl
 
     torch.set_num_threads(1)
     out = root / f"{preset}-s{seed}"
-    overrides = dict(seed=seed, total_steps=budget, hidden_sizes=hidden, eval_interval=eval_interval,
-                     eval_episodes=eval_episodes, checkpoint_interval=10**12, save_replay=False, tensorboard=False)
+    overrides = dict(
+        seed=seed,
+        total_steps=budget,
+        hidden_sizes=hidden,
+        eval_interval=eval_interval,
+        eval_episodes=eval_episodes,
+        checkpoint_interval=10**12,
+        save_replay=False,
+        tensorboard=False,
+    )
     if "ppo" not in preset:
         overrides["batch_size"] = batch_size
     if not (out / "per_task_success.json").exists():  # a finished run is reused; an unfinished one restarts
@@ -52,9 +68,13 @@ def run_one(preset: str, seed: int, budget: int, hidden: tuple[int, ...], batch_
     last = rows[-1]
     learn_rows = [r for r in rows if r["env_steps"] and r["updates_per_s"]]
     return {
-        "preset": preset, "seed": seed, "mean_success": per_task["mean_success_rate"],
+        "preset": preset,
+        "seed": seed,
+        "mean_success": per_task["mean_success_rate"],
         "tasks": {k: v["success_rate"] for k, v in per_task["tasks"].items()},
-        "wall_seconds": last["wall_seconds"], "env_steps": last["env_steps"], "updates": last["updates"],
+        "wall_seconds": last["wall_seconds"],
+        "env_steps": last["env_steps"],
+        "updates": last["updates"],
         "env_steps_per_s": last["env_steps"] / max(last["wall_seconds"], 1e-9),
         "updates_per_s": statistics.median(r["updates_per_s"] for r in learn_rows) if learn_rows else 0.0,
         "curve": [(r["env_steps"], r["success_rate"]) for r in rows],
@@ -71,8 +91,11 @@ def profile(seconds: float = 20.0) -> str:
     from taskrl.run import make_agent, make_env
 
     torch.set_num_threads(1)
-    lines = ["| preset scale | sim ms / env step (10 copies, random actions) | act ms / env step | ms / update | "
-             "updates per env step | learning share of a training step | env steps/s implied |", "|---|---|---|---|---|---|---|"]
+    lines = [
+        "| preset scale | sim ms / env step (10 copies, random actions) | act ms / env step | ms / update | "
+        "updates per env step | learning share of a training step | env steps/s implied |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for preset, hidden, batch in (("mt10-sac-onehot", (400, 400, 400), 1280), ("mt10-sac-onehot", (256, 256), 640)):
         config = validate(preset_config(preset))
         config.algo_settings.hidden_sizes = hidden
@@ -92,9 +115,16 @@ def profile(seconds: float = 20.0) -> str:
         act = (time.perf_counter() - start) / (acts * 10) * 1e3
         idx = torch.randint(10, (batch,))
         o = {k: v[idx] for k, v in obs.items()}
-        b = Batch(obs=o, action=torch.rand(batch, 4) * 2 - 1, reward=torch.rand(batch), next_obs=o,
-                  terminated=torch.zeros(batch, dtype=torch.bool), truncated=torch.zeros(batch, dtype=torch.bool),
-                  episode=idx, step=idx)
+        b = Batch(
+            obs=o,
+            action=torch.rand(batch, 4) * 2 - 1,
+            reward=torch.rand(batch),
+            next_obs=o,
+            terminated=torch.zeros(batch, dtype=torch.bool),
+            truncated=torch.zeros(batch, dtype=torch.bool),
+            episode=idx,
+            step=idx,
+        )
         agent.update(b)
         start, updates = time.perf_counter(), 0
         while time.perf_counter() - start < seconds / 2:
@@ -104,8 +134,10 @@ def profile(seconds: float = 20.0) -> str:
         env.close()
         ratio = config.updates_per_step
         learn = ratio * upd
-        lines.append(f"| {hidden}, batch {batch} | {sim:.2f} | {act:.2f} | {upd:.1f} | {ratio} | "
-                     f"{learn / (learn + sim + act):.0%} | {1e3 / (learn + sim + act):.0f} |")
+        lines.append(
+            f"| {hidden}, batch {batch} | {sim:.2f} | {act:.2f} | {upd:.1f} | {ratio} | "
+            f"{learn / (learn + sim + act):.0%} | {1e3 / (learn + sim + act):.0f} |"
+        )
     return "\n".join(lines)
 
 
@@ -151,8 +183,11 @@ def main() -> None:
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     args.figure.parent.mkdir(parents=True, exist_ok=True)
-    jobs = [(p, s, args.budget, tuple(args.hidden), args.batch_size, args.eval_interval, args.eval_episodes, args.out)
-            for s in args.seeds for p in args.methods]
+    jobs = [
+        (p, s, args.budget, tuple(args.hidden), args.batch_size, args.eval_interval, args.eval_episodes, args.out)
+        for s in args.seeds
+        for p in args.methods
+    ]
     with ProcessPoolExecutor(args.workers) as pool:
         results = list(pool.map(run_one, *zip(*jobs)))
     (args.out / "results.json").write_text(json.dumps(results, indent=2))
@@ -168,8 +203,10 @@ def main() -> None:
     per_task.append("| **mean over tasks** | " + " | ".join(f"**{m:.2f}**" for m in means) + " |")
     summary = ["| method | seed | mean success | training seconds | env steps/s | updates/s |", "|---|---|---|---|---|---|"]
     for r in results:
-        summary.append(f"| {r['preset']} | {r['seed']} | {r['mean_success']:.2f} | {r['wall_seconds']:.0f} | "
-                       f"{r['env_steps_per_s']:.0f} | {r['updates_per_s']:.0f} |")
+        summary.append(
+            f"| {r['preset']} | {r['seed']} | {r['mean_success']:.2f} | {r['wall_seconds']:.0f} | "
+            f"{r['env_steps_per_s']:.0f} | {r['updates_per_s']:.0f} |"
+        )
     text = "\n".join(summary) + "\n\nPer-task success (mean over seeds):\n\n" + "\n".join(per_task)
     if args.profile:
         text += "\n\nWhere a training step's time goes (measured in isolation, one torch thread):\n\n" + profile()
@@ -182,7 +219,8 @@ def main() -> None:
             f"Budget {args.budget:,} env steps in total ({args.budget // 10:,} per task), seeds {args.seeds}, hidden "
             f"{tuple(args.hidden)}, SAC batch {args.batch_size} (task-balanced), evaluation every {args.eval_interval:,} "
             f"steps on {args.eval_episodes} distinct goals per task (success at any step); {args.workers} runs at a "
-            f"time, one torch thread each. Curves: `benchmarks/figures/{args.figure.name}`.\n\n{text}")
+            f"time, one torch thread each. Curves: `benchmarks/figures/{args.figure.name}`.\n\n{text}",
+        )
 
 
 if __name__ == "__main__":

@@ -60,9 +60,16 @@ def main() -> None:
     gflops = matmul_gflops()
 
     obs = {"observation": torch.randn(BATCH, STATE_DIM // 2), "desired_goal": torch.randn(BATCH, STATE_DIM // 2)}
-    batch = Batch(obs=obs, action=torch.zeros(BATCH, ACTION_DIM), reward=-torch.ones(BATCH), next_obs=obs,
-                  terminated=torch.zeros(BATCH, dtype=torch.bool), truncated=torch.zeros(BATCH, dtype=torch.bool),
-                  episode=torch.zeros(BATCH, dtype=torch.long), step=torch.zeros(BATCH, dtype=torch.long))
+    batch = Batch(
+        obs=obs,
+        action=torch.zeros(BATCH, ACTION_DIM),
+        reward=-torch.ones(BATCH),
+        next_obs=obs,
+        terminated=torch.zeros(BATCH, dtype=torch.bool),
+        truncated=torch.zeros(BATCH, dtype=torch.bool),
+        episode=torch.zeros(BATCH, dtype=torch.long),
+        step=torch.zeros(BATCH, dtype=torch.long),
+    )
     low_high = (-torch.ones(ACTION_DIM), torch.ones(ACTION_DIM))
     cases = [
         ("paper CEM: 64 + 64 samples, 6 elites", (256, 256), CEMConfig(), False, [64, 64]),
@@ -71,23 +78,33 @@ def main() -> None:
         ("paper CEM, 128x128 Q-network", (128, 128), CEMConfig(), False, [64, 64]),
         ("paper CEM, 64x64 Q-network", (64, 64), CEMConfig(), False, [64, 64]),
     ]
-    lines = ["| variant | Q-network | ms per target batch (256 states) | FLOP bound (ms) | ratio to bound | targets/s |",
-             "|---|---|---|---|---|---|"]
+    lines = [
+        "| variant | Q-network | ms per target batch (256 states) | FLOP bound (ms) | ratio to bound | targets/s |",
+        "|---|---|---|---|---|---|",
+    ]
     for name, hidden, cem, warm, rounds in cases:
-        agent = QTOptAgent(("observation", "desired_goal"), STATE_DIM, low_high,
-                           dataclasses.replace(QTOptConfig(), hidden_sizes=hidden, cem=cem, normalize_inputs=False))
+        agent = QTOptAgent(
+            ("observation", "desired_goal"),
+            STATE_DIM,
+            low_high,
+            dataclasses.replace(QTOptConfig(), hidden_sizes=hidden, cem=cem, normalize_inputs=False),
+        )
         previous = agent.bellman_target(batch, return_action=True)[1] if warm else None
         seconds = timed(lambda agent=agent, previous=previous: agent.bellman_target(batch, warm_start=previous))
         rows = BATCH * sum(rounds) + BATCH  # CEM rows, plus the second target network at a*
         bound = network_flops(rows, hidden) / (gflops * 1e9)
-        lines.append(f"| {name} | {hidden} | {seconds * 1e3:.1f} | {bound * 1e3:.1f} | {seconds / bound:.2f}x | {1 / seconds:.0f} |")
+        lines.append(
+            f"| {name} | {hidden} | {seconds * 1e3:.1f} | {bound * 1e3:.1f} | {seconds / bound:.2f}x | {1 / seconds:.0f} |"
+        )
         print(lines[-1], flush=True)
     table = "\n".join(lines)
     print(f"matmul rate: {gflops:.0f} GFLOP/s (2048x256 @ 256x256, {args.threads} thread(s))")
     if args.write:
-        append_results("QT-Opt: cost of the CEM Bellman target",
-                       f"torch threads {args.threads}; measured matrix-multiply rate {gflops:.0f} GFLOP/s. "
-                       "A QT-Opt update is this target plus one regression step.\n\n" + table)
+        append_results(
+            "QT-Opt: cost of the CEM Bellman target",
+            f"torch threads {args.threads}; measured matrix-multiply rate {gflops:.0f} GFLOP/s. "
+            "A QT-Opt update is this target plus one regression step.\n\n" + table,
+        )
 
 
 if __name__ == "__main__":

@@ -94,8 +94,15 @@ def bench(S: int, A: int, gamma: float, repeats: int, seed: int, naive_max: int,
     P = mdp.P  # state-major, row s * A + a
     n_naive = min(S, naive_max)
     rows = [
-        [list(zip(P.indices[P.indptr[s * A + a]:P.indptr[s * A + a + 1]].tolist(),
-                  P.data[P.indptr[s * A + a]:P.indptr[s * A + a + 1]].tolist())) for a in range(A)]
+        [
+            list(
+                zip(
+                    P.indices[P.indptr[s * A + a] : P.indptr[s * A + a + 1]].tolist(),
+                    P.data[P.indptr[s * A + a] : P.indptr[s * A + a + 1]].tolist(),
+                )
+            )
+            for a in range(A)
+        ]
         for s in range(n_naive)
     ]
     R, Vl = mdp.R.tolist(), V.tolist()
@@ -138,19 +145,28 @@ def main() -> None:
     ap.add_argument("--gamma", type=float, default=0.95, help="discount")
     ap.add_argument("--repeats", type=int, default=5, help="interleaved repeats; medians are reported")
     ap.add_argument("--seed", type=int, default=0, help="random seed")
-    ap.add_argument("--lu-max-states", type=int, default=1_000,
-                    help="also time the sparse-LU evaluation up to this many states (1e4: ~20 s)")
-    ap.add_argument("--naive-max-states", type=int, default=100_000,
-                    help="time the Python loop on at most this many states and extrapolate linearly")
+    ap.add_argument(
+        "--lu-max-states", type=int, default=1_000, help="also time the sparse-LU evaluation up to this many states (1e4: ~20 s)"
+    )
+    ap.add_argument(
+        "--naive-max-states",
+        type=int,
+        default=100_000,
+        help="time the Python loop on at most this many states and extrapolate linearly",
+    )
     args = ap.parse_args()
 
-    cpu = next((line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo") if line.startswith("model name")), platform.processor())
+    cpu = next(
+        (line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo") if line.startswith("model name")), platform.processor()
+    )
     print(f"- date: {datetime.datetime.now().isoformat(timespec='minutes')}")
     print(f"- machine: {cpu}, {os.cpu_count()} cores; load average at start {os.getloadavg()[0]:.2f}")
     print(f"- python {platform.python_version()}, numpy {np.__version__}, scipy {scipy.__version__}")
     print(f"- A = {args.actions}, 3-5 successors per (s, a), gamma = {args.gamma}, medians of {args.repeats} repeats\n")
-    print("| S | nnz(P) | P @ V (lower bound) | VI sweep | VI / matvec | PI improvement | PI impr. / matvec "
-          "| PI evaluation (BiCGSTAB) | eval / matvec | eval by sparse LU | naive Python sweep | naive / VI | PI: rounds, total | VI to 1e-6: sweeps, total |")
+    print(
+        "| S | nnz(P) | P @ V (lower bound) | VI sweep | VI / matvec | PI improvement | PI impr. / matvec "
+        "| PI evaluation (BiCGSTAB) | eval / matvec | eval by sparse LU | naive Python sweep | naive / VI | PI: rounds, total | VI to 1e-6: sweeps, total |"
+    )
     print("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for S in args.sizes:
         r = bench(S, args.actions, args.gamma, args.repeats, args.seed, args.naive_max_states, args.lu_max_states)

@@ -11,9 +11,14 @@ def onehot_batch(reward, terminated, truncated, next_state, action=None) -> Batc
     n = len(reward)
     onehot = F.one_hot(torch.tensor(next_state), 2).float()
     return Batch(
-        obs={"observation": onehot}, action=torch.zeros(n, 1) if action is None else action, reward=torch.tensor(reward),
-        next_obs={"observation": onehot}, terminated=torch.tensor(terminated), truncated=torch.tensor(truncated),
-        episode=torch.zeros(n, dtype=torch.long), step=torch.zeros(n, dtype=torch.long),
+        obs={"observation": onehot},
+        action=torch.zeros(n, 1) if action is None else action,
+        reward=torch.tensor(reward),
+        next_obs={"observation": onehot},
+        terminated=torch.tensor(terminated),
+        truncated=torch.tensor(truncated),
+        episode=torch.zeros(n, dtype=torch.long),
+        step=torch.zeros(n, dtype=torch.long),
     )
 
 
@@ -24,5 +29,13 @@ def bandit_batch(best: torch.Tensor, generator: torch.Generator, reward=lambda g
     a = torch.rand(n, 1, generator=generator) * 2 - 1
     done = torch.ones(n, dtype=torch.bool)
     onehot = F.one_hot(s, 2).float()
-    return Batch(obs={"observation": onehot}, action=a, reward=reward(a[:, 0] - best[s]),
-                 next_obs={"observation": onehot}, terminated=done, truncated=~done, episode=s, step=s)
+    return Batch(
+        obs={"observation": onehot},
+        action=a,
+        reward=reward(a[:, 0] - best[s]),
+        next_obs={"observation": onehot},
+        terminated=done,
+        truncated=~done,
+        episode=s,
+        step=s,
+    )

@@ -24,7 +24,9 @@ CASES = [(algo, kind) for algo, spec in ALGORITHMS.items() for kind in spec.acti
 
 
 def built(algo: str, family: str, settings: dict, **more):
-    config = with_overrides(TrainConfig(), {"env": family, "algo": algo, "her": "none", "hidden_sizes": (16,), **settings, **more})
+    config = with_overrides(
+        TrainConfig(), {"env": family, "algo": algo, "her": "none", "hidden_sizes": (16,), **settings, **more}
+    )
     env = env_family(family).make(config.env_settings, EnvRequest(num_envs=3, seed=0, device=CPU))
     return make_agent(config, env, CPU), env
 
@@ -68,8 +70,18 @@ def test_multitask_agents_act_on_gymnasium_observations_with_a_task(algo):
 
 def test_act_takes_a_bare_array_as_the_observation():
     """Meta-World's own ``gymnasium.make`` gives a plain 39-d array: it is read as ``observation``."""
-    config = with_overrides(TrainConfig(), {"env": "mt1", "algo": "sac", "her": "none", "sampling": "uniform",
-                                            "num_envs": 1, "eval_episodes": 1, "hidden_sizes": (16,)})
+    config = with_overrides(
+        TrainConfig(),
+        {
+            "env": "mt1",
+            "algo": "sac",
+            "her": "none",
+            "sampling": "uniform",
+            "num_envs": 1,
+            "eval_episodes": 1,
+            "hidden_sizes": (16,),
+        },
+    )
     agent = make_agent(config, metaworld_spec("MT1", "reach"), CPU)
     assert agent.act(np.zeros(39, dtype=np.float32)).shape == (4,)
     assert agent.act(np.zeros((5, 39), dtype=np.float32)).shape == (5, 4)

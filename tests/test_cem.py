@@ -9,9 +9,11 @@ from taskrl.agents.cem import CEMConfig, CrossEntropyMethod, action_bounds, maxi
 
 def quadratic(optimum, scale=None):
     """score(a) = -sum_j scale_j (a_j - optimum_j)^2; its max over a box is clip(optimum)."""
-    def score(actions):                                   # [B, N, A] -> [B, N]
+
+    def score(actions):  # [B, N, A] -> [B, N]
         s = 1.0 if scale is None else scale.unsqueeze(1)
         return -(s * (actions - optimum.unsqueeze(1)).square()).sum(-1)
+
     return score
 
 
@@ -21,21 +23,21 @@ def test_finds_an_interior_maximum_in_one_dimension():
     a, s = maximize(quadratic(optimum), 1, torch.tensor([-1.0]), torch.tensor([1.0]), generator=g)
     assert a.shape == (1, 1) and s.shape == (1,)
     assert a.item() == pytest.approx(0.3, abs=0.03)
-    assert s.item() == pytest.approx(-(a.item() - 0.3) ** 2, abs=1e-6)
+    assert s.item() == pytest.approx(-((a.item() - 0.3) ** 2), abs=1e-6)
 
 
 def test_optimum_outside_the_box_gives_the_bound():
     g = torch.Generator().manual_seed(1)
     optimum = torch.tensor([[3.0, -5.0]])
     a, _ = maximize(quadratic(optimum), 1, torch.tensor([-1.0, -2.0]), torch.tensor([1.0, 2.0]), generator=g)
-    assert a.tolist() == [[1.0, -2.0]]        # clipped samples land exactly on the bounds
+    assert a.tolist() == [[1.0, -2.0]]  # clipped samples land exactly on the bounds
 
 
 def test_batched_states_each_get_their_own_optimum_in_several_dimensions():
     g = torch.Generator().manual_seed(2)
     b, dim = 64, 3
     low, high = torch.tensor([-1.0, 0.0, -2.0]), torch.tensor([1.0, 1.0, 2.0])
-    optimum = low + (high - low) * torch.rand(b, dim, generator=g) * 1.2 - 0.1 * (high - low)   # some beyond the box
+    optimum = low + (high - low) * torch.rand(b, dim, generator=g) * 1.2 - 0.1 * (high - low)  # some beyond the box
     scale = 0.5 + torch.rand(b, dim, generator=g)
     a, s = maximize(quadratic(optimum, scale), b, low, high, iterations=6, samples=128, elites=10, generator=g)
     best = torch.maximum(torch.minimum(optimum, high), low)
@@ -93,13 +95,15 @@ def test_warm_start_searches_near_the_given_mean_with_fewer_rounds():
     g = torch.Generator().manual_seed(5)
     a, _ = cem.maximize(score, 4, -torch.ones(2), torch.ones(2), init_mean=torch.full((4, 2), 0.45), generator=g)
     assert shapes == [(4, 64, 2)]
-    assert (seen[0] - 0.45).abs().max() < 0.05 * 5      # all samples within 5 sigma of the warm start
+    assert (seen[0] - 0.45).abs().max() < 0.05 * 5  # all samples within 5 sigma of the warm start
     assert (a - 0.5).abs().max() < 0.05
 
 
 def test_return_distribution_gives_the_refit_mean_and_std():
     g = torch.Generator().manual_seed(6)
-    a, s, mean, std = maximize(quadratic(torch.zeros(3, 2)), 3, -torch.ones(2), torch.ones(2), generator=g, return_distribution=True)
+    a, s, mean, std = maximize(
+        quadratic(torch.zeros(3, 2)), 3, -torch.ones(2), torch.ones(2), generator=g, return_distribution=True
+    )
     assert mean.shape == std.shape == (3, 2)
     assert (std >= 0).all() and (mean.abs() < 0.5).all()
 
@@ -125,8 +129,18 @@ def test_actions_never_leave_the_box(dim, batch, lows, widths, mean_offset, std,
         seen.append(actions)
         return torch.randn(actions.shape[:2], generator=g)
 
-    a, _ = maximize(score, batch, low, high, iterations=iterations, samples=8, elites=3,
-                    init_mean=low + mean_offset, init_std=std, generator=g)
+    a, _ = maximize(
+        score,
+        batch,
+        low,
+        high,
+        iterations=iterations,
+        samples=8,
+        elites=3,
+        init_mean=low + mean_offset,
+        init_std=std,
+        generator=g,
+    )
     for actions in seen + [a.unsqueeze(1)]:
         assert ((actions >= low) & (actions <= high)).all()
 

@@ -74,9 +74,31 @@ def test_resume_continues_counters_weights_and_metrics(tmp_path):
 
 def test_a_killed_run_resumes_from_its_last_checkpoint(tmp_path):
     out = tmp_path / "killed"
-    cmd = [sys.executable, "-m", "taskrl.cli", "train", "bitflip-her", "--out", str(out), "--no-progress",
-           "--no-tensorboard", "--n-bits", "6", "--num-envs", "4", "--total-steps", "10000000",
-           "--checkpoint-interval", "400", "--eval-interval", "400", "--eval-episodes", "10", "--learning-starts", "100"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "taskrl.cli",
+        "train",
+        "bitflip-her",
+        "--out",
+        str(out),
+        "--no-progress",
+        "--no-tensorboard",
+        "--n-bits",
+        "6",
+        "--num-envs",
+        "4",
+        "--total-steps",
+        "10000000",
+        "--checkpoint-interval",
+        "400",
+        "--eval-interval",
+        "400",
+        "--eval-episodes",
+        "10",
+        "--learning-starts",
+        "100",
+    ]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     deadline = time.time() + 120
     while not (out / "checkpoints" / "latest").exists():
@@ -88,9 +110,23 @@ def test_a_killed_run_resumes_from_its_last_checkpoint(tmp_path):
     proc.wait()
     saved_steps = load_checkpoint(out / "checkpoints", ("loop",))["loop"]["env_steps"]
     assert saved_steps >= 400
-    result = subprocess.run([sys.executable, "-m", "taskrl.cli", "train", "--resume", str(out), "--no-progress",
-                             "--no-tensorboard", "--total-steps", str(saved_steps + 800)],
-                            capture_output=True, text=True, timeout=300)
+    result = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "taskrl.cli",
+            "train",
+            "--resume",
+            str(out),
+            "--no-progress",
+            "--no-tensorboard",
+            "--total-steps",
+            str(saved_steps + 800),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert result.returncode == 0, result.stderr
     final = json.loads(result.stdout.strip().splitlines()[-1])
     assert final["env_steps"] == saved_steps + 800
@@ -109,8 +145,9 @@ def test_metrics_csv_gains_the_agents_columns_after_the_first_updates(tmp_path):
 
 def test_a_time_limit_stops_cleanly_and_resume_finishes_the_run(tmp_path):
     out = tmp_path / "limited"
-    first = taskrl.train("bitflip-her", out=out, total_steps=10_000_000, eval_interval=400, checkpoint_interval=10**9,
-                         max_hours=2 / 3600, **TINY)
+    first = taskrl.train(
+        "bitflip-her", out=out, total_steps=10_000_000, eval_interval=400, checkpoint_interval=10**9, max_hours=2 / 3600, **TINY
+    )
     assert first.stopped_by == "time limit"
     stopped_at = first.metrics["env_steps"]
     assert 0 < stopped_at < 10_000_000
@@ -125,9 +162,31 @@ def test_a_time_limit_stops_cleanly_and_resume_finishes_the_run(tmp_path):
 
 def test_sigterm_stops_a_cli_run_with_a_checkpoint_at_the_current_step(tmp_path):
     out = tmp_path / "terminated"
-    cmd = [sys.executable, "-m", "taskrl.cli", "train", "bitflip-her", "--out", str(out), "--no-progress",
-           "--no-tensorboard", "--n-bits", "6", "--num-envs", "4", "--total-steps", "10000000",
-           "--checkpoint-interval", "1000000000", "--eval-interval", "400", "--eval-episodes", "10", "--learning-starts", "100"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "taskrl.cli",
+        "train",
+        "bitflip-her",
+        "--out",
+        str(out),
+        "--no-progress",
+        "--no-tensorboard",
+        "--n-bits",
+        "6",
+        "--num-envs",
+        "4",
+        "--total-steps",
+        "10000000",
+        "--checkpoint-interval",
+        "1000000000",
+        "--eval-interval",
+        "400",
+        "--eval-episodes",
+        "10",
+        "--learning-starts",
+        "100",
+    ]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.time() + 120
     while not ((out / "metrics.csv").exists() and len(read_metrics(out / "metrics.csv")) >= 3):

@@ -60,10 +60,35 @@ def test_refuses_to_overwrite_an_existing_run(capsys, tmp_path):
 def test_train_then_eval_from_the_command_line(tmp_path):
     out = tmp_path / "cli-run"
     train = subprocess.run(
-        [sys.executable, "-m", "taskrl.cli", "train", "bitflip-her", "--out", str(out), "--n-bits", "4",
-         "--num-envs", "4", "--total-steps", "1500", "--eval-interval", "500", "--eval-episodes", "20",
-         "--learning-starts", "100", "--hidden-sizes", "32", "32", "--no-progress"],
-        capture_output=True, text=True, timeout=300)
+        [
+            sys.executable,
+            "-m",
+            "taskrl.cli",
+            "train",
+            "bitflip-her",
+            "--out",
+            str(out),
+            "--n-bits",
+            "4",
+            "--num-envs",
+            "4",
+            "--total-steps",
+            "1500",
+            "--eval-interval",
+            "500",
+            "--eval-episodes",
+            "20",
+            "--learning-starts",
+            "100",
+            "--hidden-sizes",
+            "32",
+            "32",
+            "--no-progress",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert train.returncode == 0, train.stderr
     for name in ("config.json", "metrics.csv", "learning_curve.png"):
         assert (out / name).exists()
@@ -71,17 +96,38 @@ def test_train_then_eval_from_the_command_line(tmp_path):
     assert json.loads((out / "config.json").read_text())["dqn"]["hidden_sizes"] == [32, 32]
     header = (out / "metrics.csv").read_text().splitlines()[0].split(",")
     assert {"env_steps", "wall_seconds", "success_rate"} <= set(header)
-    ev = subprocess.run([sys.executable, "-m", "taskrl.cli", "eval", str(out), "--episodes", "50"],
-                        capture_output=True, text=True, timeout=300)
+    ev = subprocess.run(
+        [sys.executable, "-m", "taskrl.cli", "eval", str(out), "--episodes", "50"], capture_output=True, text=True, timeout=300
+    )
     assert ev.returncode == 0, ev.stderr
     result = json.loads(ev.stdout)
     assert result["episodes"] == 50 and 0.0 <= result["success_rate"] <= 1.0
 
 
 def test_a_rule_is_checked_in_one_place_ppo_runs_with_gamma_one(capsys, tmp_path):
-    code, stdout, err = run_cli(capsys, "train", "bitflip-her", "--algo", "ppo", "--gamma", "1.0", "--n-bits", "4",
-                                "--num-envs", "4", "--rollout-steps", "8", "--total-steps", "64", "--eval-episodes", "4",
-                                "--out", str(tmp_path / "ppo"), "--no-progress", "--no-tensorboard")
+    code, stdout, err = run_cli(
+        capsys,
+        "train",
+        "bitflip-her",
+        "--algo",
+        "ppo",
+        "--gamma",
+        "1.0",
+        "--n-bits",
+        "4",
+        "--num-envs",
+        "4",
+        "--rollout-steps",
+        "8",
+        "--total-steps",
+        "64",
+        "--eval-episodes",
+        "4",
+        "--out",
+        str(tmp_path / "ppo"),
+        "--no-progress",
+        "--no-tensorboard",
+    )
     assert code == 0, err
     assert "her=future) is off" in err  # what switching to an on-policy algorithm changed, said
     saved = json.loads((tmp_path / "ppo" / "config.json").read_text())
@@ -91,8 +137,21 @@ def test_a_rule_is_checked_in_one_place_ppo_runs_with_gamma_one(capsys, tmp_path
 
 
 def test_algo_on_a_preset_keeps_shared_settings_and_uses_its_own_exploration(capsys, tmp_path):
-    code, _, err = run_cli(capsys, "train", "pointreach-sac-her", "--algo", "td3", "--total-steps", "64", "--eval-episodes", "4",
-                           "--out", str(tmp_path / "td3"), "--no-progress", "--no-tensorboard")
+    code, _, err = run_cli(
+        capsys,
+        "train",
+        "pointreach-sac-her",
+        "--algo",
+        "td3",
+        "--total-steps",
+        "64",
+        "--eval-episodes",
+        "4",
+        "--out",
+        str(tmp_path / "td3"),
+        "--no-progress",
+        "--no-tensorboard",
+    )
     assert code == 0, err
     assert "note: --algo td3: kept lr=0.001, gamma=0.95, hidden_sizes=(64, 64) from sac" in err
     td3 = json.loads((tmp_path / "td3" / "config.json").read_text())["td3"]
@@ -117,8 +176,21 @@ def test_flags_follow_the_presets_algorithm(capsys):
 
 def test_multitask_train_then_eval_per_task_from_the_command_line(capsys, tmp_path):
     out = tmp_path / "mt"
-    code, stdout, err = run_cli(capsys, "train", "pointreach-mt-ppo-onehot", "--out", str(out), "--total-steps", "4000",
-                                "--eval-interval", "2000", "--eval-episodes", "2", "--no-progress", "--no-tensorboard")
+    code, stdout, err = run_cli(
+        capsys,
+        "train",
+        "pointreach-mt-ppo-onehot",
+        "--out",
+        str(out),
+        "--total-steps",
+        "4000",
+        "--eval-interval",
+        "2000",
+        "--eval-episodes",
+        "2",
+        "--no-progress",
+        "--no-tensorboard",
+    )
     assert code == 0, err
     assert json.loads((out / "per_task_success.json").read_text())["episodes_per_task"] == 2
     code, stdout, err = run_cli(capsys, "eval", str(out), "--episodes", "3")

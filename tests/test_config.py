@@ -11,8 +11,9 @@ from taskrl.presets import PRESETS, preset_config
 
 
 def test_round_trip_keeps_both_sections_under_their_names():
-    config = with_overrides(TrainConfig(), {"env": "pointreach", "algo": "qtopt", "hidden_sizes": (32, 16), "samples": 32,
-                                            "reward": "dense"})
+    config = with_overrides(
+        TrainConfig(), {"env": "pointreach", "algo": "qtopt", "hidden_sizes": (32, 16), "samples": 32, "reward": "dense"}
+    )
     data = to_dict(config)
     assert data["qtopt"]["cem"]["samples"] == 32 and data["pointreach"]["reward"] == "dense"
     assert "dqn" not in data and "bitflip" not in data  # only the run's own sections are saved
@@ -49,28 +50,31 @@ def test_every_preset_is_valid(name):
     validate(preset_config(name))
 
 
-@pytest.mark.parametrize("changes, field", [
-    ({"algo": "qtopt", "env": "pointreach", "elites": 100}, "elites"),
-    ({"algo": "qtopt", "env": "pointreach", "loss": "l1"}, "loss"),
-    ({"algo": "sac", "env": "pointreach", "init_alpha": 0.0}, "init_alpha"),
-    ({"algo": "td3", "env": "pointreach", "policy_delay": 0}, "policy_delay"),
-    ({"algo": "td3", "env": "pointreach", "noise_std": -0.1}, "noise_std"),
-    ({"algo": "dqn", "epsilon_start": 1.5}, "epsilon_start"),
-    ({"env": "pointreach", "algo": "sac", "reward": "shaped"}, "reward"),
-    ({"n_bits": 0}, "n_bits"),
-    ({"env": "mt10", "algo": "sac", "her": "none", "num_envs": 16}, "num_envs"),
-    ({"env": "mt10", "algo": "dqn", "her": "none", "num_envs": 10}, "algo"),
-    ({"env": "pointreach-mt", "algo": "sac", "her": "future"}, "her"),
-    ({"env": "mt1", "algo": "sac", "her": "none", "task": "fly"}, "task"),
-    ({"env": "mt1", "algo": "sac", "her": "none", "eval_episodes": 51}, "eval_episodes"),
-    ({"env": "bitflip", "algo": "sac"}, "algo"),
-    ({"env": "gym", "algo": "sac"}, "env_id"),
-    ({"env": "tasks", "algo": "sac", "her": "none", "task_file": "/no/such/tasks.yaml"}, "task_file"),
-    ({"sampling": "task_balanced"}, "sampling"),
-    ({"task_encoder": "bag-of-words"}, "task_encoder"),
-    ({"architecture": "transformer"}, "architecture"),
-    ({"care_encoders": 0}, "care_encoders"),
-])
+@pytest.mark.parametrize(
+    "changes, field",
+    [
+        ({"algo": "qtopt", "env": "pointreach", "elites": 100}, "elites"),
+        ({"algo": "qtopt", "env": "pointreach", "loss": "l1"}, "loss"),
+        ({"algo": "sac", "env": "pointreach", "init_alpha": 0.0}, "init_alpha"),
+        ({"algo": "td3", "env": "pointreach", "policy_delay": 0}, "policy_delay"),
+        ({"algo": "td3", "env": "pointreach", "noise_std": -0.1}, "noise_std"),
+        ({"algo": "dqn", "epsilon_start": 1.5}, "epsilon_start"),
+        ({"env": "pointreach", "algo": "sac", "reward": "shaped"}, "reward"),
+        ({"n_bits": 0}, "n_bits"),
+        ({"env": "mt10", "algo": "sac", "her": "none", "num_envs": 16}, "num_envs"),
+        ({"env": "mt10", "algo": "dqn", "her": "none", "num_envs": 10}, "algo"),
+        ({"env": "pointreach-mt", "algo": "sac", "her": "future"}, "her"),
+        ({"env": "mt1", "algo": "sac", "her": "none", "task": "fly"}, "task"),
+        ({"env": "mt1", "algo": "sac", "her": "none", "eval_episodes": 51}, "eval_episodes"),
+        ({"env": "bitflip", "algo": "sac"}, "algo"),
+        ({"env": "gym", "algo": "sac"}, "env_id"),
+        ({"env": "tasks", "algo": "sac", "her": "none", "task_file": "/no/such/tasks.yaml"}, "task_file"),
+        ({"sampling": "task_balanced"}, "sampling"),
+        ({"task_encoder": "bag-of-words"}, "task_encoder"),
+        ({"architecture": "transformer"}, "architecture"),
+        ({"care_encoders": 0}, "care_encoders"),
+    ],
+)
 def test_validation_names_the_field(changes, field):
     with pytest.raises(ConfigError) as err:
         validate(with_overrides(TrainConfig(), changes))
@@ -113,14 +117,43 @@ def test_unknown_keys_in_a_saved_config_are_an_error():
 
 def test_a_config_saved_before_the_registries_still_loads(tmp_path):
     """Run directories written with flat env settings and a loop-level epsilon resume unchanged."""
-    old = {"env": "pointreach", "n_bits": 15, "terminate_on_success": False, "reward": "dense", "vector_strategy": "sync",
-           "mt1_task": "reach", "max_episode_steps": 500, "sampling": "uniform", "algo": "qtopt", "total_steps": 40000,
-           "num_envs": 16, "seed": 0, "device": "cpu", "buffer_size": 1000, "her": "future", "her_k": 4, "batch_size": 256,
-           "learning_starts": 1000, "updates_per_step": 0.25, "epsilon_start": 0.3, "epsilon_end": 0.1,
-           "epsilon_decay_steps": 20000, "eval_interval": 3000, "eval_episodes": 100, "stop_at_success": 0.0,
-           "checkpoint_interval": 50000, "save_replay": True, "max_hours": 0.0, "threads": 1,
-           "dqn": {"lr": 0.001}, "qtopt": {"lr": 0.001, "noise_std": 0.2, "cem": {"samples": 32}}, "sac": {}, "td3": {}, "ppo": {},
-           "conditioning": {"task_encoder": "onehot"}}
+    old = {
+        "env": "pointreach",
+        "n_bits": 15,
+        "terminate_on_success": False,
+        "reward": "dense",
+        "vector_strategy": "sync",
+        "mt1_task": "reach",
+        "max_episode_steps": 500,
+        "sampling": "uniform",
+        "algo": "qtopt",
+        "total_steps": 40000,
+        "num_envs": 16,
+        "seed": 0,
+        "device": "cpu",
+        "buffer_size": 1000,
+        "her": "future",
+        "her_k": 4,
+        "batch_size": 256,
+        "learning_starts": 1000,
+        "updates_per_step": 0.25,
+        "epsilon_start": 0.3,
+        "epsilon_end": 0.1,
+        "epsilon_decay_steps": 20000,
+        "eval_interval": 3000,
+        "eval_episodes": 100,
+        "stop_at_success": 0.0,
+        "checkpoint_interval": 50000,
+        "save_replay": True,
+        "max_hours": 0.0,
+        "threads": 1,
+        "dqn": {"lr": 0.001},
+        "qtopt": {"lr": 0.001, "noise_std": 0.2, "cem": {"samples": 32}},
+        "sac": {},
+        "td3": {},
+        "ppo": {},
+        "conditioning": {"task_encoder": "onehot"},
+    }
     (tmp_path / "config.json").write_text(json.dumps(old))
     c = load(tmp_path / "config.json")
     assert c.env_settings.reward == "dense" and c.env_settings.terminate_on_success is False

@@ -100,8 +100,11 @@ class Corridor(gym.Env):
         return self._obs(), -1.0, done, False, {"is_success": done}
 
 
-for env_id, entry, steps in (("testenvs/Slider-v0", Slider, 20), ("testenvs/SlideTo-v0", SlideTo, 20),
-                             ("testenvs/Corridor-v0", Corridor, 30)):
+for env_id, entry, steps in (
+    ("testenvs/Slider-v0", Slider, 20),
+    ("testenvs/SlideTo-v0", SlideTo, 20),
+    ("testenvs/Corridor-v0", Corridor, 30),
+):
     if env_id not in gym.registry:
         gym.register(env_id, entry_point=entry, max_episode_steps=steps)
 
@@ -114,19 +117,40 @@ def successes(run_dir: Path) -> list[float]:
 
 def cli(*args: str, cwd: Path) -> subprocess.CompletedProcess:
     env = {**os.environ, "PYTHONPATH": str(TESTS)}
-    return subprocess.run([sys.executable, "-m", "taskrl.cli", *args], capture_output=True, text=True, timeout=600,
-                          cwd=cwd, env=env)
+    return subprocess.run(
+        [sys.executable, "-m", "taskrl.cli", *args], capture_output=True, text=True, timeout=600, cwd=cwd, env=env
+    )
 
 
 def test_cli_trains_resumes_evaluates_and_loads_a_registered_goal_env(tmp_path):
     out = tmp_path / "slider"
     common = ["--env-module", "test_custom_envs", "--no-progress", "--no-tensorboard"]
-    first = cli("train", "pointreach-sac-her", "--env-id", "testenvs/Slider-v0", "--out", str(out), "--total-steps", "3000",
-                "--eval-interval", "1500", "--eval-episodes", "50", "--learning-starts", "500", *common, cwd=tmp_path)
+    first = cli(
+        "train",
+        "pointreach-sac-her",
+        "--env-id",
+        "testenvs/Slider-v0",
+        "--out",
+        str(out),
+        "--total-steps",
+        "3000",
+        "--eval-interval",
+        "1500",
+        "--eval-episodes",
+        "50",
+        "--learning-starts",
+        "500",
+        *common,
+        cwd=tmp_path,
+    )
     assert first.returncode == 0, first.stderr
     saved = json.loads((out / "config.json").read_text())
-    assert (saved["env"], saved["gym"]["env_id"], saved["algo"], saved["env_module"]) == ("gym", "testenvs/Slider-v0", "sac",
-                                                                                        "test_custom_envs")
+    assert (saved["env"], saved["gym"]["env_id"], saved["algo"], saved["env_module"]) == (
+        "gym",
+        "testenvs/Slider-v0",
+        "sac",
+        "test_custom_envs",
+    )
     more = cli("train", "--resume", str(out), "--total-steps", "6000", *common, cwd=tmp_path)
     assert more.returncode == 0, more.stderr
     curve = successes(out)
@@ -168,9 +192,19 @@ def test_api_trains_on_a_factory_and_needs_it_again_to_resume_and_load(tmp_path)
 
 
 def test_a_plain_discrete_env_trains_with_dqn_and_bad_input_is_one_line(tmp_path):
-    run = taskrl.train("bitflip-dqn", env="testenvs/Corridor-v0", out=tmp_path / "corridor", num_envs=8, total_steps=4000,
-                       eval_interval=1000, eval_episodes=50, learning_starts=200, updates_per_step=0.25, gamma=0.9,
-                       tensorboard=False)
+    run = taskrl.train(
+        "bitflip-dqn",
+        env="testenvs/Corridor-v0",
+        out=tmp_path / "corridor",
+        num_envs=8,
+        total_steps=4000,
+        eval_interval=1000,
+        eval_episodes=50,
+        learning_starts=200,
+        updates_per_step=0.25,
+        gamma=0.9,
+        tensorboard=False,
+    )
     assert run.config.env == "gym" and successes(run.run_dir)[-1] >= 0.95  # ignoring the goal side: at most 0.5
     with pytest.raises(ConfigError, match="goal env") as err:  # hindsight relabelling on a plain env
         taskrl.train("bitflip-her", env="testenvs/Corridor-v0", out=tmp_path / "her", total_steps=100)
@@ -184,18 +218,30 @@ def test_a_plain_discrete_env_trains_with_dqn_and_bad_input_is_one_line(tmp_path
 
 
 def slide_tasks() -> TaskSet:
-    return TaskSet([
-        TaskSpec("left", "Slide the block to the left end of the rail.", 0, "testenvs/SlideTo-v0", {"target": -0.7}),
-        TaskSpec("middle", "Slide the block to the middle of the rail.", 1, "testenvs/SlideTo-v0", {"target": 0.0}),
-        TaskSpec("right", "Slide the block to the right end of the rail.", 2, "testenvs/SlideTo-v0", {"target": 0.7}),
-    ])
+    return TaskSet(
+        [
+            TaskSpec("left", "Slide the block to the left end of the rail.", 0, "testenvs/SlideTo-v0", {"target": -0.7}),
+            TaskSpec("middle", "Slide the block to the middle of the rail.", 1, "testenvs/SlideTo-v0", {"target": 0.0}),
+            TaskSpec("right", "Slide the block to the right end of the rail.", 2, "testenvs/SlideTo-v0", {"target": 0.7}),
+        ]
+    )
 
 
 def test_a_custom_three_task_set_trains_with_language_conditioning(tmp_path):
     """From the same position the three tasks need opposite actions: without the task at most ~1/3 succeed."""
-    run = taskrl.train("pointreach-mt-sac-onehot", env=slide_tasks(), task_encoder="language", projection_dim=16,
-                       out=tmp_path / "tasks", num_envs=15, total_steps=6000, eval_interval=1500, eval_episodes=10,
-                       learning_starts=500, tensorboard=False)
+    run = taskrl.train(
+        "pointreach-mt-sac-onehot",
+        env=slide_tasks(),
+        task_encoder="language",
+        projection_dim=16,
+        out=tmp_path / "tasks",
+        num_envs=15,
+        total_steps=6000,
+        eval_interval=1500,
+        eval_episodes=10,
+        learning_starts=500,
+        tensorboard=False,
+    )
     assert run.config.env == "tasks" and run.agent.conditioning.config.task_encoder == "language"
     per_task = json.loads((run.run_dir / "per_task_success.json").read_text())
     assert per_task["mean_success_rate"] >= 0.9 and min(t["success_rate"] for t in per_task["tasks"].values()) >= 0.7
@@ -212,16 +258,39 @@ def test_a_task_file_is_read_by_the_command_line(tmp_path, capsys):
     from taskrl.cli import main
 
     file = tmp_path / "tasks.yaml"
-    file.write_text("tasks:\n" + "".join(
-        f"  - {{name: {t.name}, description: {t.description}, env: testenvs/SlideTo-v0, env_kwargs: {{target: {t.env_kwargs['target']}}}}}\n"
-        for t in slide_tasks()))
-    code = main(["train", "pointreach-mt-sac-onehot", "--task-file", str(file), "--num-envs", "6", "--total-steps", "300",
-                 "--learning-starts", "100", "--eval-episodes", "2", "--out", str(tmp_path / "run"), "--no-progress",
-                 "--no-tensorboard"])
+    file.write_text(
+        "tasks:\n"
+        + "".join(
+            f"  - {{name: {t.name}, description: {t.description}, env: testenvs/SlideTo-v0, env_kwargs: {{target: {t.env_kwargs['target']}}}}}\n"
+            for t in slide_tasks()
+        )
+    )
+    code = main(
+        [
+            "train",
+            "pointreach-mt-sac-onehot",
+            "--task-file",
+            str(file),
+            "--num-envs",
+            "6",
+            "--total-steps",
+            "300",
+            "--learning-starts",
+            "100",
+            "--eval-episodes",
+            "2",
+            "--out",
+            str(tmp_path / "run"),
+            "--no-progress",
+            "--no-tensorboard",
+        ]
+    )
     first = capsys.readouterr().err
     assert code == 0, first
     assert "note: --env tasks: pointreach-mt's reward=dense does not apply" in first  # what the preset loses, said once
     assert set(json.loads((tmp_path / "run" / "per_task_success.json").read_text())["tasks"]) == {"left", "middle", "right"}
-    code = main(["train", "pointreach-mt-sac-onehot", "--task-file", str(file), "--num-envs", "4", "--out", str(tmp_path / "bad")])
+    code = main(
+        ["train", "pointreach-mt-sac-onehot", "--task-file", str(file), "--num-envs", "4", "--out", str(tmp_path / "bad")]
+    )
     err = capsys.readouterr().err
     assert code == 2 and "--num-envs must be a multiple of the 3 tasks" in err and len(err.strip().splitlines()) == 1

@@ -32,7 +32,7 @@ def test_bellman_target_terminated_stops_and_truncated_bootstraps():
 
 def test_double_q_selects_with_online_and_evaluates_with_target():
     agent = make_agent(gamma=0.5, double_q=True, clip_target=False, hidden_sizes=(4,))
-    set_q(agent.q, [[0.0, 0.0, 9.0], [9.0, 0.0, 0.0]])          # online argmax: 2 in s0, 0 in s1
+    set_q(agent.q, [[0.0, 0.0, 9.0], [9.0, 0.0, 0.0]])  # online argmax: 2 in s0, 0 in s1
     set_q(agent.q_target, [[1.0, 4.0, 2.0], [-2.0, -1.0, -3.0]])
     b = onehot_batch([0.0, 0.0], [False, False], [False, False], [0, 1])
     assert agent.bellman_target(b).tolist() == [0.5 * 2.0, 0.5 * -2.0]
@@ -78,17 +78,36 @@ def test_dqn_converges_to_q_star_of_a_tiny_mdp():
     n, gamma = 4, 0.9
     q_star = chain_mdp(n, gamma)
     torch.manual_seed(0)
-    agent = DQNAgent(("observation",), n, 2, DQNConfig(lr=3e-3, gamma=gamma, hidden_sizes=(64,), loss="mse",
-                                                       tau=1.0, target_update_interval=50, clip_target=False,
-                                                       normalize_inputs=False))
+    agent = DQNAgent(
+        ("observation",),
+        n,
+        2,
+        DQNConfig(
+            lr=3e-3,
+            gamma=gamma,
+            hidden_sizes=(64,),
+            loss="mse",
+            tau=1.0,
+            target_update_interval=50,
+            clip_target=False,
+            normalize_inputs=False,
+        ),
+    )
     eye = torch.eye(n)
     s = torch.arange(n - 1).repeat_interleave(2)
     a = torch.tensor([0, 1] * (n - 1))
     s2 = torch.clamp(s + a, max=n - 1)
     done = s2 == n - 1
-    data = Batch(obs={"observation": eye[s]}, action=a, reward=torch.where(done, 0.0, -1.0),
-                 next_obs={"observation": eye[s2]}, terminated=done, truncated=torch.zeros_like(done),
-                 episode=torch.zeros_like(s), step=torch.zeros_like(s))
+    data = Batch(
+        obs={"observation": eye[s]},
+        action=a,
+        reward=torch.where(done, 0.0, -1.0),
+        next_obs={"observation": eye[s2]},
+        terminated=done,
+        truncated=torch.zeros_like(done),
+        episode=torch.zeros_like(s),
+        step=torch.zeros_like(s),
+    )
     for _ in range(3000):
         agent.update(data)
     with torch.no_grad():

@@ -129,9 +129,7 @@ def test_fetch_reach():
         assert torch.equal(final["desired_goal"], before["desired_goal"])
         assert not torch.equal(obs["desired_goal"], before["desired_goal"])  # reset goals
         a, d = final["achieved_goal"].double(), obs["desired_goal"].double()
-        np.testing.assert_array_equal(
-            env.compute_reward(a, d).numpy(), env.goal_env.compute_reward(a.numpy(), d.numpy(), None)
-        )
+        np.testing.assert_array_equal(env.compute_reward(a, d).numpy(), env.goal_env.compute_reward(a.numpy(), d.numpy(), None))
         done = env.compute_terminated(a, d)  # Fetch returns one scalar False: still one bool per row
         assert done.shape == (2,) and done.dtype == torch.bool and not done.any()
 

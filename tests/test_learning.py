@@ -6,8 +6,9 @@ import taskrl
 
 
 def test_her_dqn_solves_8_bit_flipping(tmp_path):
-    run = taskrl.train("bitflip-her", out=tmp_path / "her8", n_bits=8, total_steps=12_000, eval_interval=2_000,
-                       seed=0, tensorboard=False)
+    run = taskrl.train(
+        "bitflip-her", out=tmp_path / "her8", n_bits=8, total_steps=12_000, eval_interval=2_000, seed=0, tensorboard=False
+    )
     assert run.metrics["success_rate"] >= 0.9
     # A random policy reaches a random 8-bit goal within 8 flips far less often than this.
     agent = taskrl.load(run.run_dir)
@@ -25,15 +26,31 @@ def test_her_dqn_solves_8_bit_flipping(tmp_path):
 
 def test_evaluation_of_an_untrained_agent_is_near_chance(tmp_path):
     # Guards the threshold above: with no updates the greedy policy rarely reaches random goals.
-    run = taskrl.train("bitflip-her", out=tmp_path / "untrained", n_bits=8, total_steps=500, learning_starts=10**9,
-                       eval_interval=500, seed=0, tensorboard=False)
+    run = taskrl.train(
+        "bitflip-her",
+        out=tmp_path / "untrained",
+        n_bits=8,
+        total_steps=500,
+        learning_starts=10**9,
+        eval_interval=500,
+        seed=0,
+        tensorboard=False,
+    )
     assert run.metrics["updates"] == 0
     assert run.metrics["success_rate"] < 0.3
 
 
 def test_the_same_seed_gives_the_same_run(tmp_path):
-    kwargs = dict(n_bits=5, num_envs=4, total_steps=1_500, eval_interval=500, eval_episodes=20,
-                  learning_starts=100, batch_size=32, tensorboard=False)
+    kwargs = dict(
+        n_bits=5,
+        num_envs=4,
+        total_steps=1_500,
+        eval_interval=500,
+        eval_episodes=20,
+        learning_starts=100,
+        batch_size=32,
+        tensorboard=False,
+    )
     a = taskrl.train("bitflip-her", out=tmp_path / "a", seed=3, **kwargs)
     b = taskrl.train("bitflip-her", out=tmp_path / "b", seed=3, **kwargs)
     c = taskrl.train("bitflip-her", out=tmp_path / "c", seed=4, **kwargs)
@@ -43,12 +60,28 @@ def test_the_same_seed_gives_the_same_run(tmp_path):
 
 
 def test_sac_her_solves_pointreach(tmp_path):
-    run = taskrl.train("pointreach-sac-her", out=tmp_path / "sac", total_steps=21_000, stop_at_success=0.9,
-                       seed=0, threads=1, tensorboard=False, save_replay=False)
+    run = taskrl.train(
+        "pointreach-sac-her",
+        out=tmp_path / "sac",
+        total_steps=21_000,
+        stop_at_success=0.9,
+        seed=0,
+        threads=1,
+        tensorboard=False,
+        save_replay=False,
+    )
     assert run.metrics["success_rate"] >= 0.9
 
 
 def test_qtopt_her_solves_pointreach(tmp_path):
-    run = taskrl.train("pointreach-qtopt-her", out=tmp_path / "qtopt", total_steps=21_000, stop_at_success=0.9,
-                       seed=0, threads=1, tensorboard=False, save_replay=False)
+    run = taskrl.train(
+        "pointreach-qtopt-her",
+        out=tmp_path / "qtopt",
+        total_steps=21_000,
+        stop_at_success=0.9,
+        seed=0,
+        threads=1,
+        tensorboard=False,
+        save_replay=False,
+    )
     assert run.metrics["success_rate"] >= 0.9

@@ -13,13 +13,33 @@ pytest.importorskip("metaworld")
 
 def test_mt10_care_run_writes_per_task_results_and_reloads(tmp_path):
     out = tmp_path / "mt10"
-    run = taskrl.train("mt10-sac-care", out=out, total_steps=600, learning_starts=300, max_episode_steps=30,
-                       hidden_sizes=(32, 32), batch_size=40, eval_interval=10**6, eval_episodes=2,
-                       buffer_size=2_000, tensorboard=False)
+    run = taskrl.train(
+        "mt10-sac-care",
+        out=out,
+        total_steps=600,
+        learning_starts=300,
+        max_episode_steps=30,
+        hidden_sizes=(32, 32),
+        batch_size=40,
+        eval_interval=10**6,
+        eval_episodes=2,
+        buffer_size=2_000,
+        tensorboard=False,
+    )
     per_task = json.loads((out / "per_task_success.json").read_text())
     assert per_task["distinct_goals"] is True and per_task["success"] == "reached at any step"
-    assert list(per_task["tasks"]) == ["reach", "push", "pick-place", "door-open", "drawer-open", "drawer-close",
-                                       "button-press-topdown", "peg-insert-side", "window-open", "window-close"]
+    assert list(per_task["tasks"]) == [
+        "reach",
+        "push",
+        "pick-place",
+        "door-open",
+        "drawer-open",
+        "drawer-close",
+        "button-press-topdown",
+        "peg-insert-side",
+        "window-open",
+        "window-close",
+    ]
     assert all(t["episodes"] == 2 and t["mean_length"] == 30 for t in per_task["tasks"].values())
     assert run.metrics["updates"] > 0 and "success/peg-insert-side" in run.metrics
     agent = run.agent
@@ -31,9 +51,20 @@ def test_mt10_care_run_writes_per_task_results_and_reloads(tmp_path):
 
 
 def test_mt1_run_has_no_task_context(tmp_path):
-    run = taskrl.train("mt1-reach-sac", out=tmp_path / "mt1", total_steps=400, learning_starts=200, num_envs=2,
-                       max_episode_steps=20, hidden_sizes=(16,), batch_size=16, eval_interval=10**6, eval_episodes=1,
-                       buffer_size=1_000, tensorboard=False)
+    run = taskrl.train(
+        "mt1-reach-sac",
+        out=tmp_path / "mt1",
+        total_steps=400,
+        learning_starts=200,
+        num_envs=2,
+        max_episode_steps=20,
+        hidden_sizes=(16,),
+        batch_size=16,
+        eval_interval=10**6,
+        eval_episodes=1,
+        buffer_size=1_000,
+        tensorboard=False,
+    )
     assert run.agent.conditioning is None and "success/reach" in run.metrics
 
 

@@ -55,8 +55,13 @@ def test_bad_benchmarks_and_names_are_rejected_with_the_allowed_values():
 
 
 def test_table_of_a_result():
-    result = {"mean_success_rate": 0.5, "tasks": {"reach": {"index": 0, "success_rate": 1.0, "episodes": 2, "mean_return": 3.0},
-                                                  "push": {"index": 1, "success_rate": 0.0, "episodes": 2, "mean_return": 1.0}}}
+    result = {
+        "mean_success_rate": 0.5,
+        "tasks": {
+            "reach": {"index": 0, "success_rate": 1.0, "episodes": 2, "mean_return": 3.0},
+            "push": {"index": 1, "success_rate": 0.0, "episodes": 2, "mean_return": 1.0},
+        },
+    }
     console = Console(record=True, width=100)
     console.print(per_task_table(result))
     text = console.export_text()

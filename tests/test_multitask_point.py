@@ -62,7 +62,7 @@ def test_rewards_success_and_relabelling_with_any_task():
     assert env.compute_task_success(position, torch.tensor([0, 4])).tolist() == [True, False]
     dense = MultiTaskPointReach(num_envs=2, reward="dense", seed=0)
     d = dense.compute_task_reward(torch.zeros(2, 2), torch.tensor([4, 1]))
-    torch.testing.assert_close(d, torch.tensor([0.0, -(0.7**2 * 2) ** 0.5]))
+    torch.testing.assert_close(d, torch.tensor([0.0, -((0.7**2 * 2) ** 0.5)]))
 
 
 def test_horizon_truncation_final_obs_and_terminate_on_success():
@@ -133,8 +133,12 @@ def _train_sac(conditioned: bool, seed: int = 0, env_steps: int = 250) -> float:
     k = len(DEFAULT_REGIONS)
     env = MultiTaskPointReach(num_envs=16, reward="dense", horizon=30, seed=seed)
     keys = ("observation", "onehot") if conditioned else ("observation",)
-    agent = SACAgent(keys, 2 + (k if conditioned else 0), env.single_action_space,
-                     SACConfig(lr=3e-3, gamma=0.8, hidden_sizes=(64, 64), init_alpha=0.05, normalize_inputs=False))
+    agent = SACAgent(
+        keys,
+        2 + (k if conditioned else 0),
+        env.single_action_space,
+        SACConfig(lr=3e-3, gamma=0.8, hidden_sizes=(64, 64), init_alpha=0.05, normalize_inputs=False),
+    )
 
     def with_onehot(obs):
         return {**obs, "onehot": F.one_hot(obs["task"], k).float()}
@@ -144,8 +148,13 @@ def _train_sac(conditioned: bool, seed: int = 0, env_steps: int = 250) -> float:
     for step in range(env_steps):
         action = agent.act(with_onehot(obs), explore=True) if step > 10 else torch.rand(16, 2) * 2 - 1
         nxt, reward, terminated, truncated, info = env.step(action)
-        for key, value in (("obs", obs["observation"]), ("action", action), ("reward", reward),
-                           ("next", info["final_obs"]["observation"]), ("task", obs["task"])):
+        for key, value in (
+            ("obs", obs["observation"]),
+            ("action", action),
+            ("reward", reward),
+            ("next", info["final_obs"]["observation"]),
+            ("task", obs["task"]),
+        ):
             store[key].append(value)
         obs = nxt
         if step >= 10:
@@ -153,11 +162,18 @@ def _train_sac(conditioned: bool, seed: int = 0, env_steps: int = 250) -> float:
             for _ in range(2):
                 i = torch.randint(data["reward"].shape[0], (256,))
                 n = i.shape[0]
-                agent.update(Batch(
-                    obs=with_onehot({"observation": data["obs"][i], "task": data["task"][i]}), action=data["action"][i],
-                    reward=data["reward"][i], next_obs=with_onehot({"observation": data["next"][i], "task": data["task"][i]}),
-                    terminated=torch.zeros(n, dtype=torch.bool), truncated=torch.zeros(n, dtype=torch.bool),
-                    episode=torch.zeros(n, dtype=torch.long), step=torch.zeros(n, dtype=torch.long)))
+                agent.update(
+                    Batch(
+                        obs=with_onehot({"observation": data["obs"][i], "task": data["task"][i]}),
+                        action=data["action"][i],
+                        reward=data["reward"][i],
+                        next_obs=with_onehot({"observation": data["next"][i], "task": data["task"][i]}),
+                        terminated=torch.zeros(n, dtype=torch.bool),
+                        truncated=torch.zeros(n, dtype=torch.bool),
+                        episode=torch.zeros(n, dtype=torch.long),
+                        step=torch.zeros(n, dtype=torch.long),
+                    )
+                )
     eval_env = MultiTaskPointReach(num_envs=20, task_sampling="fixed", seed=123)
     result = evaluate_per_task(lambda o: agent.act(with_onehot(o)), eval_env, episodes_per_task=4, seed=123, success="final")
     return result["mean_success_rate"]

@@ -20,15 +20,31 @@ def task_batch(task, n_state=4, seed=0):
     n = len(task)
     obs = {"observation": torch.randn(n, n_state, generator=g), "task": torch.tensor(task)}
     nxt = {"observation": torch.randn(n, n_state, generator=g), "task": torch.tensor(task)}
-    return Batch(obs=obs, action=torch.rand(n, 2, generator=g) * 2 - 1, reward=torch.randn(n, generator=g), next_obs=nxt,
-                 terminated=torch.zeros(n, dtype=torch.bool), truncated=torch.zeros(n, dtype=torch.bool),
-                 episode=torch.zeros(n, dtype=torch.long), step=torch.zeros(n, dtype=torch.long))
+    return Batch(
+        obs=obs,
+        action=torch.rand(n, 2, generator=g) * 2 - 1,
+        reward=torch.randn(n, generator=g),
+        next_obs=nxt,
+        terminated=torch.zeros(n, dtype=torch.bool),
+        truncated=torch.zeros(n, dtype=torch.bool),
+        episode=torch.zeros(n, dtype=torch.long),
+        step=torch.zeros(n, dtype=torch.long),
+    )
 
 
 def make_agent(encoder="onehot", architecture="concat", multi_head=False, **cfg):
     torch.manual_seed(0)
-    cond = make_conditioning(ConditioningConfig(task_encoder=encoder, architecture=architecture, multi_head=multi_head,
-                                                embedding_dim=8, care_encoders=3, care_encoder_dim=8), T)
+    cond = make_conditioning(
+        ConditioningConfig(
+            task_encoder=encoder,
+            architecture=architecture,
+            multi_head=multi_head,
+            embedding_dim=8,
+            care_encoders=3,
+            care_encoder_dim=8,
+        ),
+        T,
+    )
     config = SACConfig(hidden_sizes=(16, 16), normalize_inputs=False, **cfg)
     return SACAgent(("observation",), 4, (-torch.ones(2), torch.ones(2)), config, "cpu", cond)
 
@@ -139,7 +155,12 @@ def test_multitask_run_with_one_hot_solves_every_region(tmp_path):
     run = taskrl.train("pointreach-mt-sac-onehot", out=tmp_path / "run", total_steps=10_000, tensorboard=False)
     per_task = json.loads((tmp_path / "run" / "per_task_success.json").read_text())
     assert per_task["success"] == "at the final step" and set(per_task["tasks"]) == {
-        "top-left", "top-right", "bottom-left", "bottom-right", "centre"}
+        "top-left",
+        "top-right",
+        "bottom-left",
+        "bottom-right",
+        "centre",
+    }
     assert run.metrics["success_rate"] >= 0.9, per_task
     assert min(t["success_rate"] for t in per_task["tasks"].values()) >= 0.75
     assert run.metrics["success/centre"] == per_task["tasks"]["centre"]["success_rate"]

@@ -168,7 +168,9 @@ def test_state_dict_round_trip_through_a_checkpoint():
 
 def _final_success(agent, seed: int = 7, episodes: int = 8) -> float:
     eval_env = MultiTaskPointReach(num_envs=20, task_sampling="fixed", seed=seed)
-    return evaluate_per_task(lambda o: agent.act(o), eval_env, episodes_per_task=episodes, seed=seed, success="final")["mean_success_rate"]
+    return evaluate_per_task(lambda o: agent.act(o), eval_env, episodes_per_task=episodes, seed=seed, success="final")[
+        "mean_success_rate"
+    ]
 
 
 def _train_on_point(config: PPOConfig, total_steps: int, stop_at: float, seed: int = 0):
@@ -184,8 +186,17 @@ def _train_on_point(config: PPOConfig, total_steps: int, stop_at: float, seed: i
         return {"success_rate": result["mean_success_rate"]}
 
     rows, checkpoints = [], []
-    books = Bookkeeping(LoopState(), evaluate, rows.append, lambda state: checkpoints.append(state.env_steps), total_steps,
-                        8192, 10**9, stop_at, env.device)
+    books = Bookkeeping(
+        LoopState(),
+        evaluate,
+        rows.append,
+        lambda state: checkpoints.append(state.env_steps),
+        total_steps,
+        8192,
+        10**9,
+        stop_at,
+        env.device,
+    )
     loop = OnPolicyLoop(env, agent, total_steps, books, torch.Generator().manual_seed(seed))
     state = loop.run(env_seed=seed)
     return agent, state, rows, checkpoints
@@ -198,8 +209,21 @@ def test_ppo_with_one_hot_conditioning_solves_multitask_point_reach():
     assert rows[0]["success_rate"] <= 0.2 and state.env_steps < 200_000  # learnt, stopped early
     assert checkpoints == [64 * 32, state.env_steps]  # the first one is due at step 0 (LoopState), one at the end
     row = rows[-1]
-    for column in ("env_steps", "updates", "wall_seconds", "success_rate", "train_success", "policy_loss", "value_loss",
-                   "entropy", "approx_kl", "clip_fraction", "explained_variance", "env_steps_per_s", "updates_per_s"):
+    for column in (
+        "env_steps",
+        "updates",
+        "wall_seconds",
+        "success_rate",
+        "train_success",
+        "policy_loss",
+        "value_loss",
+        "entropy",
+        "approx_kl",
+        "clip_fraction",
+        "explained_variance",
+        "env_steps_per_s",
+        "updates_per_s",
+    ):
         assert column in row
     assert row["explained_variance"] > 0.5 and row["updates"] == state.updates == agent.updates
     assert state.updates == 40 * state.env_steps // (64 * 32)  # epochs x minibatches per rollout
@@ -259,7 +283,9 @@ def test_every_architecture_runs_an_update(arch, multi_head):
     torch.manual_seed(0)
     env = MultiTaskPointReach(num_envs=5, reward="dense", task_sampling="fixed", seed=0)
     cond = make_conditioning(ConditioningConfig(task_encoder="onehot", architecture=arch, multi_head=multi_head), 5)
-    agent = PPOAgent(("observation",), 2, env.single_action_space, PPOConfig(rollout_steps=4, hidden_sizes=(16, 16)), conditioning=cond)
+    agent = PPOAgent(
+        ("observation",), 2, env.single_action_space, PPOConfig(rollout_steps=4, hidden_sizes=(16, 16)), conditioning=cond
+    )
     rollout, obs, *_ = collect_rollout(env, agent, env.reset(seed=0), 4)
     before = agent.act(obs)
     metrics = agent.update(rollout)

@@ -27,8 +27,12 @@ class Stub(nn.Module):
 def make_agent(low=(-1.0,), high=(1.0,), **cfg):
     torch.manual_seed(0)
     cfg.setdefault("cem", CEMConfig(iterations=4, samples=128, elites=8))
-    return QTOptAgent(("observation",), 2, (torch.tensor(low), torch.tensor(high)),
-                      QTOptConfig(normalize_inputs=False, hidden_sizes=(8,), **cfg))
+    return QTOptAgent(
+        ("observation",),
+        2,
+        (torch.tensor(low), torch.tensor(high)),
+        QTOptConfig(normalize_inputs=False, hidden_sizes=(8,), **cfg),
+    )
 
 
 def constant(values):
@@ -52,8 +56,11 @@ def test_target_action_is_the_argmax_of_target1_evaluated_by_both():
     agent = make_agent(low=(0.0,), high=(4.0,), gamma=1.0 - 1e-6)
     agent.q_target1 = Stub(lambda x, a: 1.0 - (a[..., 0] - (x @ peaks).unsqueeze(1)).square())
     agent.q_target2 = Stub(lambda x, a: 10.0 * a[..., 0])
-    y, a_star = agent.bellman_target(onehot_batch([0.0, 0.0], [False, False], [False, False], [0, 1]),
-                                     generator=torch.Generator().manual_seed(0), return_action=True)
+    y, a_star = agent.bellman_target(
+        onehot_batch([0.0, 0.0], [False, False], [False, False], [0, 1]),
+        generator=torch.Generator().manual_seed(0),
+        return_action=True,
+    )
     assert a_star[:, 0].tolist() == pytest.approx([2.8, 0.8], abs=0.02)
     # s0: min(1, 10 * 0.4) = 1 (target1); s1: min(1, 10 * -0.6) = -6 (target2).
     assert y.tolist() == pytest.approx([1.0, -6.0], abs=0.1)
@@ -63,15 +70,18 @@ def test_warm_started_target_searches_near_the_previous_argmax():
     agent = make_agent(gamma=0.5, cem=CEMConfig(warm_std=0.02, warm_iterations=1))
     agent.q_target1 = agent.q_target2 = Stub(lambda x, a: -(a[..., 0] - 0.3).square())
     b = onehot_batch([0.0], [False], [False], [0])
-    _, a_star = agent.bellman_target(b, warm_start=torch.tensor([[0.25]]), return_action=True,
-                                     generator=torch.Generator().manual_seed(0))
+    _, a_star = agent.bellman_target(
+        b, warm_start=torch.tensor([[0.25]]), return_action=True, generator=torch.Generator().manual_seed(0)
+    )
     assert a_star.item() == pytest.approx(0.3, abs=0.01)
 
 
 def test_targets_are_clipped_to_the_return_range_when_asked():
     agent = make_agent(gamma=0.9, clip_target=True)
     agent.q_target1 = agent.q_target2 = constant([50.0, -500.0])
-    assert agent.bellman_target(onehot_batch([0.0, -1.0], [False, False], [False, False], [0, 1])).tolist() == pytest.approx([0.0, -10.0])
+    assert agent.bellman_target(onehot_batch([0.0, -1.0], [False, False], [False, False], [0, 1])).tolist() == pytest.approx(
+        [0.0, -10.0]
+    )
 
 
 def test_cross_entropy_mode_uses_probabilities_clips_to_unit_interval_and_log_loss():
@@ -80,7 +90,7 @@ def test_cross_entropy_mode_uses_probabilities_clips_to_unit_interval_and_log_lo
     agent.q_target1, agent.q_target2 = constant([0.0, 3.0]), constant([5.0, 2.0])
     b = onehot_batch([0.0, 1.0, 0.0], [False, False, False], [False, False, False], [0, 1, 1])
     y = agent.bellman_target(b)
-    expected = [0.9 * 0.5, 1.0, 0.9 * torch.sigmoid(torch.tensor(2.0)).item()]   # 1 + 0.9 * 0.88 clipped to 1
+    expected = [0.9 * 0.5, 1.0, 0.9 * torch.sigmoid(torch.tensor(2.0)).item()]  # 1 + 0.9 * 0.88 clipped to 1
     assert y.tolist() == pytest.approx(expected, abs=1e-6)
     with torch.no_grad():
         logits = agent.q(agent.inputs(b.obs), agent.box.to_unit(b.action))
@@ -97,8 +107,8 @@ def test_score_actions_matches_the_plain_forward_pass():
     with torch.no_grad():
         plain = net(x.unsqueeze(1).expand(-1, 7, -1).reshape(28, 5), actions.reshape(28, 3)).view(4, 7)
         torch.testing.assert_close(net.score_actions(x, actions), plain)
-        torch.testing.assert_close(net.score_actions(x, actions, chunk_rows=10), plain)   # 1 state a chunk
-        torch.testing.assert_close(net.score_actions(x, actions, chunk_rows=21), plain)   # 3 + 1 states
+        torch.testing.assert_close(net.score_actions(x, actions, chunk_rows=10), plain)  # 1 state a chunk
+        torch.testing.assert_close(net.score_actions(x, actions, chunk_rows=21), plain)  # 3 + 1 states
 
 
 def test_target1_is_polyak_averaged_and_target2_lags_it():
@@ -124,14 +134,21 @@ def test_acting_respects_the_bounds_and_explores_uniformly_at_the_requested_rate
     obs = {"observation": torch.rand(4000, 2)}
     g = torch.Generator().manual_seed(0)
     for prob in (0.0, 0.5, 1.0):
-        agent = make_agent(low=(-2.0, 0.5), high=(3.0, 1.0), cem=CEMConfig(), random_action_prob_end=prob,
-                           random_action_decay_steps=0)
+        agent = make_agent(
+            low=(-2.0, 0.5), high=(3.0, 1.0), cem=CEMConfig(), random_action_prob_end=prob, random_action_decay_steps=0
+        )
         a = agent.act(obs, explore=True, generator=g)
         assert a.shape == (4000, 2)
         assert (a >= torch.tensor([-2.0, 0.5])).all() and (a <= torch.tensor([3.0, 1.0])).all()
     # the agent's own schedule: 0.6 -> 0.2 over 1000 env steps, 0.3 at 750
-    agent = make_agent(low=(-2.0, 0.5), high=(3.0, 1.0), cem=CEMConfig(), random_action_prob=0.6,
-                       random_action_prob_end=0.2, random_action_decay_steps=1000)
+    agent = make_agent(
+        low=(-2.0, 0.5),
+        high=(3.0, 1.0),
+        cem=CEMConfig(),
+        random_action_prob=0.6,
+        random_action_prob_end=0.2,
+        random_action_decay_steps=1000,
+    )
     assert agent.exploration(750) == {"random_action_prob": pytest.approx(0.3)}
     # greedy actions all at the stub's optimum (0.5 in unit space -> 1.75 / 0.875 in the box)
     agent.q = Stub(lambda x, a: -(a - 0.5).square().sum(-1))
@@ -149,8 +166,12 @@ def test_qtopt_learns_the_best_action_of_a_continuous_bandit():
     # One-step bandit, two states with different best actions; reward in [0, 1] (log loss).
     best = torch.tensor([-0.5, 0.6])
     torch.manual_seed(0)
-    agent = QTOptAgent(("observation",), 2, (torch.tensor([-1.0]), torch.tensor([1.0])),
-                       QTOptConfig(lr=3e-3, hidden_sizes=(64, 64), loss="cross_entropy", normalize_inputs=False))
+    agent = QTOptAgent(
+        ("observation",),
+        2,
+        (torch.tensor([-1.0]), torch.tensor([1.0])),
+        QTOptConfig(lr=3e-3, hidden_sizes=(64, 64), loss="cross_entropy", normalize_inputs=False),
+    )
     g = torch.Generator().manual_seed(0)
     for _ in range(300):
         agent.update(bandit_batch(best, g, reward=lambda gap: torch.exp(-4.0 * gap.square())), generator=g)

@@ -10,11 +10,13 @@ from hypothesis import strategies as st
 from taskrl.replay import EpisodeReplay, HindsightRelabeler
 
 # Synthetic goal data where every achieved goal says where it came from: (env, episode, step).
-SPACE = gym.spaces.Dict({
-    "observation": gym.spaces.Box(-1e9, 1e9, (3,), np.float32),
-    "achieved_goal": gym.spaces.Box(-1e9, 1e9, (3,), np.float32),
-    "desired_goal": gym.spaces.Box(-1e9, 1e9, (3,), np.float32),
-})
+SPACE = gym.spaces.Dict(
+    {
+        "observation": gym.spaces.Box(-1e9, 1e9, (3,), np.float32),
+        "achieved_goal": gym.spaces.Box(-1e9, 1e9, (3,), np.float32),
+        "desired_goal": gym.spaces.Box(-1e9, 1e9, (3,), np.float32),
+    }
+)
 ACTIONS = gym.spaces.Discrete(4)
 
 

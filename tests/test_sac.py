@@ -44,9 +44,9 @@ def test_squashed_log_prob_matches_a_numerical_change_of_variables_in_one_dimens
     a = torch.linspace(-0.999, 0.999, 4001, dtype=torch.float64)
     u = torch.atanh(a)
     h = 1e-6
-    du_da = (torch.atanh(a + h) - torch.atanh(a - h)) / (2 * h)           # numerical |du/da|
+    du_da = (torch.atanh(a + h) - torch.atanh(a - h)) / (2 * h)  # numerical |du/da|
     gaussian = torch.distributions.Normal(mean, log_std.exp()).log_prob(u)
-    expected = gaussian + torch.log(du_da)                                 # p_a(a) = p_u(u(a)) |du/da|
+    expected = gaussian + torch.log(du_da)  # p_a(a) = p_u(u(a)) |du/da|
     got = squashed_gaussian_log_prob(u.unsqueeze(1), mean, log_std)
     torch.testing.assert_close(got, expected, rtol=1e-6, atol=1e-6)
     # and it is a density on (-1, 1): integrates to ~1 (a little mass lies beyond +-0.999)
@@ -58,7 +58,7 @@ def test_squashed_log_prob_matches_the_jacobian_determinant_in_several_dimension
     mean, log_std = torch.randn(3, dtype=torch.float64), torch.randn(3, dtype=torch.float64) * 0.3
     for _ in range(5):
         u = torch.randn(3, dtype=torch.float64) * 1.5
-        jac = torch.autograd.functional.jacobian(torch.tanh, u)            # da/du, 3 x 3
+        jac = torch.autograd.functional.jacobian(torch.tanh, u)  # da/du, 3 x 3
         expected = torch.distributions.Normal(mean, log_std.exp()).log_prob(u).sum() - torch.linalg.slogdet(jac).logabsdet
         assert squashed_gaussian_log_prob(u, mean, log_std).item() == pytest.approx(expected.item(), abs=1e-9)
     # saturated tanh: still finite in float32
@@ -75,8 +75,12 @@ def test_actor_sample_is_squashed_and_its_log_prob_is_consistent():
     assert (a.abs() < 1).all()
     mean, log_std = actor(x)
     assert (log_std >= -5.0).all() and (log_std <= 2.0).all()
-    torch.testing.assert_close(log_prob, squashed_gaussian_log_prob(torch.atanh(a.double()), mean.double(), log_std.double()).float(),
-                               rtol=1e-3, atol=1e-3)
+    torch.testing.assert_close(
+        log_prob,
+        squashed_gaussian_log_prob(torch.atanh(a.double()), mean.double(), log_std.double()).float(),
+        rtol=1e-3,
+        atol=1e-3,
+    )
 
 
 def test_bellman_target_on_hand_numbers():
@@ -92,15 +96,25 @@ def test_bellman_target_clipping():
     agent = make_agent(gamma=0.9, init_alpha=1.0, clip_target=True)
     agent.actor = FixedActor([0.0, 0.0])
     agent.critics_target = nn.ModuleList([ConstQ([50.0, -500.0]), ConstQ([50.0, -500.0])])
-    assert agent.bellman_target(onehot_batch([0.0, -1.0], [False, False], [False, False], [0, 1])).tolist() == pytest.approx([0.0, -10.0])
+    assert agent.bellman_target(onehot_batch([0.0, -1.0], [False, False], [False, False], [0, 1])).tolist() == pytest.approx(
+        [0.0, -10.0]
+    )
 
 
 def random_batch(g, n=64):
     s = torch.randint(0, 2, (n,), generator=g)
     onehot = F.one_hot(s, 2).float()
     done = torch.ones(n, dtype=torch.bool)
-    return Batch(obs={"observation": onehot}, action=torch.rand(n, 1, generator=g) * 2 - 1, reward=torch.zeros(n),
-                 next_obs={"observation": onehot}, terminated=done, truncated=~done, episode=s, step=s)
+    return Batch(
+        obs={"observation": onehot},
+        action=torch.rand(n, 1, generator=g) * 2 - 1,
+        reward=torch.zeros(n),
+        next_obs={"observation": onehot},
+        terminated=done,
+        truncated=~done,
+        episode=s,
+        step=s,
+    )
 
 
 @pytest.mark.parametrize("target_per_dim, direction", [(5.0, 1), (-20.0, -1)])
@@ -127,8 +141,12 @@ def test_fixed_temperature_stays_put():
 def test_sac_learns_the_best_action_of_a_continuous_bandit():
     best = torch.tensor([-0.5, 0.6])
     torch.manual_seed(0)
-    agent = SACAgent(("observation",), 2, (torch.tensor([-1.0]), torch.tensor([1.0])),
-                     SACConfig(lr=3e-3, hidden_sizes=(64, 64), init_alpha=0.05, normalize_inputs=False))
+    agent = SACAgent(
+        ("observation",),
+        2,
+        (torch.tensor([-1.0]), torch.tensor([1.0])),
+        SACConfig(lr=3e-3, hidden_sizes=(64, 64), init_alpha=0.05, normalize_inputs=False),
+    )
     g = torch.Generator().manual_seed(0)
     for _ in range(400):
         agent.update(bandit_batch(best, g), generator=g)

@@ -10,8 +10,12 @@ from taskrl.replay import EpisodeReplay, TaskBalancedSampler
 def filled_replay(task_weights, episodes=60, horizon=4, seed=0, capacity=None):
     """A replay whose episodes have tasks drawn with the given (unbalanced) weights and random lengths."""
     g = torch.Generator().manual_seed(seed)
-    space = gym.spaces.Dict({"observation": gym.spaces.Box(-1, 1, (1,), np.float32), "task": gym.spaces.Discrete(len(task_weights))})
-    replay = EpisodeReplay(space, gym.spaces.Box(-1, 1, (1,), np.float32), capacity=capacity or episodes * horizon, horizon=horizon, num_envs=1)
+    space = gym.spaces.Dict(
+        {"observation": gym.spaces.Box(-1, 1, (1,), np.float32), "task": gym.spaces.Discrete(len(task_weights))}
+    )
+    replay = EpisodeReplay(
+        space, gym.spaces.Box(-1, 1, (1,), np.float32), capacity=capacity or episodes * horizon, horizon=horizon, num_envs=1
+    )
     weights = torch.tensor(task_weights, dtype=torch.float)
     tasks = torch.multinomial(weights, episodes, replacement=True, generator=g) if episodes else torch.zeros(0, dtype=torch.long)
     for task in tasks.tolist():

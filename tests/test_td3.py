@@ -39,9 +39,16 @@ def make_agent(low=(-1.0,), high=(1.0,), **cfg):
 def batch(reward, terminated, truncated, next_state):
     n = len(reward)
     onehot = F.one_hot(torch.tensor(next_state), 2).float()
-    return Batch(obs={"observation": onehot}, action=torch.zeros(n, 1), reward=torch.tensor(reward),
-                 next_obs={"observation": onehot}, terminated=torch.tensor(terminated), truncated=torch.tensor(truncated),
-                 episode=torch.zeros(n, dtype=torch.long), step=torch.zeros(n, dtype=torch.long))
+    return Batch(
+        obs={"observation": onehot},
+        action=torch.zeros(n, 1),
+        reward=torch.tensor(reward),
+        next_obs={"observation": onehot},
+        terminated=torch.tensor(terminated),
+        truncated=torch.tensor(truncated),
+        episode=torch.zeros(n, dtype=torch.long),
+        step=torch.zeros(n, dtype=torch.long),
+    )
 
 
 def test_bellman_target_on_hand_numbers_without_smoothing():
@@ -79,8 +86,12 @@ def test_actor_and_targets_update_only_every_policy_delay_steps():
 def test_td3_learns_the_best_action_of_a_continuous_bandit():
     best = torch.tensor([-0.5, 0.6])
     torch.manual_seed(0)
-    agent = TD3Agent(("observation",), 2, (torch.tensor([-1.0]), torch.tensor([1.0])),
-                     TD3Config(lr=3e-3, hidden_sizes=(64, 64), normalize_inputs=False))
+    agent = TD3Agent(
+        ("observation",),
+        2,
+        (torch.tensor([-1.0]), torch.tensor([1.0])),
+        TD3Config(lr=3e-3, hidden_sizes=(64, 64), normalize_inputs=False),
+    )
     g = torch.Generator().manual_seed(0)
     for _ in range(400):
         agent.update(bandit_batch(best, g), generator=g)

@@ -1,8 +1,8 @@
 """taskrl: multi-task and goal-conditioned reinforcement learning in PyTorch.
 
-    import taskrl
-    run = taskrl.train("bitflip-her", n_bits=20)   # -> Run(run_dir, config, metrics, agent)
-    agent = taskrl.load(run.run_dir)               # agent.act(obs) on the env's observations
+import taskrl
+run = taskrl.train("bitflip-her", n_bits=20)   # -> Run(run_dir, config, metrics, agent)
+agent = taskrl.load(run.run_dir)               # agent.act(obs) on the env's observations
 """
 
 from taskrl.registration import register_gymnasium_envs

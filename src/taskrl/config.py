@@ -154,22 +154,32 @@ def check_fit(config: TrainConfig, kind: str | None, actions: str | None) -> Non
     """The rules between the env and the algorithm, checked before building (with what the family
     declares) and again once the env is built (with what it is): the same rules both times."""
     c, spec = config, algorithm(config.algo)
-    fitting = ", ".join(a.name for a in _algorithms()
-                        if (actions is None or actions in a.actions) and (kind != "multitask" or a.multitask))
+    fitting = ", ".join(
+        a.name for a in _algorithms() if (actions is None or actions in a.actions) and (kind != "multitask" or a.multitask)
+    )
     if actions is not None and actions not in spec.actions:
         need = " or ".join("continuous (Box)" if a == "box" else "discrete" for a in spec.actions)
         raise ConfigError("algo", f"{c.algo} needs {need} actions but {c.env!r} has {actions} actions; allowed: {fitting}")
     if kind == "multitask" and not spec.multitask:
         raise ConfigError("algo", f"{c.algo!r} does not run on the multi-task env {c.env!r}; allowed: {fitting}")
     if c.her != "none":
-        require(spec.loop == "off_policy", "her",
-                f"{c.algo} learns on-policy from rollouts: there is no replay to relabel; use --her none")
-        require(kind in (None, "goal"), "her",
-                f"hindsight relabelling needs a goal env (achieved_goal, desired_goal, compute_reward); "
-                f"{c.env!r} is not one; use --her none")
+        require(
+            spec.loop == "off_policy",
+            "her",
+            f"{c.algo} learns on-policy from rollouts: there is no replay to relabel; use --her none",
+        )
+        require(
+            kind in (None, "goal"),
+            "her",
+            f"hindsight relabelling needs a goal env (achieved_goal, desired_goal, compute_reward); "
+            f"{c.env!r} is not one; use --her none",
+        )
     if c.sampling == "task_balanced":
-        require(kind in (None, "multitask"), "sampling",
-                f"task_balanced needs a multi-task env (observations with a task index); {c.env!r} is not one")
+        require(
+            kind in (None, "multitask"),
+            "sampling",
+            f"task_balanced needs a multi-task env (observations with a task index); {c.env!r} is not one",
+        )
 
 
 def _algorithms():
@@ -196,8 +206,11 @@ def validate(config: TrainConfig) -> TrainConfig:
         require(getattr(c, name) >= 0, name, f"must be >= 0 (got {getattr(c, name)})")
     require(c.max_hours >= 0, "max_hours", f"must be >= 0 hours (0 = no limit; got {c.max_hours})")
     require(0.0 <= c.stop_at_success <= 1.0, "stop_at_success", f"must be in [0, 1] (got {c.stop_at_success})")
-    require(c.device in ("auto", "cpu") or c.device.startswith("cuda"), "device",
-            f"unknown device {c.device!r}; allowed: cpu, cuda, cuda:N, auto")
+    require(
+        c.device in ("auto", "cpu") or c.device.startswith("cuda"),
+        "device",
+        f"unknown device {c.device!r}; allowed: cpu, cuda, cuda:N, auto",
+    )
     c.conditioning.validate()
     c.env_settings.validate()
     c.algo_settings.validate()
@@ -254,8 +267,11 @@ def field_help(env: str = "bitflip", algo: str = "dqn") -> dict[str, str]:
 def _changed(section: Any) -> dict[str, Any]:
     """Fields of ``section`` that differ from its class's defaults."""
     default = type(section)()
-    return {f.name: getattr(section, f.name) for f in dataclasses.fields(section)
-            if getattr(section, f.name) != getattr(default, f.name)}
+    return {
+        f.name: getattr(section, f.name)
+        for f in dataclasses.fields(section)
+        if getattr(section, f.name) != getattr(default, f.name)
+    }
 
 
 def _switch_algorithm(old: Any, old_name: str, new_name: str, notes: list[str]) -> Any:
@@ -269,8 +285,10 @@ def _switch_algorithm(old: Any, old_name: str, new_name: str, notes: list[str]) 
     if kept:
         notes.append(f"--algo {new_name}: kept {', '.join(f'{k}={v}' for k, v in kept.items())} from {old_name}")
     if dropped:
-        notes.append(f"--algo {new_name}: {old_name}'s {', '.join(f'{k}={changed[k]}' for k in dropped)} "
-                     f"do{'es' if len(dropped) == 1 else ''} not carry over ({new_name} uses its own defaults)")
+        notes.append(
+            f"--algo {new_name}: {old_name}'s {', '.join(f'{k}={changed[k]}' for k in dropped)} "
+            f"do{'es' if len(dropped) == 1 else ''} not carry over ({new_name} uses its own defaults)"
+        )
     return section
 
 
@@ -303,8 +321,10 @@ def with_overrides(config: TrainConfig, overrides: dict[str, Any], notes: list[s
     if family.section != old_family.section:
         changed = _changed(config.env_settings)
         if changed:
-            notes.append(f"--env {env}: {config.env}'s {', '.join(f'{k}={v}' for k, v in changed.items())} "
-                         f"do{'es' if len(changed) == 1 else ''} not apply")
+            notes.append(
+                f"--env {env}: {config.env}'s {', '.join(f'{k}={v}' for k, v in changed.items())} "
+                f"do{'es' if len(changed) == 1 else ''} not apply"
+            )
         env_settings = family.settings()
     algo_settings, her = config.algo_settings, config.her
     if algo != config.algo:
@@ -312,8 +332,9 @@ def with_overrides(config: TrainConfig, overrides: dict[str, Any], notes: list[s
         if algorithm(algo).loop != "off_policy" and her != "none" and "her" not in overrides:
             notes.append(f"--algo {algo}: learns on-policy, so the preset's hindsight relabelling (her={her}) is off")
             her = "none"
-    data = to_dict(dataclasses.replace(config, env=env, algo=algo, her=her, env_settings=env_settings,
-                                       algo_settings=algo_settings))
+    data = to_dict(
+        dataclasses.replace(config, env=env, algo=algo, her=her, env_settings=env_settings, algo_settings=algo_settings)
+    )
     paths = {path[-1]: path for path, _, _ in leaf_fields(env, algo)}
     overrides.pop("env", None), overrides.pop("algo", None)
     unknown = sorted(set(overrides) - set(paths))

@@ -23,8 +23,15 @@ from pathlib import Path
 from typing import Any
 
 COLUMNS = [
-    "env_steps", "updates", "wall_seconds", "success_rate", "eval_return", "eval_length",
-    "train_success", "env_steps_per_s", "updates_per_s",
+    "env_steps",
+    "updates",
+    "wall_seconds",
+    "success_rate",
+    "eval_return",
+    "eval_length",
+    "train_success",
+    "env_steps_per_s",
+    "updates_per_s",
 ]
 
 

@@ -76,8 +76,8 @@ class StateActionQ(nn.Module):
     def _score(self, x: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
         b, n, a = actions.shape
         first = self.body[0]
-        state_part = F.linear(x, first.weight[:, : self.in_dim], first.bias)           # [b, H], once per state
-        h = actions.reshape(b * n, a) @ first.weight[:, self.in_dim :].T                # [b * n, H]
+        state_part = F.linear(x, first.weight[:, : self.in_dim], first.bias)  # [b, H], once per state
+        h = actions.reshape(b * n, a) @ first.weight[:, self.in_dim :].T  # [b * n, H]
         h.view(b, n, -1).add_(state_part.unsqueeze(1))
         for layer in self.body[1:]:
             h = h.relu_() if isinstance(layer, nn.ReLU) else layer(h)

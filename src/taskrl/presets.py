@@ -15,31 +15,89 @@ from taskrl.errors import ConfigError
 _CONTINUOUS_HER = {"her": "future", "her_k": 4, "batch_size": 256}
 _SAC = {"algo": "sac"}
 _QTOPT = {"algo": "qtopt"}
-_POINTREACH = {**_CONTINUOUS_HER, "env": "pointreach", "num_envs": 16, "updates_per_step": 0.25,
-               "learning_starts": 1_000, "eval_interval": 3_000, "total_steps": 40_000,
-               "hidden_sizes": (64, 64), "lr": 1e-3, "gamma": 0.95}
-_FETCH = {**_CONTINUOUS_HER, "num_envs": 2, "updates_per_step": 0.5, "learning_starts": 1_000,
-          "eval_interval": 2_000, "eval_episodes": 100, "lr": 1e-3, "gamma": 0.98}
+_POINTREACH = {
+    **_CONTINUOUS_HER,
+    "env": "pointreach",
+    "num_envs": 16,
+    "updates_per_step": 0.25,
+    "learning_starts": 1_000,
+    "eval_interval": 3_000,
+    "total_steps": 40_000,
+    "hidden_sizes": (64, 64),
+    "lr": 1e-3,
+    "gamma": 0.95,
+}
+_FETCH = {
+    **_CONTINUOUS_HER,
+    "num_envs": 2,
+    "updates_per_step": 0.5,
+    "learning_starts": 1_000,
+    "eval_interval": 2_000,
+    "eval_episodes": 100,
+    "lr": 1e-3,
+    "gamma": 0.98,
+}
 # FetchPush: the hindsight paper's 8 parallel workers and 2M-step scale. Learning is most of a
 # training step on CPU (an update costs ~20x a simulated step), so the update ratio sets the pace.
-_FETCHPUSH = {"env": "fetchpush", "num_envs": 8, "total_steps": 2_000_000, "eval_interval": 25_000,
-              "checkpoint_interval": 100_000}
+_FETCHPUSH = {
+    "env": "fetchpush",
+    "num_envs": 8,
+    "total_steps": 2_000_000,
+    "eval_interval": 25_000,
+    "checkpoint_interval": 100_000,
+}
 
 # Multi-task SAC (Meta-World and the native multi-task PointReach): no relabelling, the policy's own
 # entropy explores, task-balanced batches. Meta-World: gamma 0.99, lr 3e-4, one copy per task at
 # 0.1 updates per env step (one update per step of all copies, as multi-task SAC on MT10 does),
 # language contexts projected to 50-d as CARE's context encoder does.
 _MULTITASK_SAC = {**_SAC, "her": "none", "sampling": "task_balanced"}
-_METAWORLD = {**_MULTITASK_SAC, "lr": 3e-4, "gamma": 0.99, "learning_starts": 5_000, "eval_episodes": 10,
-              "checkpoint_interval": 100_000, "buffer_size": 1_000_000}
-_MT1 = {**_METAWORLD, "env": "mt1", "num_envs": 10, "hidden_sizes": (256, 256), "batch_size": 256,
-        "updates_per_step": 0.5, "total_steps": 200_000, "eval_interval": 10_000, "stop_at_success": 0.0}
-_MT10 = {**_METAWORLD, "env": "mt10", "num_envs": 10, "hidden_sizes": (400, 400, 400), "batch_size": 1280,
-         "updates_per_step": 0.1, "total_steps": 20_000_000, "eval_interval": 100_000}
+_METAWORLD = {
+    **_MULTITASK_SAC,
+    "lr": 3e-4,
+    "gamma": 0.99,
+    "learning_starts": 5_000,
+    "eval_episodes": 10,
+    "checkpoint_interval": 100_000,
+    "buffer_size": 1_000_000,
+}
+_MT1 = {
+    **_METAWORLD,
+    "env": "mt1",
+    "num_envs": 10,
+    "hidden_sizes": (256, 256),
+    "batch_size": 256,
+    "updates_per_step": 0.5,
+    "total_steps": 200_000,
+    "eval_interval": 10_000,
+    "stop_at_success": 0.0,
+}
+_MT10 = {
+    **_METAWORLD,
+    "env": "mt10",
+    "num_envs": 10,
+    "hidden_sizes": (400, 400, 400),
+    "batch_size": 1280,
+    "updates_per_step": 0.1,
+    "total_steps": 20_000_000,
+    "eval_interval": 100_000,
+}
 _LANGUAGE = {"task_encoder": "language", "projection_dim": 50}
-_POINTREACH_MT = {**_MULTITASK_SAC, "env": "pointreach-mt", "reward": "dense", "num_envs": 16, "updates_per_step": 0.25,
-                  "learning_starts": 500, "eval_interval": 2_000, "eval_episodes": 20, "total_steps": 20_000,
-                  "hidden_sizes": (64, 64), "lr": 1e-3, "gamma": 0.95, "batch_size": 256}
+_POINTREACH_MT = {
+    **_MULTITASK_SAC,
+    "env": "pointreach-mt",
+    "reward": "dense",
+    "num_envs": 16,
+    "updates_per_step": 0.25,
+    "learning_starts": 500,
+    "eval_interval": 2_000,
+    "eval_episodes": 20,
+    "total_steps": 20_000,
+    "hidden_sizes": (64, 64),
+    "lr": 1e-3,
+    "gamma": 0.95,
+    "batch_size": 256,
+}
 # Multi-task PPO: on-policy, so no replay, relabelling or task-balanced batches (every rollout holds
 # every copy's task in proportion to its copies: one copy per task on Meta-World).
 _PPO = {"algo": "ppo", "her": "none", "sampling": "uniform"}
@@ -59,8 +117,15 @@ PRESETS: dict[str, Preset] = {
     "bitflip50-her": Preset(
         "DQN + hindsight relabelling on 50-bit flipping, the paper's hardest case: 64 envs and the "
         "paper's 0.05 updates per env step (more fresh data per update)",
-        {"n_bits": 50, "her": "future", "her_k": 4, "num_envs": 64, "updates_per_step": 0.05,
-         "total_steps": 2_000_000, "eval_interval": 20_000},
+        {
+            "n_bits": 50,
+            "her": "future",
+            "her_k": 4,
+            "num_envs": 64,
+            "updates_per_step": 0.05,
+            "total_steps": 2_000_000,
+            "eval_interval": 20_000,
+        },
     ),
     "pointreach-sac-her": Preset(
         "SAC + hindsight relabelling on PointReach, a 2-D point moving to a random goal (sparse reward)",
@@ -89,8 +154,15 @@ PRESETS: dict[str, Preset] = {
     ),
     "fetchpickandplace-sac-her": Preset(
         "SAC + hindsight relabelling on FetchPickAndPlace-v4 (~4M env steps in the paper; hours on CPU)",
-        {**_FETCH, **_SAC, "env": "fetchpickandplace", "num_envs": 8, "total_steps": 4_000_000,
-         "eval_interval": 50_000, "hidden_sizes": (256, 256, 256)},
+        {
+            **_FETCH,
+            **_SAC,
+            "env": "fetchpickandplace",
+            "num_envs": 8,
+            "total_steps": 4_000_000,
+            "eval_interval": 50_000,
+            "hidden_sizes": (256, 256, 256),
+        },
     ),
     "pointreach-mt-sac-onehot": Preset(
         "multi-task SAC on the native multi-task PointReach (5 regions named in words), one-hot task context",
@@ -126,13 +198,33 @@ PRESETS: dict[str, Preset] = {
     ),
     "mt10-ppo-onehot": Preset(
         "multi-task PPO on MT10 with a one-hot task context: one 500-step episode per task per rollout, 10 epochs of 10 minibatches",
-        {**_MT10, **_PPO, "task_encoder": "onehot", "architecture": "concat", "hidden_sizes": (256, 256), "lr": 3e-4,
-         "gamma": 0.99, "rollout_steps": 500, "epochs": 10, "minibatches": 10, "entropy_coef": 0.0},
+        {
+            **_MT10,
+            **_PPO,
+            "task_encoder": "onehot",
+            "architecture": "concat",
+            "hidden_sizes": (256, 256),
+            "lr": 3e-4,
+            "gamma": 0.99,
+            "rollout_steps": 500,
+            "epochs": 10,
+            "minibatches": 10,
+            "entropy_coef": 0.0,
+        },
     ),
     "mt50-sac-care": Preset(
         "CARE on MT50 (k=6 encoders; 50 copies, one per task)",
-        {**_MT10, **_LANGUAGE, "env": "mt50", "num_envs": 50, "batch_size": 6400, "architecture": "care",
-         "care_encoders": 6, "total_steps": 100_000_000, "eval_interval": 500_000},
+        {
+            **_MT10,
+            **_LANGUAGE,
+            "env": "mt50",
+            "num_envs": 50,
+            "batch_size": 6400,
+            "architecture": "care",
+            "care_encoders": 6,
+            "total_steps": 100_000_000,
+            "eval_interval": 500_000,
+        },
     ),
     "bitflip-dqn": Preset(
         "plain DQN, no relabelling, on 15-bit flipping: the contrast case that fails beyond ~13 bits",

@@ -91,17 +91,31 @@ def action_kind(space: gym.spaces.Space) -> str | None:
     return "box" if isinstance(space, gym.spaces.Box) else None
 
 
-def env_request(config: TrainConfig, device: torch.device, source: Any = None, evaluation: bool = False,
-                seed: int | None = None) -> EnvRequest:
+def env_request(
+    config: TrainConfig, device: torch.device, source: Any = None, evaluation: bool = False, seed: int | None = None
+) -> EnvRequest:
     """What the run asks of its env family (training envs, or the evaluation env)."""
     if seed is None:
         seed = config.seed + EVAL_SEED_OFFSET if evaluation else config.seed
-    return EnvRequest(num_envs=config.num_envs, seed=seed, device=device, evaluation=evaluation,
-                      eval_episodes=config.eval_episodes, run_seed=config.seed, source=source)
+    return EnvRequest(
+        num_envs=config.num_envs,
+        seed=seed,
+        device=device,
+        evaluation=evaluation,
+        eval_episodes=config.eval_episodes,
+        run_seed=config.seed,
+        source=source,
+    )
 
 
-def make_env(config: TrainConfig, device: str | torch.device = "cpu", num_envs: int | None = None, seed: int | None = None,
-             evaluation: bool = False, source: Any = None) -> BatchedEnv:
+def make_env(
+    config: TrainConfig,
+    device: str | torch.device = "cpu",
+    num_envs: int | None = None,
+    seed: int | None = None,
+    evaluation: bool = False,
+    source: Any = None,
+) -> BatchedEnv:
     """The run's training env (or, with ``evaluation``, its evaluation env), built by its env family.
 
     Args:
@@ -130,8 +144,11 @@ def make_agent(config: TrainConfig, env: Any, device: torch.device) -> Any:
     space = env.single_observation_space
     keys = tuple(k for k in AGENT_INPUT_KEYS if k in space.spaces)
     if "observation" not in keys:
-        raise ConfigError("env", f"observations have keys {list(space.spaces)}; the networks read 'observation' "
-                                 f"(with 'desired_goal' on goal envs and 'task' on multi-task envs)")
+        raise ConfigError(
+            "env",
+            f"observations have keys {list(space.spaces)}; the networks read 'observation' "
+            f"(with 'desired_goal' on goal envs and 'task' on multi-task envs)",
+        )
     input_dim = sum(int(torch.tensor(space[k].shape).prod()) for k in keys)
     task_set = getattr(env, "task_set", None)
     conditioning = None
@@ -160,8 +177,9 @@ def make_evaluator(config: TrainConfig, eval_env: BatchedEnv, agent: Any, seed: 
     def run() -> dict[str, float]:
         if not multitask:
             return evaluate(policy, eval_env, seed)
-        result = evaluate_per_task(policy, eval_env, config.eval_episodes, seed,
-                                   success=family.success_criterion(config.env_settings))
+        result = evaluate_per_task(
+            policy, eval_env, config.eval_episodes, seed, success=family.success_criterion(config.env_settings)
+        )
         last.clear(), last.update(result)
         tasks = result["tasks"].values()
         return {
@@ -177,8 +195,9 @@ def make_evaluator(config: TrainConfig, eval_env: BatchedEnv, agent: Any, seed: 
 def make_relabeler(config: TrainConfig, env: BatchedEnv) -> HindsightRelabeler | None:
     if config.her == "none":
         return None
-    return HindsightRelabeler(env.compute_reward, config.her, config.her_k,
-                              terminated_fn=getattr(env, "compute_terminated", None))
+    return HindsightRelabeler(
+        env.compute_reward, config.her, config.her_k, terminated_fn=getattr(env, "compute_terminated", None)
+    )
 
 
 @dataclasses.dataclass
@@ -219,8 +238,9 @@ def build(config: TrainConfig, source: Any = None) -> RunParts:
         parts = RunParts(config, family, device, env, eval_env, agent, generator)
         if algorithm(config.algo).loop == "off_policy":
             capacity = min(config.buffer_size, config.total_steps + 2 * env.num_envs * env.horizon)
-            parts.replay = EpisodeReplay(env.single_observation_space, env.single_action_space, capacity, env.horizon,
-                                         env.num_envs, device)
+            parts.replay = EpisodeReplay(
+                env.single_observation_space, env.single_action_space, capacity, env.horizon, env.num_envs, device
+            )
             parts.relabel = make_relabeler(config, env)
             if config.sampling == "task_balanced":
                 parts.sampler = TaskBalancedSampler(parts.replay, len(env.task_set))
@@ -261,10 +281,12 @@ def checkpointer(parts: RunParts, run_dir: Path) -> Callable[[LoopState], None]:
 # Loops by algorithm kind: (parts, bookkeeping) -> a loop with run(env_seed).
 def _off_policy_loop(parts: RunParts, books: Bookkeeping) -> OffPolicyLoop:
     c = parts.config
-    schedule = LoopSchedule(total_steps=c.total_steps, batch_size=c.batch_size, learning_starts=c.learning_starts,
-                            updates_per_step=c.updates_per_step)
-    return OffPolicyLoop(parts.env, parts.agent, parts.replay, parts.relabel, schedule, books, parts.generator,
-                         sample=parts.sampler)
+    schedule = LoopSchedule(
+        total_steps=c.total_steps, batch_size=c.batch_size, learning_starts=c.learning_starts, updates_per_step=c.updates_per_step
+    )
+    return OffPolicyLoop(
+        parts.env, parts.agent, parts.replay, parts.relabel, schedule, books, parts.generator, sample=parts.sampler
+    )
 
 
 def _on_policy_loop(parts: RunParts, books: Bookkeeping) -> OnPolicyLoop:
@@ -385,8 +407,18 @@ def train(
             logger.log(row)
             reporter.update(row)
 
-        books = Bookkeeping(state, evaluator, on_log, checkpointer(parts, run_dir), config.total_steps,
-                            config.eval_interval, config.checkpoint_interval, config.stop_at_success, parts.device, stop)
+        books = Bookkeeping(
+            state,
+            evaluator,
+            on_log,
+            checkpointer(parts, run_dir),
+            config.total_steps,
+            config.eval_interval,
+            config.checkpoint_interval,
+            config.stop_at_success,
+            parts.device,
+            stop,
+        )
         loop = LOOPS[algorithm(config.algo).loop](parts, books)
         try:
             with stop.on_signals():
@@ -399,9 +431,18 @@ def train(
     return Run(run_dir=run_dir, config=config, metrics=final, agent=parts.agent, stopped_by=stop.stopped_by, notes=notes)
 
 
-def report(config: TrainConfig, run_dir: Path, title: str, rows: list[dict[str, Any]], state: LoopState,
-           last_eval: dict[str, Any], metrics_csv: Path, progress: bool, console: Console | None,
-           stop: StopRequest) -> dict[str, Any]:
+def report(
+    config: TrainConfig,
+    run_dir: Path,
+    title: str,
+    rows: list[dict[str, Any]],
+    state: LoopState,
+    last_eval: dict[str, Any],
+    metrics_csv: Path,
+    progress: bool,
+    console: Console | None,
+    stop: StopRequest,
+) -> dict[str, Any]:
     """The learning curve, the per-task result of multi-task runs, the final table; returns the last row."""
     out = console or Console(stderr=True)
     curve = plot_learning_curve(metrics_csv, run_dir / "learning_curve.png", title=f"{title} ({run_dir.name})")
@@ -409,13 +450,25 @@ def report(config: TrainConfig, run_dir: Path, title: str, rows: list[dict[str, 
         (run_dir / "per_task_success.json").write_text(json.dumps({"env_steps": state.env_steps, **last_eval}, indent=2) + "\n")
         if progress:
             out.print(per_task_table(last_eval, f"per-task success at {state.env_steps:,} env steps"))
-    final = rows[-1] if rows else {"env_steps": state.env_steps, "updates": state.updates,
-                                   "wall_seconds": state.wall_seconds, "success_rate": state.last_success}
+    final = (
+        rows[-1]
+        if rows
+        else {
+            "env_steps": state.env_steps,
+            "updates": state.updates,
+            "wall_seconds": state.wall_seconds,
+            "success_rate": state.last_success,
+        }
+    )
     if progress:
         out.print(final_table({"eval_return": float("nan"), **final}, run_dir, curve))
     if stop.stopped_by:
-        out.print(f"stopped early ({stop.stopped_by}) at {state.env_steps:,} env steps, checkpoint saved; "
-                  f"continue with: taskrl train --resume {run_dir}", soft_wrap=True, markup=False)
+        out.print(
+            f"stopped early ({stop.stopped_by}) at {state.env_steps:,} env steps, checkpoint saved; "
+            f"continue with: taskrl train --resume {run_dir}",
+            soft_wrap=True,
+            markup=False,
+        )
     return final
 
 
@@ -462,8 +515,14 @@ def load(run_dir: str | Path, device: str = "cpu", env: Any = None, env_module: 
     return agent
 
 
-def evaluate_run(run_dir: str | Path, episodes: int = 100, seed: int | None = None, device: str = "cpu",
-                 env: Any = None, env_module: str | None = None) -> dict[str, float]:
+def evaluate_run(
+    run_dir: str | Path,
+    episodes: int = 100,
+    seed: int | None = None,
+    device: str = "cpu",
+    env: Any = None,
+    env_module: str | None = None,
+) -> dict[str, float]:
     """Re-evaluate a saved agent greedily on ``episodes`` fresh episodes (per task on multi-task envs)."""
     run_dir = Path(run_dir)
     config, source = _saved_config(run_dir, env, env_module)

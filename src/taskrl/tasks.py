@@ -48,7 +48,9 @@ class TaskSpec:
         if isinstance(self.index, bool) or not isinstance(self.index, int) or self.index < 0:
             raise ValueError(f"TaskSpec.index of {self.name!r} must be an integer >= 0, got {self.index!r}")
         if self.env is not None and not (isinstance(self.env, str) and self.env) and not callable(self.env):
-            raise ValueError(f"TaskSpec.env of {self.name!r} must be a gymnasium id or a factory of a gymnasium.Env, got {self.env!r}")
+            raise ValueError(
+                f"TaskSpec.env of {self.name!r} must be a gymnasium id or a factory of a gymnasium.Env, got {self.env!r}"
+            )
         if self.env_kwargs is not None and (not isinstance(self.env_kwargs, dict) or not isinstance(self.env, str)):
             raise ValueError(f"TaskSpec.env_kwargs of {self.name!r} must be a dict, with env a gymnasium id")
 
@@ -68,7 +70,9 @@ class TaskSet(Sequence[TaskSpec]):
             if not isinstance(task, TaskSpec):
                 raise TypeError(f"TaskSet entries must be TaskSpec, got {type(task).__name__} at position {i}")
             if task.index != i:
-                raise ValueError(f"task {task.name!r} is at position {i} but has index {task.index}; indices must be 0..n-1 in order")
+                raise ValueError(
+                    f"task {task.name!r} is at position {i} but has index {task.index}; indices must be 0..n-1 in order"
+                )
         names = [t.name for t in tasks]
         duplicates = sorted({n for n in names if names.count(n) > 1})
         if duplicates:
@@ -90,8 +94,10 @@ class TaskSet(Sequence[TaskSpec]):
                 raise ValueError(f"{where}: entry {i} must be a mapping with name and description, got {entry!r}")
             unknown = sorted(set(entry) - set(_ENTRY_KEYS))
             if unknown or "name" not in entry or "description" not in entry:
-                raise ValueError(f"{where}: entry {i} has keys {sorted(entry)}; allowed: {', '.join(_ENTRY_KEYS)} "
-                                 f"(name and description required)")
+                raise ValueError(
+                    f"{where}: entry {i} has keys {sorted(entry)}; allowed: {', '.join(_ENTRY_KEYS)} "
+                    f"(name and description required)"
+                )
             tasks.append(TaskSpec(entry["name"], entry["description"], i, entry.get("env"), entry.get("env_kwargs")))
         return cls(tasks)
 
@@ -144,7 +150,9 @@ class TaskSet(Sequence[TaskSpec]):
         if isinstance(key, str):
             return self.get(key)
         if isinstance(key, slice):
-            raise TypeError("TaskSet does not support slicing (indices would no longer match positions); use .names or list(task_set)")
+            raise TypeError(
+                "TaskSet does not support slicing (indices would no longer match positions); use .names or list(task_set)"
+            )
         return self._tasks[key]
 
     def __contains__(self, item: object) -> bool:

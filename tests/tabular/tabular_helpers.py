@@ -9,8 +9,17 @@ from scipy.optimize import linprog
 from taskrl.tabular import FiniteMDP
 
 
-def random_mdp(seed: int, S: int, A: int, gamma: float, *, successors: int | None = None,
-               n_terminal: int = 0, sparse: bool = False, sas_rewards: bool = False) -> FiniteMDP:
+def random_mdp(
+    seed: int,
+    S: int,
+    A: int,
+    gamma: float,
+    *,
+    successors: int | None = None,
+    n_terminal: int = 0,
+    sparse: bool = False,
+    sas_rewards: bool = False,
+) -> FiniteMDP:
     """A random MDP; ``successors`` limits the support of each P(.|s, a)."""
     rng = np.random.default_rng(seed)
     P = np.zeros((S, A, S))
@@ -44,7 +53,13 @@ def lp_optimal_values(mdp: FiniteMDP) -> np.ndarray:
     bounds = [(None, None) if live[s] else (0.0, 0.0) for s in range(S)]
     if not rows:
         return np.zeros(S)
-    res = linprog(np.ones(S), A_ub=np.array(rows), b_ub=np.array(rhs), bounds=bounds, method="highs",
-                  options={"primal_feasibility_tolerance": 1e-10, "dual_feasibility_tolerance": 1e-10})
+    res = linprog(
+        np.ones(S),
+        A_ub=np.array(rows),
+        b_ub=np.array(rhs),
+        bounds=bounds,
+        method="highs",
+        options={"primal_feasibility_tolerance": 1e-10, "dual_feasibility_tolerance": 1e-10},
+    )
     assert res.status == 0, res.message
     return res.x

@@ -166,8 +166,9 @@ def test_krylov_falls_back_when_bicgstab_breaks_down():
 
     mdp = drummer()  # finite-horizon chain: BiCGSTAB breaks down on the always-chill system
     chill = constant_policy(mdp, CHILL)
-    np.testing.assert_allclose(evaluate_policy(mdp, chill, solver="krylov"),
-                               evaluate_policy(mdp, chill, solver="sparse"), atol=1e-12)
+    np.testing.assert_allclose(
+        evaluate_policy(mdp, chill, solver="krylov"), evaluate_policy(mdp, chill, solver="sparse"), atol=1e-12
+    )
 
 
 def test_undiscounted_policy_iteration_starts_from_a_proper_policy():

@@ -93,8 +93,15 @@ def test_drummer_relations_across_parameters(days, max_skill, practise_frac, wat
     initial_skill = int(skill_frac * (max_skill - 1))
     x = np.arange(max_skill + 1) / max_skill
     pass_p = {"linear": x, "convex": x**2, "concave": np.sqrt(x)}[curve]
-    mdp = drummer(days=days, max_skill=max_skill, p_watch=p_watch, p_practise=p_practise,
-                  p_forget=p_forget, pass_probability=pass_p, initial_skill=initial_skill)
+    mdp = drummer(
+        days=days,
+        max_skill=max_skill,
+        p_watch=p_watch,
+        p_practise=p_practise,
+        p_forget=p_forget,
+        pass_probability=pass_p,
+        initial_skill=initial_skill,
+    )
     check_drummer_relations(mdp, drummer_state(0, initial_skill, max_skill=max_skill))
 
 

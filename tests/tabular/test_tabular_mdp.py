@@ -38,8 +38,10 @@ def test_valid_mdp_layouts_agree():
 @pytest.mark.parametrize(
     "mutate, message",
     [
-        (lambda P, R: (P * np.where(np.arange(3)[:, None, None] == 1, 0.8, 1.0), R, 0.9, [2]),
-         r"P\[s=1, a=0\] sums to 0.8; each row of P must sum to 1"),
+        (
+            lambda P, R: (P * np.where(np.arange(3)[:, None, None] == 1, 0.8, 1.0), R, 0.9, [2]),
+            r"P\[s=1, a=0\] sums to 0.8; each row of P must sum to 1",
+        ),
         (lambda P, R: (P + _neg(P), R, 0.9, [2]), r"P\[s=0, a=0, s'=0\] = -0.5 is negative"),
         (lambda P, R: (P, R[:, :1], 0.9, [2]), r"R has shape \(3, 1\).*\(S, A\) = \(3, 2\)"),
         (lambda P, R: (P[:, :, :2], R, 0.9, [2]), r"P has shape \(3, 2, 2\); dense P must have shape \[S, A, S\]"),

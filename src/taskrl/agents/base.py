@@ -66,16 +66,18 @@ def batch_observations(obs: Any, inputs: ObservationInput, device: torch.device)
     if not isinstance(obs, Mapping):
         obs = {"observation": obs}
     numpy = any(not isinstance(v, torch.Tensor) for v in obs.values())
-    tensors = {k: v.to(device) if isinstance(v, torch.Tensor) else torch.as_tensor(np.asarray(v), device=device)
-               for k, v in obs.items()}
+    tensors = {
+        k: v.to(device) if isinstance(v, torch.Tensor) else torch.as_tensor(np.asarray(v), device=device) for k, v in obs.items()
+    }
     missing = [k for k in inputs.keys if k not in tensors]
     if missing:
         raise ValueError(f"observation lacks {missing}: the agent reads {list(inputs.keys)}, got {list(tensors)}")
     read = [tensors[k] for k in inputs.keys]
     total = sum(t.numel() for t in read)
     if total % inputs.dim:
-        raise ValueError(f"observation holds {total} numbers under {list(inputs.keys)}: not a multiple of the "
-                         f"agent's input size {inputs.dim}")
+        raise ValueError(
+            f"observation holds {total} numbers under {list(inputs.keys)}: not a multiple of the agent's input size {inputs.dim}"
+        )
     batch_of_one = all(t.ndim >= 2 and t.shape[0] == 1 for t in read)
     single = total == inputs.dim and not batch_of_one
     if single:

@@ -66,8 +66,11 @@ class CEMConfig:
         require(self.iterations >= 1, "iterations", f"must be >= 1 (got {self.iterations})")
         require(1 <= self.elites <= self.samples, "elites", f"must be in [1, samples={self.samples}] (got {self.elites})")
         require(self.init_std > 0, "init_std", f"must be > 0 (got {self.init_std})")
-        require(self.first_samples == 0 or self.first_samples >= self.elites, "first_samples",
-                f"must be 0 (same as samples) or >= elites={self.elites} (got {self.first_samples})")
+        require(
+            self.first_samples == 0 or self.first_samples >= self.elites,
+            "first_samples",
+            f"must be 0 (same as samples) or >= elites={self.elites} (got {self.first_samples})",
+        )
         require(self.warm_std > 0, "warm_std", f"must be > 0 (got {self.warm_std})")
         require(self.warm_iterations >= 0, "warm_iterations", f"must be >= 0 (got {self.warm_iterations})")
 
@@ -83,11 +86,19 @@ def action_bounds(action_space: Any, device: str | torch.device = "cpu") -> tupl
         try:
             low, high = action_space
         except (TypeError, ValueError):
-            raise ValueError(f"action_space must be a gymnasium Box or a (low, high) pair, got {type(action_space).__name__}") from None
-    low = torch.as_tensor(np.asarray(low, dtype=np.float32) if not isinstance(low, torch.Tensor) else low, dtype=torch.float32, device=device).flatten()
-    high = torch.as_tensor(np.asarray(high, dtype=np.float32) if not isinstance(high, torch.Tensor) else high, dtype=torch.float32, device=device).flatten()
+            raise ValueError(
+                f"action_space must be a gymnasium Box or a (low, high) pair, got {type(action_space).__name__}"
+            ) from None
+    low = torch.as_tensor(
+        np.asarray(low, dtype=np.float32) if not isinstance(low, torch.Tensor) else low, dtype=torch.float32, device=device
+    ).flatten()
+    high = torch.as_tensor(
+        np.asarray(high, dtype=np.float32) if not isinstance(high, torch.Tensor) else high, dtype=torch.float32, device=device
+    ).flatten()
     if low.shape != high.shape or low.numel() == 0:
-        raise ValueError(f"action_space: low and high must have the same non-empty shape (got {tuple(low.shape)} and {tuple(high.shape)})")
+        raise ValueError(
+            f"action_space: low and high must have the same non-empty shape (got {tuple(low.shape)} and {tuple(high.shape)})"
+        )
     if not (torch.isfinite(low).all() and torch.isfinite(high).all()):
         raise ValueError("action_space: bounds must be finite (continuous agents rescale actions to the box)")
     if not (low < high).all():
@@ -143,9 +154,9 @@ def maximize(
     for n in counts:
         noise = torch.randn(batch_size, n, low.shape[-1], generator=generator, device=low.device, dtype=low.dtype)
         actions = torch.maximum(torch.minimum(mean.unsqueeze(1) + std.unsqueeze(1) * noise, high), low)
-        scores = score_fn(actions)                                        # [B, N], one call
-        top_scores, top_idx = scores.topk(elites, dim=1)                  # sorted: column 0 is the best
-        elite = actions.gather(1, top_idx.unsqueeze(-1).expand(-1, -1, actions.shape[-1]))   # [B, K, A]
+        scores = score_fn(actions)  # [B, N], one call
+        top_scores, top_idx = scores.topk(elites, dim=1)  # sorted: column 0 is the best
+        elite = actions.gather(1, top_idx.unsqueeze(-1).expand(-1, -1, actions.shape[-1]))  # [B, K, A]
         std, mean = torch.std_mean(elite, dim=1, correction=0)
         if best_scores is None:
             best_actions, best_scores = elite[:, 0], top_scores[:, 0]
@@ -201,7 +212,18 @@ class CrossEntropyMethod:
         samples = cfg.samples if samples is None else samples
         if init_std is None:
             init_std = (cfg.warm_std if warm else cfg.init_std) * (action_high - action_low) / 2
-        return maximize(score_fn, batch_size, action_low, action_high, iterations, samples,
-                        cfg.elites if elites is None else elites, init_mean, init_std, generator, return_distribution)
+        return maximize(
+            score_fn,
+            batch_size,
+            action_low,
+            action_high,
+            iterations,
+            samples,
+            cfg.elites if elites is None else elites,
+            init_mean,
+            init_std,
+            generator,
+            return_distribution,
+        )
 
     __call__ = maximize

@@ -107,7 +107,9 @@ class DQNAgent(Agent):
 
     checkpointed = {"q": "q", "q_target": "q_target", "normalize": "inputs.normalize", "optimizer": "optimizer"}
 
-    def __init__(self, input_keys: tuple[str, ...], input_dim: int, n_actions: int, config: DQNConfig, device: str | torch.device = "cpu") -> None:
+    def __init__(
+        self, input_keys: tuple[str, ...], input_dim: int, n_actions: int, config: DQNConfig, device: str | torch.device = "cpu"
+    ) -> None:
         config.validate()
         self.config = config
         self.device = torch.device(device)
@@ -183,7 +185,9 @@ SPEC = AlgorithmSpec(
     name="dqn",
     description="deep Q-learning with a target network and double-Q (discrete actions)",
     config=DQNConfig,
-    build=lambda inputs, config, device, conditioning: DQNAgent(inputs.keys, inputs.dim, int(inputs.action_space.n), config, device),
+    build=lambda inputs, config, device, conditioning: DQNAgent(
+        inputs.keys, inputs.dim, int(inputs.action_space.n), config, device
+    ),
     loop="off_policy",
     actions=("discrete",),
 )

@@ -77,8 +77,13 @@ def negative_return_bounds(gamma: float) -> tuple[float, float]:
     return -1.0 / (1.0 - gamma), 0.0
 
 
-def td_target(reward: torch.Tensor, terminated: torch.Tensor, next_value: torch.Tensor, gamma: float,
-              clip: tuple[float, float] | None = None) -> torch.Tensor:
+def td_target(
+    reward: torch.Tensor,
+    terminated: torch.Tensor,
+    next_value: torch.Tensor,
+    gamma: float,
+    clip: tuple[float, float] | None = None,
+) -> torch.Tensor:
     """``y = r + gamma * (1 - terminated) * v'``, clamped to ``clip`` when given.
 
     Only ``terminated`` stops bootstrapping: a time-limit truncation still bootstraps from ``v'``.
@@ -115,12 +120,13 @@ def gradient_step(optimizer: torch.optim.Optimizer, loss: torch.Tensor, params: 
     optimizer.step()
 
 
-def explore_in_box(unit: torch.Tensor, noise_std: float, random_prob: float,
-                   generator: torch.Generator | None = None) -> torch.Tensor:
+def explore_in_box(
+    unit: torch.Tensor, noise_std: float, random_prob: float, generator: torch.Generator | None = None
+) -> torch.Tensor:
     """Exploration around deterministic actions in ``[-1, 1]^A`` (the hindsight paper's, for Fetch):
 
-        a = clip(a* + N(0, noise_std^2), -1, 1)     Gaussian noise, in half-widths of the box
-        a = U(-1, 1)^A  with probability random_prob per row   (the paper: 0.2 noise, 30% random)
+    a = clip(a* + N(0, noise_std^2), -1, 1)     Gaussian noise, in half-widths of the box
+    a = U(-1, 1)^A  with probability random_prob per row   (the paper: 0.2 noise, 30% random)
     """
     n, dim = unit.shape
     if noise_std > 0:
@@ -147,8 +153,11 @@ def check_learning_settings(config: Any, gamma_may_be_one: bool = False) -> None
     top = "1]" if gamma_may_be_one else "1)"
     require(0.0 <= c.gamma <= 1.0 and (gamma_may_be_one or c.gamma < 1.0), "gamma", f"must be in [0, {top} (got {c.gamma})")
     require(c.lr > 0, "lr", f"must be > 0 (got {c.lr})")
-    require(len(c.hidden_sizes) >= 1 and all(int(h) >= 1 for h in c.hidden_sizes), "hidden_sizes",
-            f"must be one or more positive widths (got {list(c.hidden_sizes)})")
+    require(
+        len(c.hidden_sizes) >= 1 and all(int(h) >= 1 for h in c.hidden_sizes),
+        "hidden_sizes",
+        f"must be one or more positive widths (got {list(c.hidden_sizes)})",
+    )
     require(c.max_grad_norm >= 0, "max_grad_norm", f"must be >= 0 (got {c.max_grad_norm})")
     if hasattr(c, "tau"):
         require(0.0 < c.tau <= 1.0, "tau", f"must be in (0, 1] (got {c.tau})")

@@ -113,14 +113,18 @@ class PPOConfig:
         for name in ("rollout_steps", "epochs", "minibatches"):
             require(getattr(self, name) >= 1, name, f"must be >= 1 (got {getattr(self, name)})")
         require(self.clip_range > 0, "clip_range", f"must be > 0 (got {self.clip_range})")
-        require(self.value_coef > 0 or (self.value_coef == 0 and self.estimator == "reinforce"), "value_coef",
-                f"must be > 0 for ppo (GAE needs a value function), >= 0 for reinforce (got {self.value_coef})")
+        require(
+            self.value_coef > 0 or (self.value_coef == 0 and self.estimator == "reinforce"),
+            "value_coef",
+            f"must be > 0 for ppo (GAE needs a value function), >= 0 for reinforce (got {self.value_coef})",
+        )
         require(self.entropy_coef >= 0, "entropy_coef", f"must be >= 0 (got {self.entropy_coef})")
 
 
 # ---------------------------------------------------------------- returns and advantages
-def next_values(value: torch.Tensor, final_value: torch.Tensor, last_value: torch.Tensor,
-                terminated: torch.Tensor, truncated: torch.Tensor) -> torch.Tensor:
+def next_values(
+    value: torch.Tensor, final_value: torch.Tensor, last_value: torch.Tensor, terminated: torch.Tensor, truncated: torch.Tensor
+) -> torch.Tensor:
     """v'_t [T, N]: 0 after a termination, V(final_obs) after a truncation, else V(s_{t+1})
     (``last_value`` [N] after the last step)."""
     following = torch.cat([value[1:], last_value.unsqueeze(0)], dim=0)
@@ -128,8 +132,16 @@ def next_values(value: torch.Tensor, final_value: torch.Tensor, last_value: torc
     return following.masked_fill(terminated, 0.0)
 
 
-def gae(reward: torch.Tensor, value: torch.Tensor, final_value: torch.Tensor, last_value: torch.Tensor,
-        terminated: torch.Tensor, truncated: torch.Tensor, gamma: float, lam: float) -> torch.Tensor:
+def gae(
+    reward: torch.Tensor,
+    value: torch.Tensor,
+    final_value: torch.Tensor,
+    last_value: torch.Tensor,
+    terminated: torch.Tensor,
+    truncated: torch.Tensor,
+    gamma: float,
+    lam: float,
+) -> torch.Tensor:
     """Generalised advantage estimates A [T, N] (see the module docstring); returns are A + value."""
     delta = reward + gamma * next_values(value, final_value, last_value, terminated, truncated) - value
     carry = gamma * lam * (~(terminated | truncated)).to(value.dtype)
@@ -141,8 +153,14 @@ def gae(reward: torch.Tensor, value: torch.Tensor, final_value: torch.Tensor, la
     return advantages
 
 
-def reward_to_go(reward: torch.Tensor, final_value: torch.Tensor, last_value: torch.Tensor,
-                 terminated: torch.Tensor, truncated: torch.Tensor, gamma: float) -> torch.Tensor:
+def reward_to_go(
+    reward: torch.Tensor,
+    final_value: torch.Tensor,
+    last_value: torch.Tensor,
+    terminated: torch.Tensor,
+    truncated: torch.Tensor,
+    gamma: float,
+) -> torch.Tensor:
     """Discounted reward-to-go G [T, N]: r_t + gamma G_{t+1} within an episode; at an episode's
     end or the rollout's last step, r_t + gamma v'_t (0 after termination, V(final_obs) after
     truncation, ``last_value`` after the last step)."""
@@ -156,8 +174,9 @@ def reward_to_go(reward: torch.Tensor, final_value: torch.Tensor, last_value: to
     return returns
 
 
-def clipped_surrogate(log_prob: torch.Tensor, old_log_prob: torch.Tensor, advantage: torch.Tensor,
-                      clip_range: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+def clipped_surrogate(
+    log_prob: torch.Tensor, old_log_prob: torch.Tensor, advantage: torch.Tensor, clip_range: float
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """``(L_pi, approx_kl, clip_fraction)``: L_pi = -mean(min(rho A, clip(rho, 1-eps, 1+eps) A))."""
     log_ratio = log_prob - old_log_prob
     ratio = log_ratio.exp()
@@ -200,11 +219,24 @@ class PPOAgent(Agent):
             and the value read the context ``encoder(obs[task_key])``. ``None``: plain MLPs.
     """
 
-    checkpointed = {"policy": "policy_net", "value": "value_net", "log_std": "log_std", "normalize": "inputs.normalize",
-                    "optimizer": "optimizer", "task_encoder": "task_encoder"}
+    checkpointed = {
+        "policy": "policy_net",
+        "value": "value_net",
+        "log_std": "log_std",
+        "normalize": "inputs.normalize",
+        "optimizer": "optimizer",
+        "task_encoder": "task_encoder",
+    }
 
-    def __init__(self, input_keys: tuple[str, ...], input_dim: int, action_space: Any, config: PPOConfig,
-                 device: str | torch.device = "cpu", conditioning: TaskConditioning | None = None) -> None:
+    def __init__(
+        self,
+        input_keys: tuple[str, ...],
+        input_dim: int,
+        action_space: Any,
+        config: PPOConfig,
+        device: str | torch.device = "cpu",
+        conditioning: TaskConditioning | None = None,
+    ) -> None:
         config.validate()
         self.config = config
         self.device = torch.device(device)
@@ -219,12 +251,18 @@ class PPOAgent(Agent):
         self.inputs = ObservationInput(input_keys, input_dim, config.normalize_inputs).to(self.device)
         self.policy_net = network_for(input_dim, out_dim, config.hidden_sizes, conditioning).to(self.device)
         self.value_net = network_for(input_dim, 1, config.hidden_sizes, conditioning).to(self.device)
-        _scale_output_layer(self.policy_net, 0.01)   # near-uniform / zero-mean initial policy
+        _scale_output_layer(self.policy_net, 0.01)  # near-uniform / zero-mean initial policy
         self.task_encoder = conditioning.encoder.to(self.device) if conditioning is not None else None
-        self.log_std = nn.Parameter(torch.full((out_dim,), float(config.init_log_std), device=self.device),
-                                    requires_grad=not self.discrete)
-        self._params = [p for m in (self.policy_net, self.value_net, self.task_encoder) if m is not None
-                        for p in m.parameters() if p.requires_grad]
+        self.log_std = nn.Parameter(
+            torch.full((out_dim,), float(config.init_log_std), device=self.device), requires_grad=not self.discrete
+        )
+        self._params = [
+            p
+            for m in (self.policy_net, self.value_net, self.task_encoder)
+            if m is not None
+            for p in m.parameters()
+            if p.requires_grad
+        ]
         if not self.discrete:
             self._params.append(self.log_std)
         self.optimizer = torch.optim.Adam(self._params, lr=config.lr, eps=1e-5)
@@ -287,7 +325,9 @@ class PPOAgent(Agent):
         return self._to_env(action)
 
     @torch.no_grad()
-    def rollout_step(self, obs: Obs, generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    def rollout_step(
+        self, obs: Obs, generator: torch.Generator | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         """What collection stores: ``(env_action, action, log_prob, value)``; ``action`` is the
         policy's own sample (unclipped, in [-1, 1] units; or the 0-based index), ``env_action``
         what the environment is stepped with."""
@@ -337,7 +377,7 @@ class PPOAgent(Agent):
         for _ in range(epochs):
             order = torch.randperm(n, generator=generator, device="cpu").to(self.device) if not reinforce else None
             for start in range(0, n - size + 1, size):
-                idx = order[start:start + size] if order is not None else slice(None)
+                idx = order[start : start + size] if order is not None else slice(None)
                 mb_obs = {k: v[idx] for k, v in obs.items()}
                 mb_adv = adv[idx]
                 if c.normalize_advantages and mb_adv.numel() > 1:
@@ -359,10 +399,12 @@ class PPOAgent(Agent):
                 else:
                     value_loss = torch.zeros((), device=self.device)
                 gradient_step(self.optimizer, loss, self._params, c.max_grad_norm)
-                sums += torch.stack([policy_loss.detach(), value_loss.detach(), entropy.detach().mean(), approx_kl, clip_fraction])
+                sums += torch.stack(
+                    [policy_loss.detach(), value_loss.detach(), entropy.detach().mean(), approx_kl, clip_fraction]
+                )
                 steps += 1
         self.updates += steps
-        self.inputs.update_statistics(obs)   # after the steps: the next rollout's pi_old is what acts
+        self.inputs.update_statistics(obs)  # after the steps: the next rollout's pi_old is what acts
         means = sums / steps
         names = ("policy_loss", "value_loss", "entropy", "approx_kl", "clip_fraction")
         metrics = {name: means[i] for i, name in enumerate(names)}
@@ -372,13 +414,13 @@ class PPOAgent(Agent):
         return metrics
 
 
-
 SPEC = AlgorithmSpec(
     name="ppo",
     description="PPO (GAE, clipped surrogate) or REINFORCE with reward-to-go, on-policy (Box or Discrete actions)",
     config=PPOConfig,
-    build=lambda inputs, config, device, conditioning: PPOAgent(inputs.keys, inputs.dim, inputs.action_space, config, device,
-                                                                conditioning),
+    build=lambda inputs, config, device, conditioning: PPOAgent(
+        inputs.keys, inputs.dim, inputs.action_space, config, device, conditioning
+    ),
     loop="on_policy",
     actions=("box", "discrete"),
     multitask=True,

@@ -116,10 +116,22 @@ class QTOptAgent(Agent):
         device: torch device of the networks.
     """
 
-    checkpointed = {"q": "q", "q_target1": "q_target1", "q_target2": "q_target2", "normalize": "inputs.normalize",
-                    "optimizer": "optimizer"}
+    checkpointed = {
+        "q": "q",
+        "q_target1": "q_target1",
+        "q_target2": "q_target2",
+        "normalize": "inputs.normalize",
+        "optimizer": "optimizer",
+    }
 
-    def __init__(self, input_keys: tuple[str, ...], input_dim: int, action_space: Any, config: QTOptConfig, device: str | torch.device = "cpu") -> None:
+    def __init__(
+        self,
+        input_keys: tuple[str, ...],
+        input_dim: int,
+        action_space: Any,
+        config: QTOptConfig,
+        device: str | torch.device = "cpu",
+    ) -> None:
         config.validate()
         self.config = config
         self.device = torch.device(device)
@@ -144,14 +156,21 @@ class QTOptAgent(Agent):
         """Network output -> Q: a probability sigmoid(logit) for the cross-entropy loss."""
         return torch.sigmoid(out) if self.config.loss == "cross_entropy" else out
 
-    def argmax(self, net: StateActionQ, x: torch.Tensor, generator: torch.Generator | None = None,
-               warm_start: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    def argmax(
+        self, net: StateActionQ, x: torch.Tensor, generator: torch.Generator | None = None, warm_start: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """CEM over [-1, 1]^A: ``(a* [B, A] in [-1, 1], net output at a* [B])``, one forward pass per round.
 
         ``warm_start`` (``[B, A]`` in [-1, 1]) starts the search there (``cem.warm_std``, ``cem.warm_iterations``).
         """
-        return self.cem.maximize(lambda a: net.score_actions(x, a), x.shape[0], self.unit_low, self.unit_high,
-                                 init_mean=warm_start, generator=generator)
+        return self.cem.maximize(
+            lambda a: net.score_actions(x, a),
+            x.shape[0],
+            self.unit_low,
+            self.unit_high,
+            init_mean=warm_start,
+            generator=generator,
+        )
 
     # ---------------------------------------------------------------- acting
     def random_action_prob(self, env_steps: int) -> float:
@@ -172,8 +191,13 @@ class QTOptAgent(Agent):
         return self.box.from_unit(unit)
 
     # ---------------------------------------------------------------- learning
-    def bellman_target(self, batch: Batch, generator: torch.Generator | None = None,
-                       warm_start: torch.Tensor | None = None, return_action: bool = False):
+    def bellman_target(
+        self,
+        batch: Batch,
+        generator: torch.Generator | None = None,
+        warm_start: torch.Tensor | None = None,
+        return_action: bool = False,
+    ):
         """y = r + gamma (1 - terminated) min(Q_target1(s', a*), Q_target2(s', a*)), a* = CEM argmax of Q_target1.
 
         Reads only the batch, the two target networks and the input normaliser (a Bellman
@@ -187,7 +211,7 @@ class QTOptAgent(Agent):
             warm = None if warm_start is None else self.box.to_unit(warm_start)
             next_action, out1 = self.argmax(self.q_target1, next_x, generator, warm)  # out1 = Q_target1(s', a*), from CEM
             out2 = self.q_target2(next_x, next_action)
-            next_value = self.q_value(torch.minimum(out1, out2))                       # sigmoid is monotone
+            next_value = self.q_value(torch.minimum(out1, out2))  # sigmoid is monotone
             if cfg.loss == "cross_entropy":
                 clip = (0.0, 1.0)
             else:

@@ -97,14 +97,17 @@ class SACConfig:
         """Raise :class:`~taskrl.errors.ConfigError` naming the first bad setting."""
         check_learning_settings(self)
         require(self.init_alpha > 0, "init_alpha", f"must be > 0 (got {self.init_alpha})")
-        require(self.log_std_min < self.log_std_max, "log_std_min",
-                f"must be below log_std_max={self.log_std_max} (got {self.log_std_min})")
+        require(
+            self.log_std_min < self.log_std_max,
+            "log_std_min",
+            f"must be below log_std_max={self.log_std_max} (got {self.log_std_min})",
+        )
 
 
 def squashed_gaussian_log_prob(u: torch.Tensor, mean: torch.Tensor, log_std: torch.Tensor) -> torch.Tensor:
     """log density of a = tanh(u), u ~ N(mean, exp(log_std)^2), summed over the last dimension."""
     gaussian = -0.5 * ((u - mean) * torch.exp(-log_std)).square() - log_std - 0.5 * _LOG_2PI
-    log_det = 2.0 * (_LOG_2 - u - F.softplus(-2.0 * u))          # log(1 - tanh(u)^2), stable
+    log_det = 2.0 * (_LOG_2 - u - F.softplus(-2.0 * u))  # log(1 - tanh(u)^2), stable
     return (gaussian - log_det).sum(-1)
 
 
@@ -114,20 +117,34 @@ class SquashedGaussianActor(nn.Module):
     ``conditioning`` (multi-task) makes the network take the task context and index as well.
     """
 
-    def __init__(self, in_dim: int, action_dim: int, hidden_sizes: tuple[int, ...], log_std_min: float, log_std_max: float,
-                 conditioning: TaskConditioning | None = None) -> None:
+    def __init__(
+        self,
+        in_dim: int,
+        action_dim: int,
+        hidden_sizes: tuple[int, ...],
+        log_std_min: float,
+        log_std_max: float,
+        conditioning: TaskConditioning | None = None,
+    ) -> None:
         super().__init__()
         self.body = network_for(in_dim, 2 * action_dim, hidden_sizes, conditioning)
         self.log_std_min, self.log_std_max = log_std_min, log_std_max
 
-    def forward(self, x: torch.Tensor, context: torch.Tensor | None = None, task: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    def forward(
+        self, x: torch.Tensor, context: torch.Tensor | None = None, task: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """(mean, log_std) of u; log_std squashed smoothly into [log_std_min, log_std_max]."""
         mean, raw = self.body(x, context, task).chunk(2, dim=-1)
         log_std = self.log_std_min + 0.5 * (self.log_std_max - self.log_std_min) * (torch.tanh(raw) + 1.0)
         return mean, log_std
 
-    def sample(self, x: torch.Tensor, generator: torch.Generator | None = None, context: torch.Tensor | None = None,
-               task: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    def sample(
+        self,
+        x: torch.Tensor,
+        generator: torch.Generator | None = None,
+        context: torch.Tensor | None = None,
+        task: torch.Tensor | None = None,
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """A reparameterised sample ``a = tanh(mean + std * eps)`` in [-1, 1] and ``log pi(a|s)``."""
         mean, log_std = self(x, context, task)
         eps = torch.randn(mean.shape, generator=generator, device=mean.device, dtype=mean.dtype)
@@ -142,12 +159,15 @@ class SquashedGaussianActor(nn.Module):
 class Critic(nn.Module):
     """Q(s, a, c) -> [B]: the action joins the state after the task conditioning (if any)."""
 
-    def __init__(self, in_dim: int, action_dim: int, hidden_sizes: tuple[int, ...], conditioning: TaskConditioning | None = None) -> None:
+    def __init__(
+        self, in_dim: int, action_dim: int, hidden_sizes: tuple[int, ...], conditioning: TaskConditioning | None = None
+    ) -> None:
         super().__init__()
         self.body = network_for(in_dim, 1, hidden_sizes, conditioning, extra_dim=action_dim)
 
-    def forward(self, x: torch.Tensor, action: torch.Tensor, context: torch.Tensor | None = None,
-                task: torch.Tensor | None = None) -> torch.Tensor:
+    def forward(
+        self, x: torch.Tensor, action: torch.Tensor, context: torch.Tensor | None = None, task: torch.Tensor | None = None
+    ) -> torch.Tensor:
         return self.body(x, context, task, extra=action).squeeze(-1)
 
 
@@ -164,12 +184,27 @@ class SACAgent(Agent):
             use; observations then carry the task index under ``conditioning.task_key``.
     """
 
-    checkpointed = {"actor": "actor", "critics": "critics", "critics_target": "critics_target", "log_alpha": "log_alpha",
-                    "normalize": "inputs.normalize", "task_encoder": "task_encoder", "actor_optimizer": "actor_optimizer",
-                    "critic_optimizer": "critic_optimizer", "alpha_optimizer": "alpha_optimizer"}
+    checkpointed = {
+        "actor": "actor",
+        "critics": "critics",
+        "critics_target": "critics_target",
+        "log_alpha": "log_alpha",
+        "normalize": "inputs.normalize",
+        "task_encoder": "task_encoder",
+        "actor_optimizer": "actor_optimizer",
+        "critic_optimizer": "critic_optimizer",
+        "alpha_optimizer": "alpha_optimizer",
+    }
 
-    def __init__(self, input_keys: tuple[str, ...], input_dim: int, action_space: Any, config: SACConfig, device: str | torch.device = "cpu",
-                 conditioning: TaskConditioning | None = None) -> None:
+    def __init__(
+        self,
+        input_keys: tuple[str, ...],
+        input_dim: int,
+        action_space: Any,
+        config: SACConfig,
+        device: str | torch.device = "cpu",
+        conditioning: TaskConditioning | None = None,
+    ) -> None:
         config.validate()
         self.config = config
         self.device = torch.device(device)
@@ -180,10 +215,15 @@ class SACAgent(Agent):
         self.conditioning = conditioning
         self.task_encoder = conditioning.encoder.to(self.device) if conditioning is not None else None
         self.num_tasks = conditioning.num_tasks if conditioning is not None else 1
-        self.actor = SquashedGaussianActor(input_dim, self.action_dim, config.hidden_sizes, config.log_std_min, config.log_std_max,
-                                           conditioning).to(self.device)
-        self.critics = nn.ModuleList(Critic(input_dim, self.action_dim, config.hidden_sizes, conditioning) for _ in range(2)).to(self.device)
-        self.critics_target = nn.ModuleList(Critic(input_dim, self.action_dim, config.hidden_sizes, conditioning) for _ in range(2)).to(self.device)
+        self.actor = SquashedGaussianActor(
+            input_dim, self.action_dim, config.hidden_sizes, config.log_std_min, config.log_std_max, conditioning
+        ).to(self.device)
+        self.critics = nn.ModuleList(Critic(input_dim, self.action_dim, config.hidden_sizes, conditioning) for _ in range(2)).to(
+            self.device
+        )
+        self.critics_target = nn.ModuleList(
+            Critic(input_dim, self.action_dim, config.hidden_sizes, conditioning) for _ in range(2)
+        ).to(self.device)
         self.critics_target.load_state_dict(self.critics.state_dict())
         self.critics_target.requires_grad_(False)
         alphas = self.num_tasks if config.per_task_alpha else 1
@@ -267,8 +307,13 @@ class SACAgent(Agent):
 
         self.update_target()
         self.updates += 1
-        return {"critic_loss": critic_loss.detach(), "actor_loss": actor_loss.detach(), "alpha": self.alpha.mean(),
-                "entropy": -log_prob.mean(), "q_mean": q1.detach().mean()}
+        return {
+            "critic_loss": critic_loss.detach(),
+            "actor_loss": actor_loss.detach(),
+            "alpha": self.alpha.mean(),
+            "entropy": -log_prob.mean(),
+            "q_mean": q1.detach().mean(),
+        }
 
     def _set_critic_grad(self, enabled: bool) -> None:
         for p in self._critic_params:
@@ -283,8 +328,9 @@ SPEC = AlgorithmSpec(
     name="sac",
     description="soft actor-critic: twin critics, learned temperature (per task on multi-task envs)",
     config=SACConfig,
-    build=lambda inputs, config, device, conditioning: SACAgent(inputs.keys, inputs.dim, inputs.action_space, config, device,
-                                                                conditioning),
+    build=lambda inputs, config, device, conditioning: SACAgent(
+        inputs.keys, inputs.dim, inputs.action_space, config, device, conditioning
+    ),
     loop="off_policy",
     actions=("box",),
     multitask=True,

@@ -106,10 +106,24 @@ class TD3Agent(Agent):
         device: torch device of the networks.
     """
 
-    checkpointed = {"actor": "actor", "actor_target": "actor_target", "critics": "critics", "critics_target": "critics_target",
-                    "normalize": "inputs.normalize", "actor_optimizer": "actor_optimizer", "critic_optimizer": "critic_optimizer"}
+    checkpointed = {
+        "actor": "actor",
+        "actor_target": "actor_target",
+        "critics": "critics",
+        "critics_target": "critics_target",
+        "normalize": "inputs.normalize",
+        "actor_optimizer": "actor_optimizer",
+        "critic_optimizer": "critic_optimizer",
+    }
 
-    def __init__(self, input_keys: tuple[str, ...], input_dim: int, action_space: Any, config: TD3Config, device: str | torch.device = "cpu") -> None:
+    def __init__(
+        self,
+        input_keys: tuple[str, ...],
+        input_dim: int,
+        action_space: Any,
+        config: TD3Config,
+        device: str | torch.device = "cpu",
+    ) -> None:
         config.validate()
         self.config = config
         self.device = torch.device(device)
@@ -118,8 +132,12 @@ class TD3Agent(Agent):
         self.inputs = ObservationInput(input_keys, input_dim, config.normalize_inputs).to(self.device)
         self.actor = DeterministicActor(input_dim, self.action_dim, config.hidden_sizes).to(self.device)
         self.actor_target = DeterministicActor(input_dim, self.action_dim, config.hidden_sizes).to(self.device)
-        self.critics = nn.ModuleList(StateActionQ(input_dim, self.action_dim, config.hidden_sizes) for _ in range(2)).to(self.device)
-        self.critics_target = nn.ModuleList(StateActionQ(input_dim, self.action_dim, config.hidden_sizes) for _ in range(2)).to(self.device)
+        self.critics = nn.ModuleList(StateActionQ(input_dim, self.action_dim, config.hidden_sizes) for _ in range(2)).to(
+            self.device
+        )
+        self.critics_target = nn.ModuleList(StateActionQ(input_dim, self.action_dim, config.hidden_sizes) for _ in range(2)).to(
+            self.device
+        )
         self.actor_target.load_state_dict(self.actor.state_dict())
         self.critics_target.load_state_dict(self.critics.state_dict())
         self.actor_target.requires_grad_(False)

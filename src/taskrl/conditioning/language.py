@@ -134,6 +134,8 @@ def sentence_embeddings(descriptions: Sequence[str], cache_dir: str | Path | Non
         table = model.encode(descriptions, convert_to_tensor=True, normalize_embeddings=True, show_progress_bar=False)
     table = torch.as_tensor(table).detach().to("cpu", torch.float32).clone()
     if table.shape != (len(descriptions), EMBEDDING_DIM):
-        raise RuntimeError(f"{MODEL_NAME}: expected embeddings of shape {(len(descriptions), EMBEDDING_DIM)}, got {tuple(table.shape)}")
+        raise RuntimeError(
+            f"{MODEL_NAME}: expected embeddings of shape {(len(descriptions), EMBEDDING_DIM)}, got {tuple(table.shape)}"
+        )
     _write_cache(path, descriptions, table)
     return table

@@ -173,20 +173,36 @@ class TaskConditioning:
     def network(self, in_dim: int, out_dim: int, hidden_sizes: Sequence[int], extra_dim: int = 0) -> ConditionedMLP:
         """A :class:`ConditionedMLP` with this conditioning (one head per task if ``multi_head``)."""
         c = self.config
-        return ConditionedMLP(in_dim, out_dim, hidden_sizes, self.encoder.context_dim, c.architecture, extra_dim,
-                              self.num_tasks if c.multi_head else 1, c.care_encoders, c.care_encoder_dim)
+        return ConditionedMLP(
+            in_dim,
+            out_dim,
+            hidden_sizes,
+            self.encoder.context_dim,
+            c.architecture,
+            extra_dim,
+            self.num_tasks if c.multi_head else 1,
+            c.care_encoders,
+            c.care_encoder_dim,
+        )
 
 
-def make_conditioning(config: ConditioningConfig, num_tasks: int, descriptions: Sequence[str] | None = None,
-                      task_key: str = "task") -> TaskConditioning:
+def make_conditioning(
+    config: ConditioningConfig, num_tasks: int, descriptions: Sequence[str] | None = None, task_key: str = "task"
+) -> TaskConditioning:
     """The :class:`TaskConditioning` a config names, for ``num_tasks`` tasks described by ``descriptions``."""
-    encoder = make_task_encoder(config.task_encoder, num_tasks, dim=config.embedding_dim, descriptions=descriptions,
-                                projection_dim=config.projection_dim or None)
+    encoder = make_task_encoder(
+        config.task_encoder,
+        num_tasks,
+        dim=config.embedding_dim,
+        descriptions=descriptions,
+        projection_dim=config.projection_dim or None,
+    )
     return TaskConditioning(encoder, config, task_key)
 
 
-def network_for(in_dim: int, out_dim: int, hidden_sizes: Sequence[int], conditioning: TaskConditioning | None,
-                  extra_dim: int = 0) -> ConditionedMLP:
+def network_for(
+    in_dim: int, out_dim: int, hidden_sizes: Sequence[int], conditioning: TaskConditioning | None, extra_dim: int = 0
+) -> ConditionedMLP:
     """``conditioning.network(...)`` for a multi-task agent, an unconditioned network otherwise."""
     if conditioning is None:
         return ConditionedMLP(in_dim, out_dim, hidden_sizes, extra_dim=extra_dim)

@@ -54,9 +54,7 @@ class BitFlip(GoalEnvMixin, NativeEnv):
             raise ValueError(f"horizon must be >= 1, got {self.horizon}")
         self.terminate_on_success = terminate_on_success
         bits = gym.spaces.MultiBinary(n_bits)
-        self.single_observation_space = gym.spaces.Dict(
-            {"observation": bits, "achieved_goal": bits, "desired_goal": bits}
-        )
+        self.single_observation_space = gym.spaces.Dict({"observation": bits, "achieved_goal": bits, "desired_goal": bits})
         self.single_action_space = gym.spaces.Discrete(n_bits)
         self.generator = torch.Generator(device=self.device)
         self.generator.manual_seed(seed if seed is not None else int(np.random.SeedSequence().entropy % 2**63))
@@ -114,8 +112,13 @@ class BitFlipSettings:
 
 
 def _make_bitflip(settings: BitFlipSettings, request: EnvRequest) -> BitFlip:
-    return BitFlip(settings.n_bits, num_envs=request.copies, device=request.device,
-                   terminate_on_success=settings.terminate_on_success, seed=request.seed)
+    return BitFlip(
+        settings.n_bits,
+        num_envs=request.copies,
+        device=request.device,
+        terminate_on_success=settings.terminate_on_success,
+        seed=request.seed,
+    )
 
 
 FAMILY = EnvFamily(
@@ -127,4 +130,3 @@ FAMILY = EnvFamily(
     kind="goal",
     actions="discrete",
 )
-

@@ -40,14 +40,26 @@ class FetchSettings:
 
 def _maker(env_id: str):
     def make(settings: FetchSettings, request: EnvRequest) -> GymnasiumGoalEnv:
-        return GymnasiumGoalEnv(env_id, num_envs=request.copies, device=request.device,
-                                vector_strategy=settings.vector_strategy, success_key="is_success")
+        return GymnasiumGoalEnv(
+            env_id,
+            num_envs=request.copies,
+            device=request.device,
+            vector_strategy=settings.vector_strategy,
+            success_key="is_success",
+        )
 
     return make
 
 
 FAMILIES = tuple(
-    EnvFamily(name=name, description=f"{env_id} (gymnasium-robotics, MuJoCo; the robotics extra)", section="fetch",
-              settings=FetchSettings, make=_maker(env_id), kind="goal", actions="box")
+    EnvFamily(
+        name=name,
+        description=f"{env_id} (gymnasium-robotics, MuJoCo; the robotics extra)",
+        section="fetch",
+        settings=FetchSettings,
+        make=_maker(env_id),
+        kind="goal",
+        actions="box",
+    )
     for name, env_id in FETCH_IDS.items()
 )

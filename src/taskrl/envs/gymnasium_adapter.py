@@ -194,9 +194,7 @@ class GymnasiumVectorEnv(BatchedEnv):
                 raise RuntimeError(f"the vector env does not use same-step autoreset: {self.vector_env.metadata!r}")
             self.horizon = max_episode_steps if max_episode_steps is not None else self._spec_steps(first)
             if self.horizon is None:
-                raise ValueError(
-                    f"env {self.env_id!r} has no max_episode_steps in its spec; pass max_episode_steps"
-                )
+                raise ValueError(f"env {self.env_id!r} has no max_episode_steps in its spec; pass max_episode_steps")
         except Exception:
             self.close()
             raise
@@ -204,9 +202,7 @@ class GymnasiumVectorEnv(BatchedEnv):
         raw_space = self.vector_env.single_observation_space
         self._wrap_obs = not isinstance(raw_space, gym.spaces.Dict)  # a Box: the "observation" key
         raw_spaces = {"observation": raw_space} if self._wrap_obs else raw_space.spaces
-        self.single_observation_space = gym.spaces.Dict(
-            {k: _convert_space(s, observation_dtype) for k, s in raw_spaces.items()}
-        )
+        self.single_observation_space = gym.spaces.Dict({k: _convert_space(s, observation_dtype) for k, s in raw_spaces.items()})
         self.single_action_space = self.vector_env.single_action_space
         self._obs_dtypes = {k: _torch_dtype(s) for k, s in self.single_observation_space.spaces.items()}
         self._action_shape = self.vector_env.action_space.shape

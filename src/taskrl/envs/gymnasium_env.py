@@ -91,15 +91,17 @@ class PointReachGymEnv(SingleCopyEnv):
         distance_threshold: float = 0.05,
         terminate_on_success: bool = False,
     ) -> None:
-        self._wrap(PointReach(
-            num_envs=1,
-            horizon=2**62,
-            reward=reward,
-            max_speed=max_speed,
-            distance_threshold=distance_threshold,
-            terminate_on_success=terminate_on_success,
-            seed=0,
-        ))
+        self._wrap(
+            PointReach(
+                num_envs=1,
+                horizon=2**62,
+                reward=reward,
+                max_speed=max_speed,
+                distance_threshold=distance_threshold,
+                terminate_on_success=terminate_on_success,
+                seed=0,
+            )
+        )
 
     def compute_reward(self, achieved_goal: np.ndarray, desired_goal: np.ndarray, info: Any = None) -> np.ndarray:
         """Vectorised over leading dimensions, like gymnasium-robotics' goal envs."""

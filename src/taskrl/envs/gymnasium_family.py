@@ -50,9 +50,16 @@ class GymnasiumSettings:
     vector_strategy: Literal["sync", "async"] = "sync"
 
     def validate(self) -> None:
-        require(bool(self.env_id), "env_id", "name a gymnasium id, e.g. --env-id my/Slider-v0 "
-                                             "(with --env-module MODULE if a module of yours registers it)")
-        require(self.max_episode_steps >= 0, "max_episode_steps", f"must be >= 0 (0 = the registered limit; got {self.max_episode_steps})")
+        require(
+            bool(self.env_id),
+            "env_id",
+            "name a gymnasium id, e.g. --env-id my/Slider-v0 (with --env-module MODULE if a module of yours registers it)",
+        )
+        require(
+            self.max_episode_steps >= 0,
+            "max_episode_steps",
+            f"must be >= 0 (0 = the registered limit; got {self.max_episode_steps})",
+        )
         one_of(self.vector_strategy, VECTOR_STRATEGIES, "vector_strategy", "strategy")
 
 
@@ -66,8 +73,11 @@ def check_registered(env_id: str) -> None:
     try:
         gym.spec(env_id)
     except gym.error.Error as error:
-        raise ConfigError("env_id", f"{env_id!r} is not registered with gymnasium ({error}); register it first, "
-                                    f"e.g. with --env-module MODULE naming the module that calls gymnasium.register") from None
+        raise ConfigError(
+            "env_id",
+            f"{env_id!r} is not registered with gymnasium ({error}); register it first, "
+            f"e.g. with --env-module MODULE naming the module that calls gymnasium.register",
+        ) from None
 
 
 def _factory(settings: GymnasiumSettings, source: Any):
@@ -75,8 +85,11 @@ def _factory(settings: GymnasiumSettings, source: Any):
     if source is not None:
         return source
     if settings.env_id.startswith(PYTHON_SOURCE):
-        raise ConfigError("env", f"this run was trained on the Python factory {settings.env_id[len(PYTHON_SOURCE):]}; "
-                                 f"pass it again (taskrl.train(resume=..., env=factory) or taskrl.load(..., env=factory))")
+        raise ConfigError(
+            "env",
+            f"this run was trained on the Python factory {settings.env_id[len(PYTHON_SOURCE) :]}; "
+            f"pass it again (taskrl.train(resume=..., env=factory) or taskrl.load(..., env=factory))",
+        )
     check_registered(settings.env_id)
     return None
 
@@ -87,14 +100,23 @@ def _make(settings: GymnasiumSettings, request: EnvRequest) -> BatchedEnv:
     probe = factory() if factory is not None else gym.make(settings.env_id)
     try:  # one copy tells whether this is a goal env (then hindsight relabelling uses its compute_reward)
         space = probe.observation_space
-        goal = (isinstance(space, gym.spaces.Dict) and {"achieved_goal", "desired_goal"} <= set(space.spaces)
-                and callable(getattr(probe.unwrapped, "compute_reward", None)))
+        goal = (
+            isinstance(space, gym.spaces.Dict)
+            and {"achieved_goal", "desired_goal"} <= set(space.spaces)
+            and callable(getattr(probe.unwrapped, "compute_reward", None))
+        )
     finally:
         probe.close()
     cls = GymnasiumGoalEnv if goal else GymnasiumVectorEnv
     try:
-        return cls(source, num_envs=request.copies, device=request.device, vector_strategy=settings.vector_strategy,
-                   success_key=settings.success_key, max_episode_steps=settings.max_episode_steps or None)
+        return cls(
+            source,
+            num_envs=request.copies,
+            device=request.device,
+            vector_strategy=settings.vector_strategy,
+            success_key=settings.success_key,
+            max_episode_steps=settings.max_episode_steps or None,
+        )
     except ValueError as error:  # the adapter's one-line reason (observation space, time limit)
         raise ConfigError("env_id", str(error)) from None
 

@@ -149,7 +149,9 @@ def _check_name(name: str) -> str:
     if base not in METAWORLD_DESCRIPTIONS:
         raise ValueError(f"unknown Meta-World task {name!r}; allowed names: {', '.join(MT50_TASKS)}")
     if base != name and not name.endswith(f"-{METAWORLD_VERSION}"):
-        raise ValueError(f"Meta-World task {name!r}: taskrl uses Meta-World {METAWORLD_VERSION}; write {base!r} or {metaworld_id(base)!r}")
+        raise ValueError(
+            f"Meta-World task {name!r}: taskrl uses Meta-World {METAWORLD_VERSION}; write {base!r} or {metaworld_id(base)!r}"
+        )
     return base
 
 
@@ -200,8 +202,11 @@ def metaworld_spec(benchmark: str | Sequence[str] = "MT10", task: str | None = N
     """The :class:`MetaWorldSpec` of a benchmark (arguments as :func:`metaworld_task_set`)."""
     task_set = metaworld_task_set(benchmark, task)
     observation = gym.spaces.Box(-np.inf, np.inf, shape=(METAWORLD_OBS_DIM,), dtype=np.float32)
-    return MetaWorldSpec(task_set, gym.spaces.Dict({"observation": observation, "task": gym.spaces.Discrete(len(task_set))}),
-                         gym.spaces.Box(-1.0, 1.0, shape=(METAWORLD_ACTION_DIM,), dtype=np.float32))
+    return MetaWorldSpec(
+        task_set,
+        gym.spaces.Dict({"observation": observation, "task": gym.spaces.Discrete(len(task_set))}),
+        gym.spaces.Box(-1.0, 1.0, shape=(METAWORLD_ACTION_DIM,), dtype=np.float32),
+    )
 
 
 # ---------------------------------------------------------------------------------------------
@@ -287,7 +292,10 @@ def _benchmark_tasks(
     try:
         if isinstance(benchmark, str) and benchmark in ("MT10", "MT50"):
             bench = getattr(metaworld, benchmark)(seed=seed)
-            out = {version_free(k): (cls, [t for t in bench.train_tasks if t.env_name == k]) for k, cls in bench.train_classes.items()}
+            out = {
+                version_free(k): (cls, [t for t in bench.train_tasks if t.env_name == k])
+                for k, cls in bench.train_classes.items()
+            }
             if list(out) != names:  # the hard-coded order is the one-hot order: it must be Meta-World's
                 raise RuntimeError(f"Meta-World's {benchmark} tasks {list(out)} differ from taskrl's {names}")
             return out
@@ -303,8 +311,17 @@ def _benchmark_tasks(
 class _MetaWorldFactory:
     """Picklable zero-argument factory of one slot's env (async workers build their own)."""
 
-    def __init__(self, slot: int, name: str, env_cls: type, goals: list, task_index: int, num_tasks: int,
-                 seed: int | None, kwargs: dict[str, Any]) -> None:
+    def __init__(
+        self,
+        slot: int,
+        name: str,
+        env_cls: type,
+        goals: list,
+        task_index: int,
+        num_tasks: int,
+        seed: int | None,
+        kwargs: dict[str, Any],
+    ) -> None:
         self.slot, self.name, self.env_cls, self.goals = slot, name, env_cls, goals
         self.task_index, self.num_tasks, self.seed, self.kwargs = task_index, num_tasks, seed, kwargs
         self.__name__ = f"Meta-World/{name}"
@@ -424,7 +441,9 @@ class MetaWorldMultiTaskEnv(GymnasiumVectorEnv):
         """Pin each slot's goal positions for its next resets (``None``: random goals again)."""
         if schedules is not None and len(schedules) != self.num_envs:
             raise ValueError(f"need one goal schedule per slot ({self.num_envs}), got {len(schedules)}")
-        self.vector_env.call("set_goal_schedules", None if schedules is None else [None if s is None else list(s) for s in schedules])
+        self.vector_env.call(
+            "set_goal_schedules", None if schedules is None else [None if s is None else list(s) for s in schedules]
+        )
 
     def goal_positions(self) -> int:
         """Goal positions per task (Meta-World draws 50)."""
@@ -449,8 +468,11 @@ class MetaWorldSettings:
     vector_strategy: Literal["sync", "async"] = "sync"
 
     def validate(self) -> None:
-        require(version_free(self.task) in MT50_TASKS, "task",
-                f"unknown Meta-World task {self.task!r}; allowed: {', '.join(MT50_TASKS)}")
+        require(
+            version_free(self.task) in MT50_TASKS,
+            "task",
+            f"unknown Meta-World task {self.task!r}; allowed: {', '.join(MT50_TASKS)}",
+        )
         require(self.max_episode_steps >= 1, "max_episode_steps", f"must be >= 1 (got {self.max_episode_steps})")
         one_of(self.vector_strategy, VECTOR_STRATEGIES, "vector_strategy", "strategy")
 
@@ -462,22 +484,43 @@ def _metaworld_family(benchmark: str, description: str) -> EnvFamily:
     def make(settings: MetaWorldSettings, request: EnvRequest) -> MetaWorldMultiTaskEnv:
         # Evaluation: one copy per task, its goal positions scheduled by the per-task evaluator.
         num_tasks = len(metaworld_task_set(benchmark, task_of(settings)))
-        return MetaWorldMultiTaskEnv(benchmark, task_of(settings), use_one_hot=True,
-                                     envs_per_task=1 if request.evaluation else max(1, request.num_envs // num_tasks),
-                                     max_episode_steps=settings.max_episode_steps, seed=request.run_seed,
-                                     device=request.device, vector_strategy=settings.vector_strategy)
+        return MetaWorldMultiTaskEnv(
+            benchmark,
+            task_of(settings),
+            use_one_hot=True,
+            envs_per_task=1 if request.evaluation else max(1, request.num_envs // num_tasks),
+            max_episode_steps=settings.max_episode_steps,
+            seed=request.run_seed,
+            device=request.device,
+            vector_strategy=settings.vector_strategy,
+        )
 
     def check(settings: MetaWorldSettings, run: Any) -> None:
         tasks = len(metaworld_task_set(benchmark, task_of(settings)))
-        require(run.num_envs % tasks == 0, "num_envs",
-                f"must be a multiple of the {tasks} tasks of {benchmark} (one or more copies per task; got {run.num_envs})")
-        require(run.eval_episodes <= METAWORLD_NUM_GOALS, "eval_episodes",
-                f"Meta-World has {METAWORLD_NUM_GOALS} goal positions per task: at most {METAWORLD_NUM_GOALS} "
-                f"episodes per task (got {run.eval_episodes})")
+        require(
+            run.num_envs % tasks == 0,
+            "num_envs",
+            f"must be a multiple of the {tasks} tasks of {benchmark} (one or more copies per task; got {run.num_envs})",
+        )
+        require(
+            run.eval_episodes <= METAWORLD_NUM_GOALS,
+            "eval_episodes",
+            f"Meta-World has {METAWORLD_NUM_GOALS} goal positions per task: at most {METAWORLD_NUM_GOALS} "
+            f"episodes per task (got {run.eval_episodes})",
+        )
 
-    return EnvFamily(name=benchmark.lower(), description=description, section="metaworld", settings=MetaWorldSettings,
-                     make=make, kind="multitask", actions="box", per_task_success="any",
-                     spec=lambda settings, request: metaworld_spec(benchmark, task_of(settings)), check=check)
+    return EnvFamily(
+        name=benchmark.lower(),
+        description=description,
+        section="metaworld",
+        settings=MetaWorldSettings,
+        make=make,
+        kind="multitask",
+        actions="box",
+        per_task_success="any",
+        spec=lambda settings, request: metaworld_spec(benchmark, task_of(settings)),
+        check=check,
+    )
 
 
 FAMILIES = (
@@ -485,4 +528,3 @@ FAMILIES = (
     _metaworld_family("MT10", "Meta-World v3 MT10: ten manipulation tasks, the task index in the observation (metaworld extra)"),
     _metaworld_family("MT50", "Meta-World v3 MT50: fifty manipulation tasks (metaworld extra)"),
 )
-

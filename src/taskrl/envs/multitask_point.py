@@ -194,16 +194,18 @@ class MultiTaskPointReachGymEnv(SingleCopyEnv):
         terminate_on_success: bool = False,
         regions: Sequence[tuple[str, str, Sequence[float]]] = DEFAULT_REGIONS,
     ) -> None:
-        self._wrap(MultiTaskPointReach(
-            num_envs=1,
-            regions=regions,
-            horizon=2**62,
-            reward=reward,
-            radius=radius,
-            max_speed=max_speed,
-            terminate_on_success=terminate_on_success,
-            seed=0,
-        ))
+        self._wrap(
+            MultiTaskPointReach(
+                num_envs=1,
+                regions=regions,
+                horizon=2**62,
+                reward=reward,
+                radius=radius,
+                max_speed=max_speed,
+                terminate_on_success=terminate_on_success,
+                seed=0,
+            )
+        )
         self.task_set = self._env.task_set
 
     @staticmethod
@@ -216,7 +218,9 @@ class MultiTaskPointReachGymEnv(SingleCopyEnv):
         if task is not None:
             index = self.task_set.index(task) if isinstance(task, str) else int(task)
             if not 0 <= index < len(self.task_set):
-                raise ValueError(f"options['task'] must be in 0..{len(self.task_set) - 1} or one of {self.task_set.names}; got {task!r}")
+                raise ValueError(
+                    f"options['task'] must be in 0..{len(self.task_set) - 1} or one of {self.task_set.names}; got {task!r}"
+                )
             self._env.task[0] = index
             obs = self._to_numpy(self._env._obs())
         return obs, info
@@ -225,9 +229,14 @@ class MultiTaskPointReachGymEnv(SingleCopyEnv):
 def _make_multitask_point(settings: PointReachSettings, request: EnvRequest) -> MultiTaskPointReach:
     # Evaluation: every task eval_episodes times at once, copy i always on task i % K.
     copies = len(DEFAULT_REGIONS) * request.eval_episodes if request.evaluation else request.num_envs
-    return MultiTaskPointReach(num_envs=copies, device=request.device, reward=settings.reward,
-                               task_sampling="fixed" if request.evaluation else "uniform",
-                               terminate_on_success=settings.terminate_on_success, seed=request.seed)
+    return MultiTaskPointReach(
+        num_envs=copies,
+        device=request.device,
+        reward=settings.reward,
+        task_sampling="fixed" if request.evaluation else "uniform",
+        terminate_on_success=settings.terminate_on_success,
+        seed=request.seed,
+    )
 
 
 FAMILY = EnvFamily(
@@ -240,4 +249,3 @@ FAMILY = EnvFamily(
     actions="box",
     per_task_success="final",  # touring several regions must not count
 )
-

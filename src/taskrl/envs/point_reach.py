@@ -150,8 +150,13 @@ class PointReachSettings:
 
 
 def _make_point_reach(settings: PointReachSettings, request: EnvRequest) -> PointReach:
-    return PointReach(num_envs=request.copies, device=request.device, reward=settings.reward,
-                      terminate_on_success=settings.terminate_on_success, seed=request.seed)
+    return PointReach(
+        num_envs=request.copies,
+        device=request.device,
+        reward=settings.reward,
+        terminate_on_success=settings.terminate_on_success,
+        seed=request.seed,
+    )
 
 
 FAMILY = EnvFamily(
@@ -163,4 +168,3 @@ FAMILY = EnvFamily(
     kind="goal",
     actions="box",
 )
-

@@ -40,8 +40,7 @@ def register_env_family(family: EnvFamily, replace: bool = False) -> EnvFamily:
 def env_family(name: str) -> EnvFamily:
     """The family called ``name``; a :class:`ConfigError` on ``env`` listing the registered ones otherwise."""
     if name not in ENV_FAMILIES:
-        raise ConfigError("env", f"unknown env {name!r}; allowed: {', '.join(ENV_FAMILIES)} "
-                                 f"(or any gymnasium id with --env-id)")
+        raise ConfigError("env", f"unknown env {name!r}; allowed: {', '.join(ENV_FAMILIES)} (or any gymnasium id with --env-id)")
     return ENV_FAMILIES[name]
 
 
@@ -50,5 +49,6 @@ def family_for_source(obj: Any) -> EnvFamily:
     for family in ENV_FAMILIES.values():
         if family.accepts is not None and family.accepts(obj):
             return family
-    raise ConfigError("env", f"cannot train on {obj!r}: pass an env family name, a gymnasium id, a factory of a "
-                             f"gymnasium.Env, or a TaskSet")
+    raise ConfigError(
+        "env", f"cannot train on {obj!r}: pass an env family name, a gymnasium id, a factory of a gymnasium.Env, or a TaskSet"
+    )

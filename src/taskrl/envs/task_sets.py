@@ -78,19 +78,31 @@ class TaskSetEnv(GymnasiumVectorEnv):
         vector_strategy: ``sync`` or ``async``.
     """
 
-    def __init__(self, task_set: TaskSet, envs_per_task: int = 1, device: str | torch.device = "cpu",
-                 max_episode_steps: int | None = None, success_key: str | None = "auto",
-                 vector_strategy: VectorStrategy = "sync") -> None:
+    def __init__(
+        self,
+        task_set: TaskSet,
+        envs_per_task: int = 1,
+        device: str | torch.device = "cpu",
+        max_episode_steps: int | None = None,
+        success_key: str | None = "auto",
+        vector_strategy: VectorStrategy = "sync",
+    ) -> None:
         missing = [t.name for t in task_set if t.env is None]
         if missing:
             raise ValueError(f"tasks {missing} have no env (a gymnasium id or a factory)")
         if envs_per_task < 1:
             raise ValueError(f"envs_per_task must be >= 1, got {envs_per_task}")
         self.task_set = task_set
-        factories = [functools.partial(_task_env, t, len(task_set), max_episode_steps)
-                     for t in task_set for _ in range(envs_per_task)]
-        super().__init__(factories, device=device, vector_strategy=vector_strategy, success_key=success_key,
-                         max_episode_steps=max_episode_steps)
+        factories = [
+            functools.partial(_task_env, t, len(task_set), max_episode_steps) for t in task_set for _ in range(envs_per_task)
+        ]
+        super().__init__(
+            factories,
+            device=device,
+            vector_strategy=vector_strategy,
+            success_key=success_key,
+            max_episode_steps=max_episode_steps,
+        )
         self.env_id = f"tasks/{'+'.join(task_set.names)}"
         self.slot_tasks = torch.arange(self.num_envs, device=self.device) // envs_per_task
 
@@ -117,8 +129,14 @@ class TaskSetSettings:
     vector_strategy: Literal["sync", "async"] = "sync"
 
     def validate(self) -> None:
-        require(bool(self.task_file), "task_file", "name a JSON or YAML file of tasks (or pass a TaskSet to taskrl.train(env=...))")
-        require(self.max_episode_steps >= 0, "max_episode_steps", f"must be >= 0 (0 = the registered limit; got {self.max_episode_steps})")
+        require(
+            bool(self.task_file), "task_file", "name a JSON or YAML file of tasks (or pass a TaskSet to taskrl.train(env=...))"
+        )
+        require(
+            self.max_episode_steps >= 0,
+            "max_episode_steps",
+            f"must be >= 0 (0 = the registered limit; got {self.max_episode_steps})",
+        )
         one_of(self.success_at, ("auto", "any", "final"), "success_at", "criterion")
         one_of(self.vector_strategy, VECTOR_STRATEGIES, "vector_strategy", "strategy")
 
@@ -129,8 +147,11 @@ def _task_set(settings: TaskSetSettings, source: Any) -> TaskSet:
     task_set = _read(settings)
     recorded = [t.name for t in task_set if isinstance(t.env, str) and t.env.startswith(PYTHON_SOURCE)]
     if recorded:
-        raise ConfigError("env", f"tasks {recorded} were trained on Python factories; pass the TaskSet again "
-                                 f"(taskrl.train(resume=..., env=task_set) or taskrl.load(..., env=task_set))")
+        raise ConfigError(
+            "env",
+            f"tasks {recorded} were trained on Python factories; pass the TaskSet again "
+            f"(taskrl.train(resume=..., env=task_set) or taskrl.load(..., env=task_set))",
+        )
     return task_set
 
 
@@ -146,9 +167,15 @@ def _make(settings: TaskSetSettings, request: EnvRequest) -> GymnasiumVectorEnv:
         from taskrl.envs.metaworld_tasks import METAWORLD_HORIZON, MetaWorldMultiTaskEnv
 
         try:
-            env = MetaWorldMultiTaskEnv(task_set.names, use_one_hot=True, envs_per_task=per_task,
-                                        max_episode_steps=steps or METAWORLD_HORIZON, seed=request.run_seed,
-                                        device=request.device, vector_strategy=settings.vector_strategy)
+            env = MetaWorldMultiTaskEnv(
+                task_set.names,
+                use_one_hot=True,
+                envs_per_task=per_task,
+                max_episode_steps=steps or METAWORLD_HORIZON,
+                seed=request.run_seed,
+                device=request.device,
+                vector_strategy=settings.vector_strategy,
+            )
         except ValueError as error:
             raise ConfigError("task_file", f"{error} (a task without an env is a Meta-World task)") from None
         env.task_set = task_set  # the user's descriptions
@@ -173,8 +200,11 @@ def _read(settings: TaskSetSettings) -> TaskSet:
 
 def _check(settings: TaskSetSettings, run: Any) -> None:
     tasks = len(_read(settings))
-    require(run.num_envs % tasks == 0, "num_envs",
-            f"must be a multiple of the {tasks} tasks (one or more copies per task; got {run.num_envs})")
+    require(
+        run.num_envs % tasks == 0,
+        "num_envs",
+        f"must be a multiple of the {tasks} tasks (one or more copies per task; got {run.num_envs})",
+    )
 
 
 def _success_at(settings: TaskSetSettings) -> str:
@@ -205,4 +235,3 @@ FAMILY = EnvFamily(
     accepts=lambda obj: isinstance(obj, TaskSet),
     persist=_persist,
 )
-

@@ -172,7 +172,7 @@ class EpisodeReplay:
         next_slot, num_episodes = (int(x) for x in state["counters"])
         saved_max = state["length"].shape[0]
         order = (torch.arange(num_episodes) + (next_slot - num_episodes)) % saved_max  # oldest -> newest
-        order = order[-self.max_episodes:].to(state["length"].device)
+        order = order[-self.max_episodes :].to(state["length"].device)
         keep = order.numel()
         for k, v in self.storage.items():
             v[:keep] = state[f"storage/{k}"][order].to(self.device)

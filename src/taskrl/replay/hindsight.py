@@ -57,7 +57,9 @@ class HindsightRelabeler:
         self.achieved_key = achieved_key
         self.desired_key = desired_key
 
-    def goal_indices(self, batch: Batch, replay: EpisodeReplay, generator: torch.Generator | None) -> tuple[torch.Tensor, torch.Tensor]:
+    def goal_indices(
+        self, batch: Batch, replay: EpisodeReplay, generator: torch.Generator | None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """``(episode, observation index)`` of each replacement goal.
 
         Observation index ``i`` is the state reached after step ``i - 1``; the transition at step

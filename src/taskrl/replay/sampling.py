@@ -42,17 +42,17 @@ class TaskBalancedSampler:
     def indices(self, batch_size: int, generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """``(episode, step)`` index tensors, task-major: rows of task 0 first, then task 1, ..."""
         r, T = self.replay, self.num_tasks
-        episode_task = r.storage[f"obs/{self.task_key}"][:, 0].long()              # [E]
-        per_task_length = r.length * (episode_task == self._tasks[:, None])       # [T, E]
-        cumulative = torch.cat([per_task_length, r.length[None]]).cumsum(1)        # [T + 1, E]; last row: all tasks
+        episode_task = r.storage[f"obs/{self.task_key}"][:, 0].long()  # [E]
+        per_task_length = r.length * (episode_task == self._tasks[:, None])  # [T, E]
+        cumulative = torch.cat([per_task_length, r.length[None]]).cumsum(1)  # [T + 1, E]; last row: all tasks
         totals = cumulative[:, -1]
         if int(totals[-1]) == 0:
             raise RuntimeError("cannot sample from an empty replay: no episode has finished yet")
-        rows = torch.where(totals[:T] > 0, self._tasks, T)                         # empty task -> all data
-        per = -(-batch_size // T)                                                  # ceil
+        rows = torch.where(totals[:T] > 0, self._tasks, T)  # empty task -> all data
+        per = -(-batch_size // T)  # ceil
         u = torch.rand((T, per), generator=generator, device=r.device)
-        target = (u * totals[rows, None]).long().minimum(totals[rows, None] - 1)    # [T, per] positions
-        episode = torch.searchsorted(cumulative[rows], target, right=True)         # batched binary search
+        target = (u * totals[rows, None]).long().minimum(totals[rows, None] - 1)  # [T, per] positions
+        episode = torch.searchsorted(cumulative[rows], target, right=True)  # batched binary search
         step = target - (cumulative[rows[:, None], episode] - r.length[episode])
         # exactly batch_size rows: cut in step-major order (the remainder falls on the lowest task
         # indices), then back to task-major order

@@ -128,10 +128,7 @@ def _run(args: argparse.Namespace) -> int:
         else:
             sol = value_iteration(mdp, tol=args.tol)
             what = f"sweeps (tol {args.tol:g})"
-        console.print(
-            f"{args.method}: {sol.iterations} {what}, converged={sol.converged}, "
-            f"time {sol.seconds * 1e3:.2f} ms"
-        )
+        console.print(f"{args.method}: {sol.iterations} {what}, converged={sol.converged}, time {sol.seconds * 1e3:.2f} ms")
         _print_tables(console, mdp, sol.values, sol.q_values, sol.policy, args.max_rows)
         console.print(f"\nV*(start) = {float(start @ sol.values):.6g}")
         return 0

@@ -112,9 +112,7 @@ def _backup(mdp: FiniteMDP, v: np.ndarray) -> np.ndarray:
     return q.reshape(mdp.n_actions, mdp.n_states)
 
 
-def evaluate_policy(
-    mdp: FiniteMDP, policy: Any, *, solver: Solver = "auto", values: np.ndarray | None = None
-) -> np.ndarray:
+def evaluate_policy(mdp: FiniteMDP, policy: Any, *, solver: Solver = "auto", values: np.ndarray | None = None) -> np.ndarray:
     """Exact policy evaluation: solve ``(I - gamma P_pi) V = R_pi`` for ``V_pi``, shape ``[S]``.
 
     Args:

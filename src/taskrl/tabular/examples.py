@@ -244,4 +244,3 @@ def grid_world(
         action_names=("up", "right", "down", "left"),
         grid=GridLayout(rows, positions, ("↑", "→", "↓", "←")),
     )
-

@@ -229,9 +229,7 @@ def q_learning(
                 break
         returns[ep] = total
     q = np.asarray(Q, dtype=np.float64)
-    return QLearningResult(
-        q, q.argmax(axis=1), np.asarray(n), episodes, steps, returns, time.perf_counter() - t0
-    )
+    return QLearningResult(q, q.argmax(axis=1), np.asarray(n), episodes, steps, returns, time.perf_counter() - t0)
 
 
 def sample_transitions(mdp: FiniteMDP, n: int, *, seed: int = 0) -> Transitions:

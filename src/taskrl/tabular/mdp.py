@@ -114,8 +114,7 @@ class FiniteMDP:
         gamma = float(gamma)
         if not np.isfinite(gamma) or gamma < 0.0 or gamma > 1.0:
             raise ValueError(
-                f"gamma={gamma} is outside [0, 1); the discount must satisfy 0 <= gamma < 1 "
-                "(gamma = 1 only with terminal states)"
+                f"gamma={gamma} is outside [0, 1); the discount must satisfy 0 <= gamma < 1 (gamma = 1 only with terminal states)"
             )
         if gamma == 1.0 and not self.terminal.any():
             raise ValueError(
@@ -165,10 +164,7 @@ class FiniteMDP:
             P = sp.csr_matrix(P, dtype=np.float64)
             rows, S = P.shape
             if S < 1 or rows % S != 0 or rows == 0:
-                raise ValueError(
-                    f"P has shape {P.shape}; sparse P must have shape [S * A, S] "
-                    "(row s * A + a holds P(. | s, a))"
-                )
+                raise ValueError(f"P has shape {P.shape}; sparse P must have shape [S * A, S] (row s * A + a holds P(. | s, a))")
             A = rows // S
         else:
             P = np.asarray(P, dtype=np.float64)
@@ -190,8 +186,7 @@ class FiniteMDP:
             k = int(neg[0])
             r = int(np.searchsorted(P.indptr, k, side="right") - 1)
             raise ValueError(
-                f"P[s={r // A}, a={r % A}, s'={int(P.indices[k])}] = {P.data[k]:.6g} is negative; "
-                "probabilities must be >= 0"
+                f"P[s={r // A}, a={r % A}, s'={int(P.indices[k])}] = {P.data[k]:.6g} is negative; probabilities must be >= 0"
             )
         P.eliminate_zeros()
         return P, S, A
@@ -205,13 +200,9 @@ class FiniteMDP:
         ok |= self.terminal[state_of_row] & (np.abs(sums) <= atol)
         if not ok.all():
             r = int(np.flatnonzero(~ok)[0])
-            raise ValueError(
-                f"P[s={r // A}, a={r % A}] sums to {sums[r]:.6g}; each row of P must sum to 1"
-            )
+            raise ValueError(f"P[s={r // A}, a={r % A}] sums to {sums[r]:.6g}; each row of P must sum to 1")
 
-    def _reduce_rewards(
-        self, R: Any, P_am: sp.csr_matrix, S: int, A: int
-    ) -> tuple[np.ndarray, np.ndarray | None]:
+    def _reduce_rewards(self, R: Any, P_am: sp.csr_matrix, S: int, A: int) -> tuple[np.ndarray, np.ndarray | None]:
         """Expected rewards ``[S, A]`` and, for ``R[s, a, s']``, the reward of each stored transition."""
         am_rows = np.repeat(np.arange(A * S), np.diff(P_am.indptr))
         cols = P_am.indices

@@ -86,7 +86,7 @@ def proper_policy(mdp: FiniteMDP) -> np.ndarray:
     reached = mdp.terminal.copy()
     frontier = np.flatnonzero(reached)
     while frontier.size:
-        rows = np.concatenate([into.indices[into.indptr[c]:into.indptr[c + 1]] for c in frontier])
+        rows = np.concatenate([into.indices[into.indptr[c] : into.indptr[c + 1]] for c in frontier])
         states, first = np.unique(rows // A, return_index=True)
         new = ~reached[states]
         policy[states[new]] = rows[first[new]] % A
@@ -124,9 +124,7 @@ def policy_chain(mdp: FiniteMDP, policy: Any) -> tuple[sp.csr_matrix, np.ndarray
         # Deterministic: pick row a * S + s for each s -- a row gather, no arithmetic.
         return _gather_rows(gP, pi * S + np.arange(S)), R[pi, np.arange(S)].copy()
     # Stochastic: P_pi = sum_a diag(pi[:, a]) gP_a, written as one sparse product [S, A*S] @ [A*S, S].
-    weights = sp.csr_matrix(
-        (pi.T.ravel(), (np.tile(np.arange(S), A), np.arange(A * S))), shape=(S, A * S)
-    )
+    weights = sp.csr_matrix((pi.T.ravel(), (np.tile(np.arange(S), A), np.arange(A * S))), shape=(S, A * S))
     return (weights @ gP).tocsr(), np.einsum("as,sa->s", R, pi)
 
 

@@ -111,10 +111,19 @@ class Bookkeeping:
         stop: ends the run early (time limit, signals) with an evaluation and a checkpoint.
     """
 
-    def __init__(self, state: LoopState, evaluate: Callable[[], dict[str, float]], on_log: Callable[[dict[str, Any]], None],
-                 on_checkpoint: Callable[[LoopState], None], total_steps: int, eval_interval: int,
-                 checkpoint_interval: int, stop_at_success: float, device: torch.device,
-                 stop: StopRequest | None = None) -> None:
+    def __init__(
+        self,
+        state: LoopState,
+        evaluate: Callable[[], dict[str, float]],
+        on_log: Callable[[dict[str, Any]], None],
+        on_checkpoint: Callable[[LoopState], None],
+        total_steps: int,
+        eval_interval: int,
+        checkpoint_interval: int,
+        stop_at_success: float,
+        device: torch.device,
+        stop: StopRequest | None = None,
+    ) -> None:
         self.state, self.evaluate, self.on_log, self.on_checkpoint = state, evaluate, on_log, on_checkpoint
         self.stop = stop
         self.total_steps = total_steps

@@ -57,19 +57,24 @@ class OnPolicyAgent(Protocol):
     rollout_steps: int
     updates: int
 
-    def rollout_step(self, obs: Obs, generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]: ...
+    def rollout_step(
+        self, obs: Obs, generator: torch.Generator | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]: ...
     def value(self, obs: Obs) -> torch.Tensor: ...
     def update(self, rollout: Rollout, generator: torch.Generator | None = None) -> dict[str, torch.Tensor]: ...
 
 
-def collect_rollout(env: BatchedEnv, agent: OnPolicyAgent, obs: Obs, steps: int,
-                    generator: torch.Generator | None = None) -> tuple[Rollout, Obs, torch.Tensor, torch.Tensor]:
+def collect_rollout(
+    env: BatchedEnv, agent: OnPolicyAgent, obs: Obs, steps: int, generator: torch.Generator | None = None
+) -> tuple[Rollout, Obs, torch.Tensor, torch.Tensor]:
     """Step ``env`` ``steps`` times from ``obs`` with ``agent.rollout_step``.
 
     Returns ``(rollout, next_obs, episodes_ended, episodes_succeeded)``; the counts are 0-d
     tensors (success is ``info["is_success"]`` at the step an episode ends).
     """
-    columns: dict[str, list[torch.Tensor]] = {k: [] for k in ("action", "log_prob", "value", "reward", "terminated", "truncated", "final_value")}
+    columns: dict[str, list[torch.Tensor]] = {
+        k: [] for k in ("action", "log_prob", "value", "reward", "terminated", "truncated", "final_value")
+    }
     observations: list[Obs] = []
     ended = torch.zeros((), device=env.device)
     succeeded = torch.zeros((), device=env.device)
@@ -79,8 +84,15 @@ def collect_rollout(env: BatchedEnv, agent: OnPolicyAgent, obs: Obs, steps: int,
         final_value = torch.zeros_like(value)
         if bool(truncated.any()):  # time limits are rare steps: no value pass on the others
             final_value = torch.where(truncated, agent.value(info["final_obs"]), final_value)
-        for key, item in (("action", action), ("log_prob", log_prob), ("value", value), ("reward", reward.float()),
-                          ("terminated", terminated), ("truncated", truncated), ("final_value", final_value)):
+        for key, item in (
+            ("action", action),
+            ("log_prob", log_prob),
+            ("value", value),
+            ("reward", reward.float()),
+            ("terminated", terminated),
+            ("truncated", truncated),
+            ("final_value", final_value),
+        ):
             columns[key].append(item)
         observations.append(obs)
         done = terminated | truncated
@@ -88,8 +100,9 @@ def collect_rollout(env: BatchedEnv, agent: OnPolicyAgent, obs: Obs, steps: int,
         succeeded += (done & info["is_success"]).sum()
         obs = next_obs
     stacked = {key: torch.stack(items) for key, items in columns.items()}
-    rollout = Rollout(obs={k: torch.stack([o[k] for o in observations]) for k in observations[0]},
-                      last_value=agent.value(obs), **stacked)
+    rollout = Rollout(
+        obs={k: torch.stack([o[k] for o in observations]) for k in observations[0]}, last_value=agent.value(obs), **stacked
+    )
     return rollout, obs, ended, succeeded
 
 
@@ -107,8 +120,9 @@ class OnPolicyLoop:
         generator: generator for action sampling and minibatch order.
     """
 
-    def __init__(self, env: BatchedEnv, agent: OnPolicyAgent, total_steps: int, books: Bookkeeping,
-                 generator: torch.Generator) -> None:
+    def __init__(
+        self, env: BatchedEnv, agent: OnPolicyAgent, total_steps: int, books: Bookkeeping, generator: torch.Generator
+    ) -> None:
         self.env, self.agent, self.total_steps, self.books, self.generator = env, agent, total_steps, books, generator
 
     def run(self, env_seed: int) -> LoopState:

@@ -98,7 +98,9 @@ def _evaluate_per_task(policy, env, n, seed, task_set, save_to, max_steps, crite
     if task_set is None:
         raise ValueError("evaluate_per_task needs the env's task_set (env.task_set) or task_set=...")
     if "task" not in env.single_observation_space.spaces:
-        raise ValueError(f"evaluate_per_task needs observations with a 'task' key; found {list(env.single_observation_space.spaces)}")
+        raise ValueError(
+            f"evaluate_per_task needs observations with a 'task' key; found {list(env.single_observation_space.spaces)}"
+        )
     num_tasks, num_envs = len(task_set), env.num_envs
     slot_tasks = getattr(env, "slot_tasks", None)
     pinned = False
