@@ -154,14 +154,15 @@ def check_fit(config: TrainConfig, kind: str | None, actions: str | None) -> Non
     """The rules between the env and the algorithm, checked before building (with what the family
     declares) and again once the env is built (with what it is): the same rules both times."""
     c, spec = config, algorithm(config.algo)
+    name = _env_label(c)
     fitting = ", ".join(
         a.name for a in _algorithms() if (actions is None or actions in a.actions) and (kind != "multitask" or a.multitask)
     )
     if actions is not None and actions not in spec.actions:
         need = " or ".join("continuous (Box)" if a == "box" else "discrete" for a in spec.actions)
-        raise ConfigError("algo", f"{c.algo} needs {need} actions but {c.env!r} has {actions} actions; allowed: {fitting}")
+        raise ConfigError("algo", f"{c.algo} needs {need} actions but {name!r} has {actions} actions; allowed: {fitting}")
     if kind == "multitask" and not spec.multitask:
-        raise ConfigError("algo", f"{c.algo!r} does not run on the multi-task env {c.env!r}; allowed: {fitting}")
+        raise ConfigError("algo", f"{c.algo!r} does not run on the multi-task env {name!r}; allowed: {fitting}")
     if c.her != "none":
         require(
             spec.loop == "off_policy",
@@ -172,14 +173,21 @@ def check_fit(config: TrainConfig, kind: str | None, actions: str | None) -> Non
             kind in (None, "goal"),
             "her",
             f"hindsight relabelling needs a goal env (achieved_goal, desired_goal, compute_reward); "
-            f"{c.env!r} is not one; use --her none",
+            f"{name!r} is not one; use --her none",
         )
     if c.sampling == "task_balanced":
         require(
             kind in (None, "multitask"),
             "sampling",
-            f"task_balanced needs a multi-task env (observations with a task index); {c.env!r} is not one",
+            f"task_balanced needs a multi-task env (observations with a task index); {name!r} is not one",
         )
+
+
+def _env_label(config: TrainConfig) -> str:
+    """What to call the run's env in a message: the gymnasium id or task file that selected its
+    family (``my/Slider-v0``), else the family's name."""
+    selector = env_family(config.env).selected_by
+    return (getattr(config.env_settings, selector, "") if selector else "") or config.env
 
 
 def _algorithms():

@@ -8,26 +8,21 @@ from __future__ import annotations
 
 from taskrl.agents import dqn, ppo, qtopt, sac, td3
 from taskrl.agents.spec import AlgorithmSpec
-from taskrl.errors import ConfigError
+from taskrl.registry import Registry
 
 __all__ = ["ALGORITHMS", "algorithm", "register_algorithm"]
 
 BUILT_IN: tuple[AlgorithmSpec, ...] = (dqn.SPEC, qtopt.SPEC, sac.SPEC, td3.SPEC, ppo.SPEC)
 
 #: name -> spec, in registration order.
-ALGORITHMS: dict[str, AlgorithmSpec] = {spec.name: spec for spec in BUILT_IN}
+ALGORITHMS: Registry[AlgorithmSpec] = Registry("algo", BUILT_IN)
 
 
 def register_algorithm(spec: AlgorithmSpec, replace: bool = False) -> AlgorithmSpec:
     """Make ``spec`` available as ``--algo spec.name`` and ``taskrl.train(..., algo=spec.name)``."""
-    if spec.name in ALGORITHMS and not replace:
-        raise ValueError(f"an algorithm named {spec.name!r} is already registered (pass replace=True)")
-    ALGORITHMS[spec.name] = spec
-    return spec
+    return ALGORITHMS.register(spec, replace)
 
 
 def algorithm(name: str) -> AlgorithmSpec:
-    """The spec of ``name``; a :class:`ConfigError` on ``algo`` listing the registered names otherwise."""
-    if name not in ALGORITHMS:
-        raise ConfigError("algo", f"unknown algo {name!r}; allowed: {', '.join(ALGORITHMS)}")
-    return ALGORITHMS[name]
+    """The spec of ``name``; a :class:`~taskrl.errors.ConfigError` on ``algo`` listing the registered names otherwise."""
+    return ALGORITHMS.lookup(name)

@@ -12,6 +12,7 @@ from typing import Any
 from taskrl.envs import bitflip, fetch, gymnasium_family, metaworld_tasks, multitask_point, point_reach, task_sets
 from taskrl.envs.spec import EnvFamily
 from taskrl.errors import ConfigError
+from taskrl.registry import Registry
 
 __all__ = ["ENV_FAMILIES", "env_family", "family_for_source", "register_env_family"]
 
@@ -26,22 +27,17 @@ BUILT_IN: tuple[EnvFamily, ...] = (
 )
 
 #: name -> family, in registration order.
-ENV_FAMILIES: dict[str, EnvFamily] = {family.name: family for family in BUILT_IN}
+ENV_FAMILIES: Registry[EnvFamily] = Registry("env", BUILT_IN, hint=" (or any gymnasium id with --env-id)")
 
 
 def register_env_family(family: EnvFamily, replace: bool = False) -> EnvFamily:
     """Make ``family`` available as ``--env family.name``."""
-    if family.name in ENV_FAMILIES and not replace:
-        raise ValueError(f"an env family named {family.name!r} is already registered (pass replace=True)")
-    ENV_FAMILIES[family.name] = family
-    return family
+    return ENV_FAMILIES.register(family, replace)
 
 
 def env_family(name: str) -> EnvFamily:
-    """The family called ``name``; a :class:`ConfigError` on ``env`` listing the registered ones otherwise."""
-    if name not in ENV_FAMILIES:
-        raise ConfigError("env", f"unknown env {name!r}; allowed: {', '.join(ENV_FAMILIES)} (or any gymnasium id with --env-id)")
-    return ENV_FAMILIES[name]
+    """The family called ``name``; a :class:`~taskrl.errors.ConfigError` on ``env`` listing the registered ones otherwise."""
+    return ENV_FAMILIES.lookup(name)
 
 
 def family_for_source(obj: Any) -> EnvFamily:
