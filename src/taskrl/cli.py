@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import difflib
 import json
+import re
 import sys
 import typing
 from collections.abc import Sequence
@@ -22,6 +23,20 @@ from typing import Any
 
 COMMANDS = ("train", "eval", "presets", "solve")
 POSITIONAL = ("preset", "run_dir")
+#: Errors about files rather than settings: named as they are, not as flags.
+FILES = {"config": "config.json:", "checkpoint": "checkpoint:"}
+_NUMBER = re.compile(r"-(\d+\.?\d*|\.\d+)(e[-+]?\d+)?", re.IGNORECASE)
+
+
+def _numbers_as_values(argv: Sequence[str]) -> list[str]:
+    """``--lr -1e-3`` -> ``--lr=-1e-3``: argparse would read a negative number in exponent form as a flag."""
+    out: list[str] = []
+    for token in argv:
+        if out and out[-1].startswith("--") and "=" not in out[-1] and _NUMBER.fullmatch(token):
+            out[-1] = f"{out[-1]}={token}"
+        else:
+            out.append(token)
+    return out
 
 
 class UsageError(Exception):
@@ -136,12 +151,17 @@ def cmd_train(argv: Sequence[str]) -> int:
     parser.add_argument("--resume", metavar="RUN_DIR", help="continue this run from its last checkpoint")
     parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=True, help="progress bar and final table")
     parser.add_argument("--tensorboard", action=argparse.BooleanOptionalAction, default=True, help="write TensorBoard events")
+    argv = _numbers_as_values(argv)
     _add_config_flags(parser, *_active_sections(argv))
     args = vars(_parse(parser, argv))
     preset, out, resume = args.pop("preset"), args.pop("out"), args.pop("resume")
     progress, tensorboard = args.pop("progress"), args.pop("tensorboard")
     if preset is None and resume is None:
         raise UsageError(f"a preset is required unless --resume is given; allowed: {', '.join(PRESETS)}")
+    if preset is not None and resume is not None:
+        raise UsageError(f"give a preset (a new run) or --resume {resume} (its own settings), not both")
+    if resume is not None and out is not None:
+        raise UsageError("--out does not apply with --resume (a run continues in its own directory)")
     if "hidden_sizes" in args:
         args["hidden_sizes"] = tuple(args["hidden_sizes"])
 
@@ -183,6 +203,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     command, rest = argv[0], argv[1:]
     handlers = {"train": cmd_train, "eval": cmd_eval, "presets": cmd_presets, "solve": cmd_solve}
     from taskrl.errors import ConfigError
+    from taskrl.training.bookkeeping import TrainingDiverged
 
     try:
         if command not in handlers:
@@ -192,12 +213,18 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"taskrl {command}: error: {e}", file=sys.stderr)
         return 2
     except ConfigError as e:
-        label = e.field.upper() if e.field in POSITIONAL else _flag(e.field)
+        label = e.field.upper() if e.field in POSITIONAL else FILES.get(e.field, _flag(e.field))
         print(f"taskrl {command}: error: {label} {e.message}", file=sys.stderr)
         return 2
-    except FileNotFoundError as e:
+    except (FileNotFoundError, NotADirectoryError, IsADirectoryError, PermissionError) as e:
         print(f"taskrl {command}: error: {e}", file=sys.stderr)
         return 2
+    except TrainingDiverged as e:
+        print(f"taskrl {command}: error: {e}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:  # a second Ctrl-C: the last complete checkpoint stays
+        print(f"taskrl {command}: aborted; the run's last complete checkpoint is intact", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
+import re
 import typing
 from pathlib import Path
 from typing import Any, Literal
@@ -24,6 +26,7 @@ from taskrl.agents.registry import algorithm
 from taskrl.conditioning.networks import ConditioningConfig
 from taskrl.envs.registry import ENV_FAMILIES, env_family
 from taskrl.errors import ConfigError, one_of, require
+from taskrl.rundir import atomic_write_text
 
 __all__ = [
     "ConfigError",
@@ -75,7 +78,10 @@ class TrainConfig:
         eval_episodes: episodes per evaluation (greedy policy, fixed evaluation seeds); on
             multi-task envs, episodes per task (Meta-World: over distinct goal positions, at most 50).
         stop_at_success: stop once evaluation success reaches this (0 = train to total_steps).
-        checkpoint_interval: environment steps between checkpoints (also one at the end).
+        checkpoint_interval: environment steps between checkpoints (also one after the first step
+            and one at the end).
+        checkpoint_minutes: also checkpoint after this many minutes of wall-clock since the last
+            checkpoint, so a killed run loses at most that much (0 = by env steps only).
         save_replay: include the replay buffer in checkpoints so a resumed run loses no data.
         max_hours: stop cleanly (evaluation, checkpoint) after this many hours of wall-clock in
             this invocation, to continue later with ``--resume``; 0 = no limit. Ctrl-C and
@@ -107,6 +113,7 @@ class TrainConfig:
     eval_episodes: int = 100
     stop_at_success: float = 0.0
     checkpoint_interval: int = 50_000
+    checkpoint_minutes: float = 10.0
     save_replay: bool = True
     max_hours: float = 0.0
     threads: int = 1
@@ -175,6 +182,13 @@ def check_fit(config: TrainConfig, kind: str | None, actions: str | None) -> Non
             f"hindsight relabelling needs a goal env (achieved_goal, desired_goal, compute_reward); "
             f"{name!r} is not one; use --her none",
         )
+    if kind in ("goal", "plain"):  # task conditioning set for an env without tasks: say so, do not ignore it
+        changed = _changed(c.conditioning)
+        require(
+            not changed,
+            next(iter(changed), "task_encoder"),
+            f"applies to multi-task envs only (observations with a task index); {name!r} has no tasks",
+        )
     if c.sampling == "task_balanced":
         require(
             kind in (None, "multitask"),
@@ -196,6 +210,15 @@ def _algorithms():
     return ALGORITHMS.values()
 
 
+def check_device(name: str, field: str = "device") -> None:
+    """``cpu``, ``cuda``, ``cuda:N`` or ``auto``; anything else is a :class:`ConfigError` on ``field``."""
+    require(
+        isinstance(name, str) and re.fullmatch(r"cpu|auto|cuda(:\d+)?", name) is not None,
+        field,
+        f"unknown device {name!r}; allowed: cpu, cuda, cuda:N, auto",
+    )
+
+
 def validate(config: TrainConfig) -> TrainConfig:
     """Raise :class:`ConfigError` naming the field and the allowed values; return the config.
 
@@ -214,11 +237,14 @@ def validate(config: TrainConfig) -> TrainConfig:
         require(getattr(c, name) >= 0, name, f"must be >= 0 (got {getattr(c, name)})")
     require(c.max_hours >= 0, "max_hours", f"must be >= 0 hours (0 = no limit; got {c.max_hours})")
     require(0.0 <= c.stop_at_success <= 1.0, "stop_at_success", f"must be in [0, 1] (got {c.stop_at_success})")
-    require(
-        c.device in ("auto", "cpu") or c.device.startswith("cuda"),
-        "device",
-        f"unknown device {c.device!r}; allowed: cpu, cuda, cuda:N, auto",
-    )
+    check_device(c.device)
+    require(c.checkpoint_minutes >= 0, "checkpoint_minutes", f"must be >= 0 (0 = by env steps only; got {c.checkpoint_minutes})")
+    if algorithm(c.algo).loop == "off_policy":
+        require(
+            c.buffer_size >= c.batch_size,
+            "buffer_size",
+            f"must hold at least one batch (batch_size={c.batch_size}; got {c.buffer_size})",
+        )
     c.conditioning.validate()
     c.env_settings.validate()
     c.algo_settings.validate()
@@ -334,6 +360,13 @@ def with_overrides(config: TrainConfig, overrides: dict[str, Any], notes: list[s
                 f"do{'es' if len(changed) == 1 else ''} not apply"
             )
         env_settings = family.settings()
+    conditioning = config.conditioning
+    if family.kind in ("goal", "plain") and _changed(conditioning):  # the preset's task conditioning has no tasks here
+        notes.append(
+            f"--env {env}: has no tasks, so the preset's task conditioning "
+            f"({', '.join(f'{k}={v}' for k, v in _changed(conditioning).items())}) is off"
+        )
+        conditioning = ConditioningConfig()
     algo_settings, her = config.algo_settings, config.her
     if algo != config.algo:
         algo_settings = _switch_algorithm(config.algo_settings, config.algo, algo, notes)
@@ -378,12 +411,42 @@ def _build(cls: type, data: dict[str, Any], where: str) -> Any:
     kwargs = {}
     for name, value in data.items():
         tp = hints[name]
-        if dataclasses.is_dataclass(tp):
-            value = _build(tp, value, f"{where}.{name}")
-        elif typing.get_origin(tp) is tuple:
-            value = tuple(value)
-        kwargs[name] = value
+        kwargs[name] = _build(tp, value, f"{where}.{name}") if dataclasses.is_dataclass(tp) else checked_value(name, value, tp)
     return cls(**kwargs)
+
+
+def checked_value(name: str, value: Any, tp: Any) -> Any:
+    """``value`` as a setting of type ``tp``, or a :class:`ConfigError` naming ``name`` and what it must be.
+
+    The one type check of every setting, however it arrives (a flag, a keyword of ``taskrl.train``,
+    a saved ``config.json``): integers (an integral float such as ``1e6`` is accepted), finite
+    numbers, booleans, strings, one of a ``Literal``'s values, lists of positive integers.
+    """
+    origin = typing.get_origin(tp)
+    if tp is bool:
+        require(isinstance(value, bool), name, f"must be true or false (got {value!r})")
+        return value
+    if tp is int:
+        integral = isinstance(value, float) and math.isfinite(value) and value.is_integer()
+        require(
+            (isinstance(value, int) and not isinstance(value, bool)) or integral, name, f"must be a whole number (got {value!r})"
+        )
+        return int(value)
+    if tp is float:
+        require(isinstance(value, (int, float)) and not isinstance(value, bool), name, f"must be a number (got {value!r})")
+        require(math.isfinite(value), name, f"must be a finite number (got {value!r})")
+        return float(value)
+    if tp is str:
+        require(isinstance(value, str), name, f"must be a string (got {value!r})")
+        return value
+    if origin is typing.Literal:
+        one_of(value, typing.get_args(tp), name, "value")
+        return value
+    if origin is tuple:
+        ok = isinstance(value, (list, tuple)) and all(isinstance(v, int) and not isinstance(v, bool) for v in value)
+        require(ok, name, f"must be a list of whole numbers, e.g. [256, 256] (got {value!r})")
+        return tuple(value)
+    return value  # a section (checked field by field) or a free-form value
 
 
 # Settings that sat flat on TrainConfig before the registries (and the section each now lives in).
@@ -434,12 +497,18 @@ def from_dict(data: dict[str, Any]) -> TrainConfig:
 
 
 def save(config: TrainConfig, path: Path) -> None:
-    """Write ``config.json`` (temp file + rename, so a kill never leaves half a file)."""
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(to_dict(config), indent=2) + "\n")
-    tmp.replace(path)
+    """Write ``config.json`` atomically (temp file, fsync, rename: a kill never leaves half a file)."""
+    atomic_write_text(path, json.dumps(to_dict(config), indent=2) + "\n")
 
 
 def load(path: Path) -> TrainConfig:
-    return from_dict(json.loads(Path(path).read_text()))
+    """A saved ``config.json``; any defect (unreadable, not JSON, foreign, wrong types) is one
+    :class:`ConfigError` line naming the file or the setting."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, ValueError) as error:
+        raise ConfigError("config", f"{path} cannot be read as a taskrl config ({str(error).splitlines()[0][:120]})") from None
+    if not isinstance(data, dict):
+        raise ConfigError("config", f"{path} holds {type(data).__name__}, not a taskrl config (a JSON object)")
+    return from_dict(data)

@@ -19,8 +19,11 @@ then the agent's own: its update scalars (DQN's ``loss`` and ``q_mean``, SAC's `
 from __future__ import annotations
 
 import csv
+import io
 from pathlib import Path
 from typing import Any
+
+from taskrl.rundir import atomic_write_text
 
 COLUMNS = [
     "env_steps",
@@ -49,9 +52,20 @@ class RunLogger:
         self.path = Path(run_dir) / "metrics.csv"
         self.columns: list[str] | None = None
         if resume_from_step is not None and self.path.exists():
-            with self.path.open() as f:
-                self.columns = next(csv.reader(f), None)
-            rows = [r for r in read_metrics(self.path) if float(r["env_steps"]) <= resume_from_step]
+            with self.path.open(newline="") as f:
+                raw = list(csv.reader(f))
+            self.columns = raw[0] if raw else None
+            # Rows past the checkpoint (logged by a run killed before its next checkpoint) go, and so
+            # does a row the kill cut short.
+            rows = []
+            if self.columns and "env_steps" in self.columns:
+                at = self.columns.index("env_steps")
+                for r in raw[1:]:
+                    try:
+                        if len(r) == len(self.columns) and float(r[at]) <= resume_from_step:
+                            rows.append(dict(zip(self.columns, r)))
+                    except ValueError:
+                        continue
             self._write_rows(rows)
         elif self.path.exists():
             self.path.unlink()
@@ -59,13 +73,18 @@ class RunLogger:
         if tensorboard:
             from torch.utils.tensorboard import SummaryWriter
 
-            self.writer = SummaryWriter(str(Path(run_dir) / "tensorboard"))
+            # purge_step: TensorBoard drops the killed segment's points after the checkpoint, so a
+            # resumed run's curves never hold a stretch twice or run backwards.
+            purge = resume_from_step + 1 if resume_from_step is not None else None
+            self.writer = SummaryWriter(str(Path(run_dir) / "tensorboard"), purge_step=purge)
 
     def _write_rows(self, rows: list[dict[str, Any]]) -> None:
-        with self.path.open("w", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=self.columns)
-            writer.writeheader()
-            writer.writerows(rows)
+        """Rewrite the whole file atomically (temp file + rename)."""
+        buffer = io.StringIO()
+        writer = csv.DictWriter(buffer, fieldnames=self.columns)
+        writer.writeheader()
+        writer.writerows(rows)
+        atomic_write_text(self.path, buffer.getvalue())
 
     def log(self, row: dict[str, Any]) -> None:
         if self.columns is None:  # fixed columns first, then the agent's metrics in their order

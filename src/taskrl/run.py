@@ -36,7 +36,7 @@ from taskrl.agents.registry import algorithm
 from taskrl.agents.spec import AgentInputs
 from taskrl.checkpoint import load_checkpoint, save_checkpoint
 from taskrl.conditioning.networks import make_conditioning
-from taskrl.config import TrainConfig, check_fit, validate, with_overrides
+from taskrl.config import TrainConfig, check_device, check_fit, validate, with_overrides
 from taskrl.console import ConsoleReporter, final_table, per_task_table
 from taskrl.envs.base import BatchedEnv
 from taskrl.envs.registry import ENV_FAMILIES, env_family, family_for_source
@@ -46,6 +46,7 @@ from taskrl.logger import RunLogger
 from taskrl.plots import plot_learning_curve
 from taskrl.presets import preset_config
 from taskrl.replay import EpisodeReplay, HindsightRelabeler, TaskBalancedSampler
+from taskrl.rundir import RunLock, check_new_run_dir
 from taskrl.training.bookkeeping import Bookkeeping, LoopState, StopRequest
 from taskrl.training.evaluation import evaluate
 from taskrl.training.offpolicy import LoopSchedule, OffPolicyLoop
@@ -77,6 +78,8 @@ class Run:
 
 # ---------------------------------------------------------------------- wiring
 def resolve_device(name: str) -> torch.device:
+    """``cpu``, ``cuda``, ``cuda:N`` or ``auto``; a :class:`ConfigError` for any other name or absent CUDA."""
+    check_device(name)
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     if name.startswith("cuda") and not torch.cuda.is_available():
@@ -263,6 +266,31 @@ def restore(parts: RunParts, run_dir: Path) -> LoopState:
     return LoopState(**loop_saved)
 
 
+def _restore_checked(parts: RunParts, run_dir: Path, saved: TrainConfig, config: TrainConfig) -> LoopState:
+    """:func:`restore`, with a checkpoint that does not fit the settings given refused in one line
+    (before the run's config.json is rewritten, so the run stays resumable as it was)."""
+    try:
+        return restore(parts, run_dir)
+    except (RuntimeError, KeyError, ValueError, TypeError) as error:
+        if isinstance(error, ConfigError):
+            raise
+        before, after = config_io.to_dict(saved), config_io.to_dict(config)
+        changed = sorted(_changed_paths(before, after))
+        what = f"the settings changed ({', '.join(changed)})" if changed else "its settings"
+        reason = str(error).strip().splitlines()[0][:120] if str(error).strip() else type(error).__name__
+        raise ConfigError(
+            "resume",
+            f"the checkpoint in {run_dir} does not fit {what}: {reason}; resume without changing them (the run is unchanged)",
+        ) from None
+
+
+def _changed_paths(before: Any, after: Any, prefix: str = "") -> list[str]:
+    if isinstance(before, dict) and isinstance(after, dict):
+        keys = sorted(set(before) | set(after))
+        return [p for k in keys for p in _changed_paths(before.get(k), after.get(k), f"{prefix}{k}.")]
+    return [] if before == after else [prefix.rstrip(".").rsplit(".", 1)[-1]]
+
+
 def checkpointer(parts: RunParts, run_dir: Path) -> Callable[[LoopState], None]:
     """``(loop state) -> None`` writing agent, loop and (``save_replay``) replay parts."""
 
@@ -367,65 +395,69 @@ def train(
         run_dir = Path(resume)
         if not (run_dir / "config.json").exists():
             raise ConfigError("resume", f"{run_dir} is not a run directory (no config.json)")
-        config = with_overrides(config_io.load(run_dir / "config.json"), overrides, notes)
+        saved = config_io.load(run_dir / "config.json")
+        config = with_overrides(saved, overrides, notes)
     else:
         config = with_overrides(preset_config(preset), overrides, notes)
-        run_dir = Path(out) if out is not None else default_run_dir(preset)
-        if (run_dir / "checkpoints").exists():
-            raise ConfigError("out", f"{run_dir} already holds a run; pass --resume {run_dir} to continue it")
+        run_dir = check_new_run_dir(out if out is not None else default_run_dir(preset))
     if resume is None or "env_module" in overrides:  # a resumed run imports only what the caller names
         import_env_module(config.env_module)
 
     created = not run_dir.exists()
+    lock = RunLock(run_dir, "resume" if resume is not None else "out")
     try:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        lock.__enter__()
         family = env_family(config.env)
         if source is not None and resume is None and family.persist is not None:  # record the object in the run
-            run_dir.mkdir(parents=True, exist_ok=True)
             config = with_overrides(config, family.persist(source, run_dir))
         validate(config)
         parts = build(config, source)
+        # A new run checkpoints after its first step (a kill before checkpoint_interval still resumes);
+        # a resumed run loads its checkpoint before anything of it is rewritten.
+        state = LoopState(next_checkpoint=0) if resume is None else _restore_checked(parts, run_dir, saved, config)
     except BaseException:
+        lock.__exit__()
         if created:  # nothing of this call stays behind
             shutil.rmtree(run_dir, ignore_errors=True)
         raise
-    _note(console, notes)
-    run_dir.mkdir(parents=True, exist_ok=True)
-    config_io.save(config, run_dir / "config.json")
+    try:
+        _note(console, notes)
+        config_io.save(config, run_dir / "config.json")
+        logger = RunLogger(run_dir, tensorboard=tensorboard, resume_from_step=state.env_steps if resume else None)
+        rows: list[dict[str, Any]] = []
+        title = preset if resume is None and preset else f"{config.env}-{config.algo}"
+        evaluator, last_eval = make_evaluator(config, parts.eval_env, parts.agent, config.seed + EVAL_SEED_OFFSET)
+        stop = StopRequest(config.max_hours)
+        with ConsoleReporter(title, config.total_steps, state.env_steps, enabled=progress) as reporter:
 
-    state = LoopState(next_checkpoint=config.checkpoint_interval)
-    if resume is not None:
-        state = restore(parts, run_dir)
-    logger = RunLogger(run_dir, tensorboard=tensorboard, resume_from_step=state.env_steps if resume else None)
-    rows: list[dict[str, Any]] = []
-    title = preset if resume is None and preset else f"{config.env}-{config.algo}"
-    evaluator, last_eval = make_evaluator(config, parts.eval_env, parts.agent, config.seed + EVAL_SEED_OFFSET)
-    stop = StopRequest(config.max_hours)
-    with ConsoleReporter(title, config.total_steps, state.env_steps, enabled=progress) as reporter:
+            def on_log(row: dict[str, Any]) -> None:
+                rows.append(row)
+                logger.log(row)
+                reporter.update(row)
 
-        def on_log(row: dict[str, Any]) -> None:
-            rows.append(row)
-            logger.log(row)
-            reporter.update(row)
-
-        books = Bookkeeping(
-            state,
-            evaluator,
-            on_log,
-            checkpointer(parts, run_dir),
-            config.total_steps,
-            config.eval_interval,
-            config.checkpoint_interval,
-            config.stop_at_success,
-            parts.device,
-            stop,
-        )
-        loop = LOOPS[algorithm(config.algo).loop](parts, books)
-        try:
-            with stop.on_signals():
-                state = loop.run(env_seed=config.seed + state.env_steps)
-        finally:
-            logger.close()
-            parts.close()
+            books = Bookkeeping(
+                state,
+                evaluator,
+                on_log,
+                checkpointer(parts, run_dir),
+                config.total_steps,
+                config.eval_interval,
+                config.checkpoint_interval,
+                config.stop_at_success,
+                parts.device,
+                stop,
+                checkpoint_seconds=60.0 * config.checkpoint_minutes,
+            )
+            loop = LOOPS[algorithm(config.algo).loop](parts, books)
+            try:
+                with stop.on_signals():
+                    state = loop.run(env_seed=config.seed + state.env_steps)
+            finally:
+                logger.close()
+                parts.close()
+    finally:
+        lock.__exit__()
 
     final = report(config, run_dir, title, rows, state, last_eval, logger.path, progress, console, stop)
     return Run(run_dir=run_dir, config=config, metrics=final, agent=parts.agent, stopped_by=stop.stopped_by, notes=notes)

@@ -60,6 +60,19 @@ def _make_env(env_id: str, env_kwargs: dict[str, Any], max_episode_steps: int | 
     return gym.make(env_id, **env_kwargs)
 
 
+def _in_worker(factory: Callable[[], gym.Env]) -> gym.Env:
+    """Build a copy in an async worker process that ignores Ctrl-C and SIGTERM: a terminal sends
+    them to every process of the run, and the run stops cleanly (evaluation, checkpoint) only if its
+    workers live until it closes them."""
+    import multiprocessing
+    import signal
+
+    if multiprocessing.parent_process() is not None:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    return factory()
+
+
 def _with_time_limit(factory: Callable[[], gym.Env], max_episode_steps: int) -> gym.Env:
     return gym.wrappers.TimeLimit(factory(), max_episode_steps=max_episode_steps)
 
@@ -176,6 +189,8 @@ class GymnasiumVectorEnv(BatchedEnv):
         self.success_key = success_key
         self.vector_strategy = vector_strategy
         vector_cls = gym.vector.SyncVectorEnv if vector_strategy == "sync" else gym.vector.AsyncVectorEnv
+        if vector_strategy == "async":
+            factories = [functools.partial(_in_worker, f) for f in factories]
         # An in-process env: copy 0 with "sync"; with "async", one extra local instance if needed.
         self._local: gym.Env | None = None
         if vector_strategy == "async" and self._needs_local_env:

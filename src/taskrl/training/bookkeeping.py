@@ -12,6 +12,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import signal
+import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -43,7 +44,8 @@ class StopRequest:
     The loops ask :meth:`due` after every step; when it says yes, the run evaluates, logs and
     checkpoints as at its natural end, so ``--resume`` continues it with nothing lost (stopping
     inside an optimiser step would checkpoint half an update), and ``stopped_by`` keeps the reason.
-    A second Ctrl-C interrupts at once.
+    The first signal prints what happens next; a second one interrupts at once, except while a
+    checkpoint is being written (:meth:`critical`), where it takes effect right after the write.
 
     Args:
         max_hours: hours of wall-clock from now (this invocation, not the run's total) after which
@@ -54,6 +56,8 @@ class StopRequest:
         self.deadline = time.monotonic() + max_hours * 3600 if max_hours > 0 else None
         self.signalled: str | None = None
         self.stopped_by: str | None = None  # "time limit", "SIGINT" or "SIGTERM" once due
+        self._in_critical = False
+        self._abort_after_critical = False
 
     def due(self) -> bool:
         if self.signalled:
@@ -70,9 +74,17 @@ class StopRequest:
             return
 
         def handle(signum: int, frame: Any) -> None:
-            if self.signalled:  # asked twice: stop now
+            if self.signalled:  # asked twice: stop now (but never in the middle of a checkpoint)
+                if self._in_critical:
+                    self._abort_after_critical = True
+                    _say("aborting once the checkpoint being written is complete")
+                    return
                 raise KeyboardInterrupt
             self.signalled = signal.Signals(signum).name
+            _say(
+                f"stopping ({self.signalled}): finishing this step, evaluating and saving a checkpoint; "
+                f"press Ctrl-C again to abort (the last complete checkpoint stays)"
+            )
 
         previous = {sig: signal.signal(sig, handle) for sig in (signal.SIGINT, signal.SIGTERM)}
         try:
@@ -80,6 +92,29 @@ class StopRequest:
         finally:
             for sig, old in previous.items():
                 signal.signal(sig, old)
+
+    @contextlib.contextmanager
+    def critical(self) -> Iterator[None]:
+        """A block a second signal must not cut (writing a checkpoint)."""
+        self._in_critical = True
+        try:
+            yield
+        finally:
+            self._in_critical = False
+        if self._abort_after_critical:
+            raise KeyboardInterrupt
+
+
+def _say(message: str) -> None:
+    print(f"taskrl: {message}", file=sys.stderr, flush=True)
+
+
+class TrainingDiverged(RuntimeError):
+    """A loss or metric became NaN or infinite; the run stopped before checkpointing it."""
+
+
+#: Success rates are fractions of episodes; compare them with this slack (e.g. a mean over tasks of 0.9s).
+SUCCESS_SLACK = 1e-9
 
 
 @dataclasses.dataclass
@@ -109,6 +144,11 @@ class Bookkeeping:
         stop_at_success: end the run once evaluation success reaches this (0: never).
         device: where the running sums live.
         stop: ends the run early (time limit, signals) with an evaluation and a checkpoint.
+        checkpoint_seconds: also checkpoint once this much wall-clock has passed since the last one
+            (0: by env steps only).
+
+    Before each metrics row and each checkpoint the update scalars since the last row are checked:
+    a NaN or infinite one raises :class:`TrainingDiverged`, so no diverged weights are ever saved.
     """
 
     def __init__(
@@ -123,9 +163,12 @@ class Bookkeeping:
         stop_at_success: float,
         device: torch.device,
         stop: StopRequest | None = None,
+        checkpoint_seconds: float = 0.0,
     ) -> None:
         self.state, self.evaluate, self.on_log, self.on_checkpoint = state, evaluate, on_log, on_checkpoint
         self.stop = stop
+        self.checkpoint_seconds = checkpoint_seconds
+        self.last_checkpoint = time.monotonic()
         self.total_steps = total_steps
         self.eval_interval, self.checkpoint_interval, self.stop_at_success = eval_interval, checkpoint_interval, stop_at_success
         self.clock = Stopwatch(state.wall_seconds)
@@ -159,6 +202,7 @@ class Bookkeeping:
         if not finished and self.stop is not None and self.stop.due():
             finished = True
         if state.env_steps >= state.next_eval or finished:
+            self.check_finite()
             state.wall_seconds = self.clock.pause()
             elapsed = max(state.wall_seconds - self.row_start, 1e-9)
             result = self.evaluate()
@@ -183,14 +227,31 @@ class Bookkeeping:
             self.row_steps = self.row_updates = self.row_calls = 0
             self.row_start = state.wall_seconds
             self.clock.resume()
-            if self.stop_at_success > 0 and result["success_rate"] >= self.stop_at_success:
+            if self.stop_at_success > 0 and result["success_rate"] >= self.stop_at_success - SUCCESS_SLACK:
                 finished = True
-        if state.env_steps >= state.next_checkpoint or finished:
+        overdue = self.checkpoint_seconds > 0 and time.monotonic() - self.last_checkpoint >= self.checkpoint_seconds
+        if state.env_steps >= state.next_checkpoint or finished or overdue:
+            self.check_finite()
             state.wall_seconds = self.clock.pause()
             state.next_checkpoint = state.env_steps + self.checkpoint_interval
-            self.on_checkpoint(state)
+            with self.stop.critical() if self.stop is not None else contextlib.nullcontext():
+                self.on_checkpoint(state)
+            self.last_checkpoint = time.monotonic()
             self.clock.resume()
         return finished
+
+    def check_finite(self) -> None:
+        """Raise :class:`TrainingDiverged` if an update scalar since the last row is NaN or infinite."""
+        if not self.metric_sums:
+            return
+        values = torch.stack([v.detach().float().reshape(()) for v in self.metric_sums.values()]).cpu()
+        bad = [name for name, ok in zip(self.metric_sums, torch.isfinite(values).tolist()) if not ok]
+        if bad:
+            raise TrainingDiverged(
+                f"training diverged by env step {self.state.env_steps:,}: {', '.join(bad)} "
+                f"became {values[list(self.metric_sums).index(bad[0])].item()}; nothing after the "
+                f"last checkpoint was saved (try a lower --lr or a --max-grad-norm)"
+            )
 
     def close(self) -> LoopState:
         self.state.wall_seconds = self.clock.pause()
