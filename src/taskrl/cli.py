@@ -85,7 +85,7 @@ def _active_sections(argv: Sequence[str]) -> tuple[str, str]:
     """``(env, algo)`` whose settings the flags address: ``--env`` / ``--algo`` (``--env-id`` or
     ``--task-file`` alone select their family), else the preset's, else the resumed run's."""
     from taskrl.agents.registry import ALGORITHMS
-    from taskrl.config import TrainConfig, from_dict
+    from taskrl.config import TrainConfig
     from taskrl.envs.registry import ENV_FAMILIES
     from taskrl.presets import PRESETS, preset_config
 
@@ -108,12 +108,15 @@ def _active_sections(argv: Sequence[str]) -> tuple[str, str]:
     elif known.resume is not None:
         from pathlib import Path
 
+        from taskrl.config import load
+        from taskrl.errors import ConfigError
+
         saved = Path(known.resume) / "config.json"
         if saved.exists():
             try:
-                base = from_dict(json.loads(saved.read_text()))
-            except (ValueError, KeyError):
-                pass  # train() reports a damaged config.json with the field it names
+                base = load(saved)
+            except ConfigError:
+                pass  # train() reports a damaged config.json in one line
     env = known.env
     if env is None:
         given = [name for setting, name in selectors.items() if getattr(known, setting) is not None]
