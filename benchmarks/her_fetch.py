@@ -1,10 +1,12 @@
 """taskrl against Stable-Baselines3: SAC + hindsight relabelling on FetchReach-v4.
 
-Both libraries train on gymnasium-robotics' ``FetchReach-v4`` with the same network (64x64 for
-the actor and each critic), batch 256, lr 1e-3, relabelling ``future`` with k = 4 and 1000
-random-start steps. SB3 uses its zoo-style FetchReach settings (1 env, one update per env step,
-gamma 0.95); taskrl uses its ``fetchreach-sac-her`` preset (2 envs, one update per two env steps,
-gamma 0.98), with ``--hidden-sizes 64 64``. Both are evaluated every ``--eval-interval`` env
+Each library with its recommended settings for this env: SB3 with rl-baselines3-zoo's
+hyperparameters for FetchReach (``hyperparams/sac.yml``: 1 env, one update per env step, gamma
+0.95, lr 1e-3, batch 256, 64x64, future k = 4, 1000 learning-starts steps, ``normalize: True``,
+i.e. ``VecNormalize`` of observations and rewards; ``--no-sb3-normalize`` leaves that out, as
+this script did before); taskrl with its ``fetchreach-sac-her`` preset (2 envs, one update per two
+env steps, gamma 0.98, lr 1e-3, batch 256, its own running observation normaliser) with
+``--hidden-sizes 64 64``. These are not equal work: taskrl makes half the updates per env step. Both are evaluated every ``--eval-interval`` env
 steps by taskrl's batched evaluator on the same 100 episodes (final-step ``is_success``, greedy
 policy); evaluation time is excluded from both clocks. Reported: median wall-clock and env steps
 to 90% success over seeds, and the ratio.
@@ -54,15 +56,19 @@ def taskrl_time_to_success(seed: int, budget: int, eval_interval: int, target: f
     }
 
 
-def sb3_time_to_success(seed: int, budget: int, eval_interval: int, target: float) -> dict:
+def sb3_time_to_success(seed: int, budget: int, eval_interval: int, target: float, normalize: bool = True) -> dict:
     import gymnasium as gym
     import gymnasium_robotics
     from stable_baselines3 import SAC, HerReplayBuffer
+    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
     gym.register_envs(gymnasium_robotics)
+    venv = DummyVecEnv([lambda: gym.make(ENV_ID)])
+    if normalize:  # the zoo's `normalize: True`: VecNormalize with its defaults and the run's gamma
+        venv = VecNormalize(venv, gamma=0.95)
     model = SAC(
         "MultiInputPolicy",
-        gym.make(ENV_ID),
+        venv,
         replay_buffer_class=HerReplayBuffer,
         replay_buffer_kwargs=dict(n_sampled_goal=4, goal_selection_strategy="future"),
         learning_rate=1e-3,
@@ -80,6 +86,8 @@ def sb3_time_to_success(seed: int, budget: int, eval_interval: int, target: floa
     def success(m) -> float:
         def act(obs):
             np_obs = {k: v.cpu().numpy() for k, v in obs.items()}
+            if normalize:  # the policy was trained on normalised observations
+                np_obs = venv.normalize_obs(np_obs)
             return torch.as_tensor(m.predict(np_obs, deterministic=True)[0])
 
         return evaluate(act, eval_env, eval_seed)["success_rate"]
@@ -99,11 +107,17 @@ def main() -> None:
     parser.add_argument("--target", type=float, default=0.9)
     parser.add_argument("--threads", type=int, default=1, help="torch threads for both libraries")
     parser.add_argument("--write", action="store_true", help="append the results to benchmarks/RESULTS.md")
-    parser.add_argument("--json", type=Path, default=Path("benchmarks/out/her_fetch.json"))
+    parser.add_argument(
+        "--sb3-normalize",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="SB3 with the zoo's VecNormalize (its recommended setting for FetchReach)",
+    )
+    parser.add_argument("--json", type=Path, default=Path("benchmarks/results/her_fetch.json"), help="per-seed results")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
 
-    runners = {"taskrl": taskrl_time_to_success, "sb3": sb3_time_to_success}
+    runners = {"taskrl": taskrl_time_to_success, "sb3": lambda *a: sb3_time_to_success(*a, normalize=args.sb3_normalize)}
     runs = []
     for lib in args.libs:
         for seed in args.seeds:

@@ -476,3 +476,24 @@ def test_bad_python_input_is_a_config_error_naming_the_argument(tmp_path, overri
         taskrl.train("bitflip-her", out=tmp_path / "out", **overrides)
     assert err.value.field in {*overrides, "env", "algo"} and str(err.value).count("\n") == 0
     assert not (tmp_path / "out").exists()
+
+
+def test_a_stopped_run_keeps_every_transition_it_collected(tmp_path):
+    """Episodes still running at a stop are stored, cut (truncated) at their last step."""
+    run = taskrl.train(
+        "pointreach-sac-her",
+        out=tmp_path / "run",
+        total_steps=10_000_000,
+        max_hours=1.5 / 3600,
+        eval_interval=10**8,
+        eval_episodes=4,
+        learning_starts=200,
+        tensorboard=False,
+    )
+    assert run.stopped_by == "time limit"
+    parts = load_checkpoint(run.run_dir / "checkpoints", ("replay", "loop"))
+    stored = int(parts["replay"]["length"].sum())
+    assert stored == parts["loop"]["env_steps"] == run.metrics["env_steps"]  # nothing dropped, nothing twice
+    length = parts["replay"]["length"]
+    cut = ((length > 0) & (length < 50)).any()  # PointReach's 16 copies end their 50-step episodes together
+    assert cut or parts["loop"]["env_steps"] % (16 * 50) == 0

@@ -290,3 +290,26 @@ def test_every_architecture_runs_an_update(arch, multi_head):
     before = agent.act(obs)
     metrics = agent.update(rollout)
     assert all(torch.isfinite(v) for v in metrics.values()) and not torch.equal(before, agent.act(obs))
+
+
+def test_reinforce_without_a_baseline_really_has_none():
+    """value_coef = 0: values are zeros at collection, the advantage is the return itself, and the value
+    network is never trained (not even through a shared optimiser step)."""
+    env = MultiTaskPointReach(num_envs=4, reward="dense", seed=0)
+    cond = make_conditioning(ConditioningConfig(task_encoder="onehot"), 5)
+    agent = PPOAgent(
+        ("observation",),
+        2,
+        env.single_action_space,
+        PPOConfig(estimator="reinforce", value_coef=0.0, rollout_steps=16),
+        conditioning=cond,
+    )
+    before = [p.detach().clone() for p in agent.value_net.parameters()]
+    rollout, *_ = collect_rollout(env, agent, env.reset(seed=0), 16, torch.Generator().manual_seed(0))
+    assert torch.count_nonzero(rollout.value) == 0 and torch.count_nonzero(rollout.last_value) == 0
+    advantages, returns = agent.advantages(rollout)
+    assert torch.equal(advantages, returns)
+    policy_before = [p.detach().clone() for p in agent.policy_net.parameters()]
+    agent.update(rollout, torch.Generator().manual_seed(1))
+    assert all(torch.equal(a, b) for a, b in zip(before, agent.value_net.parameters()))
+    assert not all(torch.equal(a, b) for a, b in zip(policy_before, agent.policy_net.parameters()))  # it did learn

@@ -97,7 +97,8 @@ def test_cross_entropy_mode_uses_probabilities_clips_to_unit_interval_and_log_lo
     metrics = agent.regress(b, y)
     expected_loss = -(y * F.logsigmoid(logits) + (1 - y) * F.logsigmoid(-logits)).mean()
     assert metrics["loss"].item() == pytest.approx(expected_loss.item(), rel=1e-5)
-    assert 0.0 <= metrics["q_mean"].item() <= 1.0
+    expected_q = torch.sigmoid(logits).mean()  # Q = sigmoid(logit) of the batch's own actions
+    assert metrics["q_mean"].item() == pytest.approx(expected_q.item(), rel=1e-5)
 
 
 def test_score_actions_matches_the_plain_forward_pass():

@@ -181,3 +181,56 @@ def test_state_dict_round_trips_through_the_checkpoint_format():
     torch.testing.assert_close(other.act({"observation": x}), agent.act({"observation": x}))
     for mine, theirs in zip(agent.critics_target, other.critics_target):
         torch.testing.assert_close(theirs(x, torch.zeros(2, 1)), mine(x, torch.zeros(2, 1)))
+
+
+def test_the_three_losses_match_a_hand_computation():
+    """J_Q, J_pi and the temperature's gradient on a hand-made batch, computed here independently
+    (torch.distributions for the squashed Gaussian's density, the same two noise draws as the
+    update: a' for the target, then a~ for the actor); lr is tiny, so the networks do not move
+    within the update."""
+    from torch.distributions import Normal
+
+    agent = SACAgent(
+        ("observation",),
+        2,
+        (torch.tensor([-1.0]), torch.tensor([1.0])),
+        SACConfig(lr=1e-12, gamma=0.9, init_alpha=0.5, hidden_sizes=(8,), normalize_inputs=False),
+    )
+    s = torch.tensor([[1.0, 0.0], [0.0, 1.0], [0.5, 0.5]])
+    s2 = torch.tensor([[0.0, 1.0], [1.0, 0.0], [0.2, 0.8]])
+    a, r = torch.tensor([[0.3], [-0.7], [0.1]]), torch.tensor([1.0, -1.0, 0.5])
+    term = torch.tensor([False, True, False])
+    batch = Batch(
+        obs={"observation": s},
+        action=a,
+        reward=r,
+        next_obs={"observation": s2},
+        terminated=term,
+        truncated=torch.zeros(3, dtype=torch.bool),
+        episode=torch.zeros(3, dtype=torch.long),
+        step=torch.zeros(3, dtype=torch.long),
+    )
+
+    def sample(x, eps):
+        mean, log_std = agent.actor(x)
+        u = mean + log_std.exp() * eps
+        log_p = Normal(mean, log_std.exp()).log_prob(u).sum(-1) - torch.log(1 - torch.tanh(u).square() + 1e-12).sum(-1)
+        return torch.tanh(u), log_p
+
+    g = torch.Generator().manual_seed(7)
+    eps_target, eps_actor = torch.randn(3, 1, generator=g), torch.randn(3, 1, generator=g)
+    with torch.no_grad():
+        next_a, next_logp = sample(s2, eps_target)
+        next_q = torch.minimum(*(q(s2, next_a) for q in agent.critics_target))
+        y = r + 0.9 * (~term).float() * (next_q - 0.5 * next_logp)
+        q1, q2 = (q(s, a) for q in agent.critics)
+        critic_loss = 0.5 * (((q1 - y) ** 2).mean() + ((q2 - y) ** 2).mean())
+        new_a, logp = sample(s, eps_actor)
+        actor_loss = (0.5 * logp - torch.minimum(*(q(s, new_a) for q in agent.critics))).mean()
+        alpha_grad = -(logp + agent.target_entropy).mean()  # d/d log_alpha of -log_alpha (log pi + target)
+
+    m = agent.update(batch, generator=torch.Generator().manual_seed(7))
+    assert m["critic_loss"].item() == pytest.approx(critic_loss.item(), rel=1e-4)
+    assert m["actor_loss"].item() == pytest.approx(actor_loss.item(), rel=1e-4)
+    assert m["entropy"].item() == pytest.approx(-logp.mean().item(), rel=1e-4)
+    assert agent.log_alpha.grad.item() == pytest.approx(alpha_grad.item(), rel=1e-4)

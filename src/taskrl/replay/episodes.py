@@ -116,6 +116,17 @@ class EpisodeReplay:
                 st[f"obs/{k}"][ids, 0] = reset_obs[k][ids]
             self.stage_t[ids] = 0
 
+    def cut_running(self) -> int:
+        """Store the episodes still running as ended at their last step, ``truncated`` there (their
+        future is unknown, so values bootstrap, as at a time limit): a run that stops keeps every
+        transition it collected. Returns how many episodes were cut."""
+        ids = (self.stage_t > 0).nonzero().squeeze(1)
+        if ids.numel():
+            self.staging["truncated"][ids, self.stage_t[ids] - 1] = True
+            self._commit(ids)
+            self.stage_t[ids] = 0
+        return int(ids.numel())
+
     def _commit(self, env_ids: torch.Tensor) -> None:
         n = env_ids.numel()
         slots = (self.next_slot + torch.arange(n, device=self.device)) % self.max_episodes
@@ -160,7 +171,7 @@ class EpisodeReplay:
 
     # ---------------------------------------------------------------- checkpointing
     def state_dict(self) -> dict[str, torch.Tensor]:
-        """Stored episodes only; running episodes restart after a resume."""
+        """Stored episodes only (a run stores its running ones first, :meth:`cut_running`)."""
         state = {f"storage/{k}": v for k, v in self.storage.items()}
         state["length"] = self.length
         state["counters"] = torch.tensor([self.next_slot, self.num_episodes])

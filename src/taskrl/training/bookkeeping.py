@@ -169,6 +169,9 @@ class Bookkeeping:
         self.stop = stop
         self.checkpoint_seconds = checkpoint_seconds
         self.last_checkpoint = time.monotonic()
+        #: called once when the run finishes, before its last checkpoint (the off-policy loop stores its
+        #: running episodes there, so a stopped run keeps every transition it collected)
+        self.on_finish: Callable[[], Any] | None = None
         self.total_steps = total_steps
         self.eval_interval, self.checkpoint_interval, self.stop_at_success = eval_interval, checkpoint_interval, stop_at_success
         self.clock = Stopwatch(state.wall_seconds)
@@ -230,6 +233,8 @@ class Bookkeeping:
             if self.stop_at_success > 0 and result["success_rate"] >= self.stop_at_success - SUCCESS_SLACK:
                 finished = True
         overdue = self.checkpoint_seconds > 0 and time.monotonic() - self.last_checkpoint >= self.checkpoint_seconds
+        if finished and self.on_finish is not None:
+            self.on_finish()
         if state.env_steps >= state.next_checkpoint or finished or overdue:
             self.check_finite()
             state.wall_seconds = self.clock.pause()

@@ -91,6 +91,7 @@ class OffPolicyLoop:
         state = books.state
         obs = env.reset(seed=env_seed)
         replay.start(obs)
+        books.on_finish = replay.cut_running  # a stop or the end keeps the episodes still running
         while state.env_steps < s.total_steps:
             acted_at = state.env_steps
             action = agent.act(obs, explore=True, generator=self.generator, env_steps=acted_at)
