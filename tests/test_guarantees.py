@@ -422,6 +422,7 @@ BAD_CLI = [
     ["train", "pointreach-mt-ppo-onehot", "--rollout-steps", "0"],
     ["train", "pointreach-mt-ppo-onehot", "--clip-range", "0"],
     ["train", "pointreach-mt-sac-onehot", "--task-file", "/no/such.yaml"],
+    ["train", "bitflip-her", "--buffer-size", "2000000000", "--total-steps", "2000000000"],
     ["eval", "/nonexistent/run"],
     ["eval", "/tmp", "--episodes", "0"],
     ["fly"],

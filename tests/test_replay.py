@@ -205,3 +205,15 @@ def test_state_round_trip_into_a_different_capacity_keeps_the_newest_episodes():
     larger.load_state_dict(replay.state_dict())
     assert larger.num_episodes == 4 and larger.num_transitions == replay.num_transitions
     assert [int(larger.storage["obs/observation"][e, 0, 1]) for e in range(4)] == [2, 3, 4, 5]
+
+
+def test_the_memory_estimate_is_what_the_storage_allocates():
+    from taskrl.envs import BitFlip, PointReach
+
+    for env in (BitFlip(7, num_envs=4), PointReach(num_envs=3)):
+        replay = EpisodeReplay(env.single_observation_space, env.single_action_space, 5_000, env.horizon, env.num_envs)
+        allocated = sum(t.nbytes for table in (replay.storage, replay.staging) for t in table.values())
+        assert (
+            EpisodeReplay.bytes_needed(env.single_observation_space, env.single_action_space, 5_000, env.horizon, env.num_envs)
+            == allocated
+        )

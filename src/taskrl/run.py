@@ -241,6 +241,13 @@ def build(config: TrainConfig, source: Any = None) -> RunParts:
         parts = RunParts(config, family, device, env, eval_env, agent, generator)
         if algorithm(config.algo).loop == "off_policy":
             capacity = min(config.buffer_size, config.total_steps + 2 * env.num_envs * env.horizon)
+            check_replay_memory(
+                EpisodeReplay.bytes_needed(
+                    env.single_observation_space, env.single_action_space, capacity, env.horizon, env.num_envs
+                ),
+                capacity,
+                device,
+            )
             parts.replay = EpisodeReplay(
                 env.single_observation_space, env.single_action_space, capacity, env.horizon, env.num_envs, device
             )
@@ -253,6 +260,30 @@ def build(config: TrainConfig, source: Any = None) -> RunParts:
         if eval_env is not None:
             eval_env.close()
         raise
+
+
+def available_memory(device: torch.device) -> int | None:
+    """Bytes free for a new allocation on ``device`` (None where it cannot be read)."""
+    if device.type == "cuda":
+        return int(torch.cuda.mem_get_info(device)[0])
+    try:
+        with open("/proc/meminfo") as f:
+            info = dict(line.split(":", 1) for line in f)
+        return int(info["MemAvailable"].split()[0]) * 1024
+    except (OSError, KeyError, ValueError):
+        return None
+
+
+def check_replay_memory(needed: int, capacity: int, device: torch.device) -> None:
+    """A :class:`ConfigError` on ``buffer_size`` when the replay would not fit in memory (checked before
+    allocating, instead of swapping or failing half-way; a checkpoint writes it without copying)."""
+    free = available_memory(device)
+    if free is not None and needed > 0.9 * free:
+        raise ConfigError(
+            "buffer_size",
+            f"a replay of {capacity:,} transitions needs {needed / 2**30:.1f} GiB; "
+            f"{free / 2**30:.1f} GiB is free on {device}: lower --buffer-size",
+        )
 
 
 def restore(parts: RunParts, run_dir: Path) -> LoopState:

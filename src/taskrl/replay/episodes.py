@@ -34,6 +34,20 @@ class EpisodeReplay:
         device: where the storage lives (the device of the learner).
     """
 
+    @staticmethod
+    def bytes_needed(
+        observation_space: gym.spaces.Dict, action_space: gym.spaces.Space, capacity: int, horizon: int, num_envs: int
+    ) -> int:
+        """Memory the storage will take (episodes of ``horizon + 1`` observations and ``horizon`` steps)."""
+        rows = capacity // horizon + num_envs  # stored episodes plus the staging rows
+
+        def size(shape: tuple, dtype: torch.dtype) -> int:
+            return int(np.prod(shape, dtype=np.int64)) * torch.empty((), dtype=dtype).element_size()
+
+        per_row = sum((horizon + 1) * size(s.shape, _space_dtype(s)) for s in observation_space.spaces.values())
+        per_row += horizon * (size(action_space.shape, _space_dtype(action_space)) + 4 + 1 + 1)  # reward, flags
+        return rows * per_row
+
     def __init__(
         self,
         observation_space: gym.spaces.Dict,
