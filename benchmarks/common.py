@@ -35,10 +35,25 @@ def command_line() -> str:
     return " ".join([".venv/bin/python", *sys.argv])
 
 
+def commit() -> str:
+    """The checked-out commit the figures are measured with (``+changes`` if the tree differs from it)."""
+    import subprocess
+
+    try:
+        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], capture_output=True, text=True).stdout
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+    return head + (" +changes" if dirty.strip() else "")
+
+
 def append_results(title: str, body: str) -> None:
-    """Append a dated section to benchmarks/RESULTS.md."""
+    """Append a dated section to benchmarks/RESULTS.md, naming the commit it was measured at."""
     stamp = datetime.date.today().isoformat()
-    text = f"\n## {title}\n\n- date: {stamp}\n- machine: {machine()}\n- command: `{command_line()}`\n\n{body.strip()}\n"
+    text = (
+        f"\n## {title}\n\n- measured at commit: {commit()}\n- date: {stamp}\n- machine: {machine()}\n"
+        f"- command: `{command_line()}`\n\n{body.strip()}\n"
+    )
     if not RESULTS.exists():
         RESULTS.write_text("# Benchmark results\n\nEach section was appended by the script named in its command.\n")
     with RESULTS.open("a") as f:

@@ -498,3 +498,36 @@ def test_a_stopped_run_keeps_every_transition_it_collected(tmp_path):
     length = parts["replay"]["length"]
     cut = ((length > 0) & (length < 50)).any()  # PointReach's 16 copies end their 50-step episodes together
     assert cut or parts["loop"]["env_steps"] % (16 * 50) == 0
+
+
+def test_checkpoints_also_follow_the_wall_clock():
+    saved = []
+    books = Bookkeeping(LoopState(next_eval=10**9, next_checkpoint=10**9), lambda: {"success_rate": 0.0}, lambda r: None,
+                        lambda s: saved.append(s.env_steps), total_steps=10**9, eval_interval=10**9,
+                        checkpoint_interval=10**9, stop_at_success=0.0, device=torch.device("cpu"),
+                        checkpoint_seconds=0.2)
+    books.add_steps(1)
+    books.after_step()
+    assert saved == []  # neither the step interval nor the clock is due yet
+    time.sleep(0.25)
+    books.add_steps(1)
+    books.after_step()
+    assert saved == [2]  # 0.2 s passed: a checkpoint, whatever the step count
+
+
+def test_a_second_ctrl_c_waits_for_the_checkpoint_being_written(capsys):
+    from taskrl.training.bookkeeping import StopRequest
+
+    stop, finished_write = StopRequest(), False
+    with stop.on_signals():
+        os.kill(os.getpid(), signal.SIGINT)  # the first: a clean stop is requested, and said
+        time.sleep(0.05)
+        assert stop.due() and stop.stopped_by == "SIGINT"
+        with pytest.raises(KeyboardInterrupt):
+            with stop.critical():  # writing the stop's checkpoint
+                os.kill(os.getpid(), signal.SIGINT)  # the second arrives mid-write
+                time.sleep(0.05)
+                finished_write = True  # ... and the write still runs to its end
+        assert finished_write
+    err = capsys.readouterr().err
+    assert "press Ctrl-C again to abort" in err and "aborting once the checkpoint being written is complete" in err
