@@ -13,7 +13,6 @@ import resource
 import tempfile
 
 from common import append_results
-
 from taskrl.checkpoint import save_checkpoint
 from taskrl.envs import BitFlip
 from taskrl.replay import EpisodeReplay

@@ -502,10 +502,18 @@ def test_a_stopped_run_keeps_every_transition_it_collected(tmp_path):
 
 def test_checkpoints_also_follow_the_wall_clock():
     saved = []
-    books = Bookkeeping(LoopState(next_eval=10**9, next_checkpoint=10**9), lambda: {"success_rate": 0.0}, lambda r: None,
-                        lambda s: saved.append(s.env_steps), total_steps=10**9, eval_interval=10**9,
-                        checkpoint_interval=10**9, stop_at_success=0.0, device=torch.device("cpu"),
-                        checkpoint_seconds=0.2)
+    books = Bookkeeping(
+        LoopState(next_eval=10**9, next_checkpoint=10**9),
+        lambda: {"success_rate": 0.0},
+        lambda r: None,
+        lambda s: saved.append(s.env_steps),
+        total_steps=10**9,
+        eval_interval=10**9,
+        checkpoint_interval=10**9,
+        stop_at_success=0.0,
+        device=torch.device("cpu"),
+        checkpoint_seconds=0.2,
+    )
     books.add_steps(1)
     books.after_step()
     assert saved == []  # neither the step interval nor the clock is due yet
