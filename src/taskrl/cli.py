@@ -55,18 +55,26 @@ def _flag(name: str) -> str:
     return "--" + name.replace("_", "-")
 
 
-def _add_config_flags(parser: argparse.ArgumentParser, env: str, algo: str) -> None:
+def _add_config_flags(parser: argparse.ArgumentParser, env: str, algo: str, base: Any = None) -> None:
     from taskrl.agents.registry import ALGORITHMS
-    from taskrl.config import field_help, leaf_fields
+    from taskrl.config import field_help, leaf_fields, to_dict
     from taskrl.envs.registry import ENV_FAMILIES
 
     docs = field_help(env, algo)
+    values = to_dict(base) if base is not None and base.env == env and base.algo == algo else {}
     docs["env"] += " Choices: " + "; ".join(f"{f.name} ({f.description})" for f in ENV_FAMILIES.values())
     docs["algo"] += " Choices: " + "; ".join(f"{a.name} ({a.description})" for a in ALGORITHMS.values())
     choices = {"env": tuple(ENV_FAMILIES), "algo": tuple(ALGORITHMS)}
     for path, _field, tp in leaf_fields(env, algo):
         name = path[-1]
-        kwargs: dict[str, Any] = {"dest": name, "default": argparse.SUPPRESS, "help": docs.get(name, "")}
+        text = docs.get(name, "").replace("%", "%%")
+        node: Any = values
+        for key in path:
+            node = node.get(key, {}) if isinstance(node, dict) else {}
+        if values and not isinstance(node, dict):  # this run's value (the preset's, or the resumed run's)
+            shown = " ".join(map(str, node)) if isinstance(node, list) else node
+            text += f" [here: {shown}]"
+        kwargs: dict[str, Any] = {"dest": name, "default": argparse.SUPPRESS, "help": text}
         origin = typing.get_origin(tp)
         if name in choices:
             kwargs["choices"] = choices[name]
@@ -81,7 +89,39 @@ def _add_config_flags(parser: argparse.ArgumentParser, env: str, algo: str) -> N
         parser.add_argument(_flag(name), **kwargs)
 
 
-def _active_sections(argv: Sequence[str]) -> tuple[str, str]:
+def _config_file(argv: Sequence[str]) -> tuple[dict[str, Any], Any]:
+    """``(settings by name, full config or None)`` from ``--config FILE``: a full config (a run's
+    config.json, or what --print-config printed) becomes the starting point; a mapping of settings
+    by name (``lr: 0.001``) is applied like flags, before them."""
+    peek = _Parser(add_help=False)
+    peek.add_argument("--config")
+    known, _ = peek.parse_known_args(argv)
+    if known.config is None:
+        return {}, None
+    from pathlib import Path
+
+    from taskrl.config import from_dict
+    from taskrl.errors import ConfigError
+
+    path = Path(known.config)
+    try:
+        text = path.read_text()
+        if path.suffix.lower() in (".yaml", ".yml"):
+            import yaml
+
+            data = yaml.safe_load(text)
+        else:
+            data = json.loads(text)
+    except (OSError, ValueError) as error:  # yaml's errors are ValueErrors too
+        raise ConfigError("config", f"{path} cannot be read ({str(error).splitlines()[0][:120]})") from None
+    if not isinstance(data, dict):
+        raise ConfigError("config", f"{path} must hold a mapping of settings")
+    if any(isinstance(v, dict) for v in data.values()):  # sections: a full config
+        return {}, from_dict(data)
+    return {k: tuple(v) if isinstance(v, list) else v for k, v in data.items()}, None
+
+
+def _active_sections(argv: Sequence[str], file_base: Any = None, file_settings: dict | None = None) -> tuple[str, str, Any]:
     """``(env, algo)`` whose settings the flags address: ``--env`` / ``--algo`` (``--env-id`` or
     ``--task-file`` alone select their family), else the preset's, else the resumed run's."""
     from taskrl.agents.registry import ALGORITHMS
@@ -103,7 +143,9 @@ def _active_sections(argv: Sequence[str]) -> tuple[str, str]:
             hint = " (a gymnasium id goes to --env-id)" if flag == "--env" else ""
             raise UsageError(f"argument {flag}: invalid choice: {value!r} (choose from {', '.join(map(repr, allowed))}){hint}")
     base = TrainConfig()
-    if known.preset in PRESETS:
+    if file_base is not None:
+        base = file_base
+    elif known.preset in PRESETS:
         base = preset_config(known.preset)
     elif known.resume is not None:
         from pathlib import Path
@@ -117,11 +159,12 @@ def _active_sections(argv: Sequence[str]) -> tuple[str, str]:
                 base = load(saved)
             except ConfigError:
                 pass  # train() reports a damaged config.json in one line
-    env = known.env
+    env = known.env or (file_settings or {}).get("env")
+    known.algo = known.algo or (file_settings or {}).get("algo")
     if env is None:
         given = [name for setting, name in selectors.items() if getattr(known, setting) is not None]
         env = given[0] if given and given[0] != base.env else base.env
-    return env, known.algo or base.algo
+    return env, known.algo or base.algo, base
 
 
 def _parse(parser: argparse.ArgumentParser, argv: Sequence[str]) -> argparse.Namespace:
@@ -154,12 +197,31 @@ def cmd_train(argv: Sequence[str]) -> int:
     parser.add_argument("--resume", metavar="RUN_DIR", help="continue this run from its last checkpoint")
     parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=True, help="progress bar and final table")
     parser.add_argument("--tensorboard", action=argparse.BooleanOptionalAction, default=True, help="write TensorBoard events")
+    parser.add_argument(
+        "--log-every",
+        type=float,
+        default=0.0,
+        metavar="SECONDS",
+        help="without a terminal, also print a progress line every SECONDS between evaluations",
+    )
+    parser.add_argument(
+        "--config",
+        metavar="FILE",
+        help="settings from a YAML or JSON file (a run's config.json, or a mapping of settings by name); flags override them",
+    )
+    parser.add_argument("--print-config", action="store_true", help="print the resolved settings as JSON and exit")
     argv = _numbers_as_values(argv)
-    _add_config_flags(parser, *_active_sections(argv))
+    file_settings, file_base = _config_file(argv)
+    env, algo, base = _active_sections(argv, file_base, file_settings)
+    _add_config_flags(parser, env, algo, base)
     args = vars(_parse(parser, argv))
+    args.pop("config")
+    print_config = args.pop("print_config")
     preset, out, resume = args.pop("preset"), args.pop("out"), args.pop("resume")
-    progress, tensorboard = args.pop("progress"), args.pop("tensorboard")
-    if preset is None and resume is None:
+    progress, tensorboard, log_every = args.pop("progress"), args.pop("tensorboard"), args.pop("log_every")
+    if log_every < 0:
+        raise UsageError(f"--log-every must be >= 0 seconds (got {log_every})")
+    if preset is None and resume is None and file_base is None:
         raise UsageError(f"a preset is required unless --resume is given; allowed: {', '.join(PRESETS)}")
     if preset is not None and resume is not None:
         raise UsageError(f"give a preset (a new run) or --resume {resume} (its own settings), not both")
@@ -167,10 +229,23 @@ def cmd_train(argv: Sequence[str]) -> int:
         raise UsageError("--out does not apply with --resume (a run continues in its own directory)")
     if "hidden_sizes" in args:
         args["hidden_sizes"] = tuple(args["hidden_sizes"])
+    args = {**file_settings, **args}  # flags override the file
 
-    from taskrl.run import train
+    from taskrl.run import resolve_config, train
 
-    run = train(preset, out=out, resume=resume, progress=progress, tensorboard=tensorboard, **args)
+    if print_config:
+        from taskrl.config import to_dict, validate
+
+        notes: list[str] = []
+        resolved = validate(resolve_config(preset, resume, args, notes, base=file_base))
+        for line in notes:
+            print(line if line.startswith("warning: ") else f"note: {line}", file=sys.stderr)
+        print(json.dumps(to_dict(resolved), indent=2))
+        return 0
+
+    run = train(
+        preset, out=out, resume=resume, progress=progress, tensorboard=tensorboard, log_every=log_every, base=file_base, **args
+    )
     if not progress:
         print(json.dumps({"run_dir": str(run.run_dir), **run.metrics}))
     return 0

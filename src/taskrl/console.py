@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -10,24 +12,58 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 
-class ConsoleReporter:
-    """Progress bar over environment steps; ``enabled=False`` keeps the console quiet."""
+def _clock(seconds: float) -> str:
+    seconds = max(int(seconds), 0)
+    return f"{seconds // 3600}:{seconds // 60 % 60:02d}:{seconds % 60:02d}"
 
-    def __init__(self, title: str, total_steps: int, start_step: int = 0, enabled: bool = True) -> None:
-        self.enabled = enabled
+
+class ConsoleReporter:
+    """What a run prints while it trains.
+
+    With a terminal, a rich progress bar (success, return, steps/s). Without one (nohup, SLURM, CI,
+    a pipe), one plain line per evaluation, flushed at once::
+
+        bitflip-her  step 12,000/60,000 (20%)  success 0.93  return -2.10  8,123 steps/s  95 updates/s  elapsed 0:00:12  ETA 0:00:48
+
+    Args:
+        title: the run's name (its preset) at the start of every line.
+        total_steps: env steps the run trains for.
+        start_step: where a resumed run starts.
+        enabled: print anything at all.
+        log_every: also print a heartbeat line every this many seconds between evaluations (0: never).
+        terminal: force the bar (True) or the plain lines (False); default: whether stderr is a terminal.
+        file: where the plain lines go (default stderr).
+    """
+
+    def __init__(
+        self,
+        title: str,
+        total_steps: int,
+        start_step: int = 0,
+        enabled: bool = True,
+        log_every: float = 0.0,
+        terminal: bool | None = None,
+        file: Any = None,
+    ) -> None:
+        self.title, self.total_steps, self.enabled, self.log_every = title, total_steps, enabled, log_every
         self.console = Console(stderr=True)
+        self.terminal = self.console.is_terminal if terminal is None else terminal
+        self.file = file if file is not None else sys.stderr
+        self.started, self.start_step = time.monotonic(), start_step
+        self.last_line = self.started
+        self.last: dict[str, Any] = {}
         self.progress = Progress(
             TextColumn("[bold]{task.description}"),
             BarColumn(),
             MofNCompleteColumn(),
-            TextColumn("steps  success [bold green]{task.fields[success]}"),
+            TextColumn("steps  success [bold green]{task.fields[success]}  return {task.fields[ret]}"),
             TextColumn("{task.fields[speed]}"),
             TimeElapsedColumn(),
             TimeRemainingColumn(),
             console=self.console,
-            disable=not enabled,
+            disable=not (enabled and self.terminal),
         )
-        self.task = self.progress.add_task(title, total=total_steps, completed=start_step, success="-", speed="")
+        self.task = self.progress.add_task(title, total=total_steps, completed=start_step, success="-", ret="-", speed="")
 
     def __enter__(self) -> ConsoleReporter:
         self.progress.start()
@@ -37,12 +73,41 @@ class ConsoleReporter:
         self.progress.stop()
 
     def update(self, row: dict[str, Any]) -> None:
-        self.progress.update(
-            self.task,
-            completed=row["env_steps"],
-            success=f"{row['success_rate']:.2f}",
-            speed=f"{row['env_steps_per_s']:,.0f} steps/s",
-        )
+        """A metrics row (an evaluation): the bar moves, or one line is printed."""
+        self.last = row
+        if self.terminal:
+            self.progress.update(
+                self.task,
+                completed=row["env_steps"],
+                success=f"{row['success_rate']:.2f}",
+                ret=f"{row.get('eval_return', float('nan')):.2f}",
+                speed=f"{row['env_steps_per_s']:,.0f} steps/s",
+            )
+        elif self.enabled:
+            self._line(row["env_steps"], row)
+
+    def heartbeat(self, env_steps: int) -> None:
+        """Called as training goes: a plain line every ``log_every`` seconds between evaluations."""
+        if self.enabled and not self.terminal and self.log_every > 0 and time.monotonic() - self.last_line >= self.log_every:
+            self._line(env_steps, self.last, beat=True)
+
+    def _line(self, env_steps: int, row: dict[str, Any], beat: bool = False) -> None:
+        now = time.monotonic()
+        elapsed = now - self.started
+        done = max(env_steps - self.start_step, 0)
+        eta = elapsed / done * max(self.total_steps - env_steps, 0) if done else float("nan")
+        parts = [self.title, f"step {env_steps:,}/{self.total_steps:,} ({100 * env_steps / max(self.total_steps, 1):.0f}%)"]
+        if row:
+            what = "last success" if beat else "success"
+            parts += [
+                f"{what} {row['success_rate']:.2f}",
+                f"return {row.get('eval_return', float('nan')):.2f}",
+                f"{row.get('env_steps_per_s', 0):,.0f} steps/s",
+                f"{row.get('updates_per_s', 0):,.0f} updates/s",
+            ]
+        parts += [f"elapsed {_clock(elapsed)}", f"ETA {_clock(eta) if eta == eta else '-'}"]
+        print("  ".join(parts), file=self.file, flush=True)
+        self.last_line = now
 
 
 def final_table(row: dict[str, Any], run_dir: Path, curve: Path | None) -> Table:

@@ -46,7 +46,7 @@ from taskrl.logger import RunLogger
 from taskrl.plots import plot_learning_curve
 from taskrl.presets import preset_config
 from taskrl.replay import EpisodeReplay, HindsightRelabeler, TaskBalancedSampler
-from taskrl.rundir import RunLock, check_new_run_dir
+from taskrl.rundir import RunLock, atomic_write_text, check_new_run_dir
 from taskrl.training.bookkeeping import Bookkeeping, LoopState, StopRequest
 from taskrl.training.evaluation import evaluate
 from taskrl.training.offpolicy import LoopSchedule, OffPolicyLoop
@@ -355,6 +355,22 @@ def _on_policy_loop(parts: RunParts, books: Bookkeeping) -> OnPolicyLoop:
 LOOPS: dict[str, Callable[[RunParts, Bookkeeping], Any]] = {"off_policy": _off_policy_loop, "on_policy": _on_policy_loop}
 
 
+RUN_INFO = "run.json"
+
+
+def _run_title(run_dir: Path, preset: str | None, config: TrainConfig) -> str:
+    """The run's name: its preset, recorded in ``run.json`` when it starts, so a resumed run keeps it."""
+    info = run_dir / RUN_INFO
+    if preset is not None:
+        atomic_write_text(info, json.dumps({"preset": preset}) + "\n")
+        return preset
+    try:
+        recorded = json.loads(info.read_text()).get("preset")
+    except (OSError, ValueError, AttributeError):
+        recorded = None
+    return recorded if isinstance(recorded, str) and recorded else f"{config.env}-{config.algo}"
+
+
 def default_run_dir(name: str) -> Path:
     return Path("runs") / f"{name}-{datetime.datetime.now():%Y%m%d-%H%M%S}"
 
@@ -387,7 +403,50 @@ def import_env_module(name: str) -> None:
 def _note(console: Console | None, notes: list[str]) -> None:
     out = console or Console(stderr=True)
     for line in notes:
-        out.print(f"note: {line}", soft_wrap=True, markup=False)
+        out.print(line if line.startswith("warning: ") else f"note: {line}", soft_wrap=True, markup=False)
+
+
+def resolve_config(
+    preset: str | None,
+    resume: str | Path | None,
+    overrides: dict[str, Any],
+    notes: list[str] | None = None,
+    base: TrainConfig | None = None,
+) -> TrainConfig:
+    """The settings a call would train with: the resumed run's, a given base config, or the preset's,
+    with ``overrides`` applied (what changing env or algo kept or dropped goes to ``notes``)."""
+    notes = [] if notes is None else notes
+    if resume is not None:
+        run_dir = Path(resume)
+        if not (run_dir / "config.json").exists():
+            raise ConfigError("resume", f"{run_dir} is not a run directory (no config.json)")
+        start = config_io.load(run_dir / "config.json")
+    else:
+        start = base if base is not None else preset_config(preset)
+    config = with_overrides(start, overrides, notes)
+    notes += [f"warning: {w}" for w in budget_warnings(config)]
+    return config
+
+
+def budget_warnings(config: TrainConfig) -> list[str]:
+    """Budgets that make a run do less than its settings suggest (said before training, not refused)."""
+    c, out = config, []
+    if algorithm(c.algo).loop == "off_policy":
+        if c.learning_starts >= c.total_steps:
+            out.append(
+                f"learning_starts={c.learning_starts:,} >= total_steps={c.total_steps:,}: the run collects "
+                f"data and makes no gradient update"
+            )
+        elif c.updates_per_step * (c.total_steps - c.learning_starts) < 1:
+            out.append(
+                f"updates_per_step={c.updates_per_step} over {c.total_steps - c.learning_starts:,} env steps "
+                f"after learning_starts is less than one gradient update"
+            )
+    else:
+        rollout = getattr(c.algo_settings, "rollout_steps", 1) * c.num_envs
+        if c.total_steps < rollout:
+            out.append(f"total_steps={c.total_steps:,} is less than one rollout ({rollout:,} env steps): one rollout runs")
+    return out
 
 
 # ---------------------------------------------------------------------- training
@@ -399,6 +458,8 @@ def train(
     progress: bool = False,
     tensorboard: bool = True,
     console: Console | None = None,
+    log_every: float = 0.0,
+    base: TrainConfig | None = None,
     **overrides: Any,
 ) -> Run:
     """Train a preset (with overrides), or continue a run directory.
@@ -411,6 +472,9 @@ def train(
         progress: show a progress bar and print the final table.
         tensorboard: write TensorBoard events.
         console: where the final table and notes go (default stderr).
+        log_every: without a terminal, also print a progress line every this many seconds between
+            evaluations (0: one line per evaluation only).
+        base: a full configuration to start from instead of the preset's (``--config FILE``).
         **overrides: any setting by name (``n_bits=30``, ``lr=1e-3``; see ``taskrl train PRESET --help``).
             ``env`` may also be a gymnasium id (``env="my/Slider-v0"``), a zero-argument factory
             of a ``gymnasium.Env``, or a :class:`~taskrl.tasks.TaskSet`; a run on a Python object
@@ -422,15 +486,12 @@ def train(
     overrides = dict(overrides)
     source = _env_source(overrides)
     notes: list[str] = []
+    config = resolve_config(preset, resume, overrides, notes, base=base)
     if resume is not None:
         run_dir = Path(resume)
-        if not (run_dir / "config.json").exists():
-            raise ConfigError("resume", f"{run_dir} is not a run directory (no config.json)")
         saved = config_io.load(run_dir / "config.json")
-        config = with_overrides(saved, overrides, notes)
     else:
-        config = with_overrides(preset_config(preset), overrides, notes)
-        run_dir = check_new_run_dir(out if out is not None else default_run_dir(preset))
+        run_dir = check_new_run_dir(out if out is not None else default_run_dir(preset or "run"))
     if resume is None or "env_module" in overrides:  # a resumed run imports only what the caller names
         import_env_module(config.env_module)
 
@@ -457,10 +518,10 @@ def train(
         config_io.save(config, run_dir / "config.json")
         logger = RunLogger(run_dir, tensorboard=tensorboard, resume_from_step=state.env_steps if resume else None)
         rows: list[dict[str, Any]] = []
-        title = preset if resume is None and preset else f"{config.env}-{config.algo}"
+        title = _run_title(run_dir, preset if resume is None else None, config)
         evaluator, last_eval = make_evaluator(config, parts.eval_env, parts.agent, config.seed + EVAL_SEED_OFFSET)
         stop = StopRequest(config.max_hours)
-        with ConsoleReporter(title, config.total_steps, state.env_steps, enabled=progress) as reporter:
+        with ConsoleReporter(title, config.total_steps, state.env_steps, enabled=progress, log_every=log_every) as reporter:
 
             def on_log(row: dict[str, Any]) -> None:
                 rows.append(row)
@@ -480,6 +541,7 @@ def train(
                 stop,
                 checkpoint_seconds=60.0 * config.checkpoint_minutes,
             )
+            books.heartbeat = reporter.heartbeat
             loop = LOOPS[algorithm(config.algo).loop](parts, books)
             try:
                 with stop.on_signals():

@@ -172,6 +172,8 @@ class Bookkeeping:
         #: called once when the run finishes, before its last checkpoint (the off-policy loop stores its
         #: running episodes there, so a stopped run keeps every transition it collected)
         self.on_finish: Callable[[], Any] | None = None
+        #: called after every step with the env-step count (a console's heartbeat line)
+        self.heartbeat: Callable[[int], Any] | None = None
         self.total_steps = total_steps
         self.eval_interval, self.checkpoint_interval, self.stop_at_success = eval_interval, checkpoint_interval, stop_at_success
         self.clock = Stopwatch(state.wall_seconds)
@@ -201,6 +203,8 @@ class Bookkeeping:
     def after_step(self, extra: dict[str, Any] | None = None) -> bool:
         """Evaluate, log and checkpoint when due; returns whether the run is finished."""
         state = self.state
+        if self.heartbeat is not None:
+            self.heartbeat(state.env_steps)
         finished = state.env_steps >= self.total_steps
         if not finished and self.stop is not None and self.stop.due():
             finished = True
