@@ -26,4 +26,11 @@ def load(*args, **kwargs):
     return _load(*args, **kwargs)
 
 
-__all__ = ["train", "load", "__version__"]
+def load_policy(*args, **kwargs):
+    """See :func:`taskrl.export.load_policy`."""
+    from taskrl.export import load_policy as _load_policy
+
+    return _load_policy(*args, **kwargs)
+
+
+__all__ = ["train", "load", "load_policy", "__version__"]

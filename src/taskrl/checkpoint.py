@@ -133,13 +133,32 @@ def latest_checkpoint(directory: Path) -> Path:
     return folder
 
 
-def load_checkpoint(directory: Path, parts: tuple[str, ...], device: str | torch.device = "cpu") -> dict[str, Any]:
-    """Load the named parts of the latest checkpoint in ``directory`` (tensors on ``device``).
+def checkpoint_step(folder: Path) -> int:
+    """The env step of a checkpoint folder (``step_000000001000.1`` -> 1000)."""
+    return _order(Path(folder).name)[0]
+
+
+def checkpoint_at(directory: Path, step: int | None = None) -> Path:
+    """The latest checkpoint folder, or the newest one of env step ``step``."""
+    if step is None:
+        return latest_checkpoint(directory)
+    folders = sorted((p.name for p in Path(directory).glob(f"step_{step:012d}*") if _NAME.fullmatch(p.name)), key=_order)
+    if not folders:
+        have = sorted(checkpoint_step(p) for p in Path(directory).glob("step_*") if _NAME.fullmatch(p.name))
+        raise ConfigError("checkpoint", f"no checkpoint at step {step:,}; this run keeps: {', '.join(map(str, have)) or 'none'}")
+    return Path(directory) / folders[-1]
+
+
+def load_checkpoint(
+    directory: Path, parts: tuple[str, ...], device: str | torch.device = "cpu", step: int | None = None
+) -> dict[str, Any]:
+    """Load the named parts of the latest checkpoint in ``directory`` (or of env step ``step``),
+    tensors on ``device``.
 
     Absent parts (e.g. a replay that was not saved) are left out of the result. Only safetensors
     and JSON are read: nothing in a checkpoint can run code.
     """
-    folder = latest_checkpoint(directory)
+    folder = checkpoint_at(directory, step)
     out = {}
     for part in parts:
         skeleton_file, tensor_file = folder / f"{part}.json", folder / f"{part}.safetensors"

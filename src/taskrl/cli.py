@@ -4,7 +4,8 @@
     taskrl train PRESET [--setting VALUE]  train (every setting of the run, its env and its algorithm is a flag)
     taskrl train PRESET --env-id my/Env-v0 train a preset's algorithm on any gymnasium env (--env-module to register it)
     taskrl train --resume RUN_DIR          continue a run from its last checkpoint
-    taskrl eval RUN_DIR                    re-evaluate a saved agent, print JSON
+    taskrl eval RUN_DIR                    re-evaluate a saved agent (--json, --video N, --checkpoint STEP)
+    taskrl export RUN_DIR --out DIR        write the policy alone (taskrl.load_policy(DIR).predict(obs))
     taskrl solve MDP [--method ...]        exact dynamic programming on finite MDPs
 
 Bad input exits with code 2 and one line naming the setting and the allowed values.
@@ -21,10 +22,10 @@ import typing
 from collections.abc import Sequence
 from typing import Any
 
-COMMANDS = ("train", "eval", "presets", "solve")
+COMMANDS = ("train", "eval", "export", "presets", "solve")
 POSITIONAL = ("preset", "run_dir")
 #: Errors about files rather than settings: named as they are, not as flags.
-FILES = {"config": "config.json:", "checkpoint": "checkpoint:"}
+FILES = {"config": "config.json:", "checkpoint": "checkpoint:", "policy": "policy:"}
 _NUMBER = re.compile(r"-(\d+\.?\d*|\.\d+)(e[-+]?\d+)?", re.IGNORECASE)
 
 
@@ -252,18 +253,69 @@ def cmd_train(argv: Sequence[str]) -> int:
 
 
 def cmd_eval(argv: Sequence[str]) -> int:
-    parser = _Parser(prog="taskrl eval", description="Re-evaluate a saved agent greedily; prints JSON.")
+    parser = _Parser(prog="taskrl eval", description="Re-evaluate a saved agent: success with a 95% interval, per task.")
     parser.add_argument("run_dir", help="a run directory written by `taskrl train`")
-    parser.add_argument("--episodes", type=int, default=100, help="evaluation episodes (default 100)")
+    parser.add_argument(
+        "--episodes", type=int, default=100, help="evaluation episodes, per task on multi-task envs (default 100)"
+    )
     parser.add_argument("--seed", type=int, default=None, help="evaluation seed (default: the run's evaluation seed)")
     parser.add_argument("--device", default="cpu", help="cpu, cuda, cuda:N or auto")
+    parser.add_argument(
+        "--checkpoint", type=int, default=None, metavar="STEP", help="the checkpoint of this env step (default the latest)"
+    )
+    parser.add_argument("--stochastic", action="store_true", help="act with the algorithm's exploration, not greedily")
+    parser.add_argument("--video", type=int, default=0, metavar="N", help="also record N episodes to RUN_DIR/videos/ (MP4)")
+    parser.add_argument("--json", action="store_true", help="print one line of JSON instead of tables")
     parser.add_argument("--env-module", default=None, help="import this module first (one that registers the run's gymnasium id)")
     args = _parse(parser, argv)
     if args.episodes < 1:
         raise UsageError(f"--episodes must be >= 1 (got {args.episodes})")
+    if args.video < 0:
+        raise UsageError(f"--video must be >= 0 episodes (got {args.video})")
     from taskrl.run import evaluate_run
 
-    print(json.dumps(evaluate_run(args.run_dir, args.episodes, args.seed, args.device, env_module=args.env_module)))
+    result = evaluate_run(
+        args.run_dir,
+        args.episodes,
+        args.seed,
+        args.device,
+        env_module=args.env_module,
+        checkpoint=args.checkpoint,
+        stochastic=args.stochastic,
+        video=args.video,
+    )
+    if args.json:
+        print(json.dumps(result))
+        return 0
+    from rich.console import Console
+
+    from taskrl.console import eval_table, per_task_table
+
+    out = Console()
+    if "tasks" in result:
+        out.print(
+            per_task_table(
+                {"tasks": result["tasks"], "mean_success_rate": result["success_rate"]},
+                f"per-task success, checkpoint at {result['checkpoint_step']:,} env steps",
+            )
+        )
+    out.print(eval_table(result, args.run_dir))
+    for path in result.get("videos", []):
+        out.print(f"video: {path}", soft_wrap=True, markup=False)
+    return 0
+
+
+def cmd_export(argv: Sequence[str]) -> int:
+    parser = _Parser(prog="taskrl export", description="Write what acting needs (weights, normaliser, spaces, settings).")
+    parser.add_argument("run_dir", help="a run directory written by `taskrl train`")
+    parser.add_argument("--out", required=True, help="a new or empty directory for policy.safetensors and policy.json")
+    parser.add_argument("--env-module", default=None, help="import this module first (one that registers the run's gymnasium id)")
+    args = _parse(parser, argv)
+    from taskrl.export import export_policy
+
+    out = export_policy(args.run_dir, args.out, env_module=args.env_module)
+    size = sum(f.stat().st_size for f in out.iterdir())
+    print(f"policy written to {out} ({size / 1024:.0f} KiB); load it with taskrl.load_policy({str(out)!r})")
     return 0
 
 
@@ -279,7 +331,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(__doc__.strip())
         return 0
     command, rest = argv[0], argv[1:]
-    handlers = {"train": cmd_train, "eval": cmd_eval, "presets": cmd_presets, "solve": cmd_solve}
+    handlers = {"train": cmd_train, "eval": cmd_eval, "export": cmd_export, "presets": cmd_presets, "solve": cmd_solve}
     from taskrl.errors import ConfigError
     from taskrl.training.bookkeeping import TrainingDiverged
 

@@ -133,8 +133,33 @@ def per_task_table(result: dict[str, Any], title: str = "per-task success"):
     table.add_column("success", justify="right")
     table.add_column("episodes", justify="right")
     table.add_column("return", justify="right")
+    intervals = any("success_ci95" in row for row in result["tasks"].values())
+    if intervals:
+        table.add_column("95% interval", justify="right")
     for name, row in result["tasks"].items():
-        table.add_row(str(row["index"]), name, f"{row['success_rate']:.2f}", str(row["episodes"]), f"{row['mean_return']:.1f}")
+        cells = [str(row["index"]), name, f"{row['success_rate']:.2f}", str(row["episodes"]), f"{row['mean_return']:.1f}"]
+        if intervals:
+            lo, hi = row["success_ci95"]
+            cells.append(f"{lo:.2f} - {hi:.2f}")
+        table.add_row(*cells)
     table.add_section()
-    table.add_row("", "[bold]mean over tasks", f"[bold]{result['mean_success_rate']:.3f}", "", "")
+    table.add_row("", "[bold]mean over tasks", f"[bold]{result['mean_success_rate']:.3f}", "", "", *([""] if intervals else []))
+    return table
+
+
+def eval_table(result: dict[str, Any], run_dir: Any) -> Table:
+    """``taskrl eval``'s summary: success and return with their 95% intervals, and what was evaluated."""
+    table = Table(title=f"evaluation of {run_dir}", show_header=False)
+    table.add_column(style="bold")
+    table.add_column()
+    lo, hi = result["success_ci95"]
+    table.add_row("success rate", f"{result['success_rate']:.3f}  (95% interval {lo:.3f} - {hi:.3f})")
+    ret = f"{result['eval_return']:.2f}"
+    if "eval_return_ci95" in result:
+        rlo, rhi = result["eval_return_ci95"]
+        ret += f"  (95% interval {rlo:.2f} - {rhi:.2f})"
+    table.add_row("return", ret)
+    table.add_row("episode length", f"{result['eval_length']:.1f}")
+    table.add_row("episodes", f"{result['episodes']:,}" + (" per task" if "tasks" in result else ""))
+    table.add_row("checkpoint", f"{result['checkpoint_step']:,} env steps")
     return table

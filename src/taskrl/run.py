@@ -22,6 +22,8 @@ import dataclasses
 import datetime
 import importlib
 import json
+import math
+import os
 import shutil
 from collections.abc import Callable
 from pathlib import Path
@@ -34,7 +36,7 @@ from rich.console import Console
 from taskrl import config as config_io
 from taskrl.agents.registry import algorithm
 from taskrl.agents.spec import AgentInputs
-from taskrl.checkpoint import load_checkpoint, save_checkpoint
+from taskrl.checkpoint import checkpoint_at, checkpoint_step, load_checkpoint, save_checkpoint
 from taskrl.conditioning.networks import make_conditioning
 from taskrl.config import TrainConfig, check_device, check_fit, validate, with_overrides
 from taskrl.console import ConsoleReporter, final_table, per_task_table
@@ -161,7 +163,9 @@ def make_agent(config: TrainConfig, env: Any, device: torch.device) -> Any:
     return algorithm(config.algo).build(inputs, config.algo_settings, device, conditioning)
 
 
-def make_evaluator(config: TrainConfig, eval_env: BatchedEnv, agent: Any, seed: int):
+def make_evaluator(
+    config: TrainConfig, eval_env: BatchedEnv, agent: Any, seed: int, stochastic: bool = False, details: bool = False
+):
     """``() -> metrics`` for the loop, and a holder of the last full result (per-task for multi-task envs).
 
     Single-task envs: success at the step an episode ends, one episode per evaluation copy.
@@ -174,12 +178,12 @@ def make_evaluator(config: TrainConfig, eval_env: BatchedEnv, agent: Any, seed: 
     family = env_family(config.env)
     multitask = env_kind(eval_env) == "multitask"
 
-    def policy(obs):  # greedy: no exploration
-        return agent.act(obs)
+    def policy(obs):  # greedy unless asked to explore
+        return agent.act(obs, explore=stochastic)
 
     def run() -> dict[str, float]:
         if not multitask:
-            return evaluate(policy, eval_env, seed)
+            return evaluate(policy, eval_env, seed, details=details)
         result = evaluate_per_task(
             policy, eval_env, config.eval_episodes, seed, success=family.success_criterion(config.env_settings)
         )
@@ -610,7 +614,9 @@ def _saved_config(run_dir: Path, env: Any, env_module: str | None) -> tuple[Trai
     return config, None
 
 
-def load(run_dir: str | Path, device: str = "cpu", env: Any = None, env_module: str | None = None) -> Any:
+def load(
+    run_dir: str | Path, device: str = "cpu", env: Any = None, env_module: str | None = None, checkpoint: int | None = None
+) -> Any:
     """The trained agent of a run directory; ``agent.act(obs)`` takes the environment's observations.
 
     Only safetensors and JSON are read: loading never executes code, and never imports a module
@@ -621,6 +627,8 @@ def load(run_dir: str | Path, device: str = "cpu", env: Any = None, env_module: 
         device: where the networks go.
         env: the Python factory or TaskSet the run was trained on, if it was trained on one.
         env_module: a module to import first (one that registers the run's gymnasium id).
+        checkpoint: the env step of the checkpoint to load (default the latest); the loaded agent's
+            ``loaded_step`` says which.
     """
     run_dir = Path(run_dir)
     config, source = _saved_config(run_dir, env, env_module)
@@ -636,8 +644,20 @@ def load(run_dir: str | Path, device: str = "cpu", env: Any = None, env_module: 
         agent = make_agent(config, spaces, dev)
     finally:
         spaces.close()
-    agent.load_state_dict(load_checkpoint(run_dir / "checkpoints", ("agent",), dev)["agent"])
+    folder = checkpoint_at(run_dir / "checkpoints", checkpoint)
+    agent.load_state_dict(load_checkpoint(run_dir / "checkpoints", ("agent",), dev, step=checkpoint_step(folder))["agent"])
+    agent.loaded_step = checkpoint_step(folder)
     return agent
+
+
+def wilson_interval(successes: float, n: int, z: float = 1.96) -> list[float]:
+    """The 95% Wilson score interval of a success rate (sound at 0 and 1, where a normal one is not)."""
+    if n <= 0:
+        return [0.0, 1.0]
+    p = successes / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    return [max(0.0, centre - half), min(1.0, centre + half)]
 
 
 def evaluate_run(
@@ -647,19 +667,59 @@ def evaluate_run(
     device: str = "cpu",
     env: Any = None,
     env_module: str | None = None,
-) -> dict[str, float]:
-    """Re-evaluate a saved agent greedily on ``episodes`` fresh episodes (per task on multi-task envs)."""
+    checkpoint: int | None = None,
+    stochastic: bool = False,
+    video: int = 0,
+) -> dict[str, Any]:
+    """Re-evaluate a saved agent on ``episodes`` fresh episodes (per task on multi-task envs).
+
+    Args:
+        run_dir: a run directory.
+        episodes: episodes (per task on multi-task envs).
+        seed: evaluation seed (default the run's own evaluation seed: the same episodes it was scored on).
+        device: where the networks go.
+        env, env_module: as for :func:`load`.
+        checkpoint: the env step of the checkpoint to evaluate (default the latest).
+        stochastic: act with the algorithm's exploration instead of greedily.
+        video: also record this many episodes to ``run_dir/videos/`` (MP4).
+
+    Returns:
+        ``success_rate`` with its 95% Wilson interval ``success_ci95``, ``eval_return`` with
+        ``eval_return_ci95`` (normal, over episodes; single-task envs), ``eval_length``, ``episodes``,
+        ``checkpoint_step``, on multi-task envs a ``success/<task>`` per task and ``tasks`` (each with
+        its own interval), and ``videos`` (paths) when asked.
+    """
     run_dir = Path(run_dir)
+    if video:  # MuJoCo renders off-screen through EGL without a display; read when MuJoCo is first imported
+        os.environ.setdefault("MUJOCO_GL", "egl")
     config, source = _saved_config(run_dir, env, env_module)
     config = dataclasses.replace(config, eval_episodes=episodes)
     try:  # before loading anything
         validate(config)
     except ConfigError as error:  # the only setting this call changes is the episode count
         raise ConfigError("episodes" if error.field == "eval_episodes" else error.field, error.message) from None
-    agent = load(run_dir, device, env=source, env_module=None)
+    agent = load(run_dir, device, env=source, env_module=None, checkpoint=checkpoint)
     seed = config.seed + EVAL_SEED_OFFSET if seed is None else seed
     eval_env = make_env(config, agent.device, seed=seed, evaluation=True, source=source)
     try:
-        return {**make_evaluator(config, eval_env, agent, seed)[0](), "episodes": episodes}
+        run, last = make_evaluator(config, eval_env, agent, seed, stochastic=stochastic, details=True)
+        result = {**run(), "episodes": episodes, "checkpoint_step": agent.loaded_step}
     finally:
         eval_env.close()
+    if last:  # multi-task: an interval for every task and for the mean's share of episodes
+        tasks = {}
+        for name, t in last["tasks"].items():
+            tasks[name] = {**t, "success_ci95": wilson_interval(t["success_rate"] * t["episodes"], t["episodes"])}
+        result["tasks"] = tasks
+        total = sum(t["episodes"] for t in tasks.values())
+        result["success_ci95"] = wilson_interval(sum(t["success_rate"] * t["episodes"] for t in tasks.values()), total)
+    else:
+        result["success_ci95"] = wilson_interval(result.pop("successes"), episodes)
+        returns = torch.tensor(result.pop("returns"), dtype=torch.float64)
+        half = 1.96 * returns.std().item() / math.sqrt(len(returns)) if len(returns) > 1 else float("nan")
+        result["eval_return_ci95"] = [result["eval_return"] - half, result["eval_return"] + half]
+    if video:
+        from taskrl.video import record_episodes
+
+        result["videos"] = [str(p) for p in record_episodes(agent, config, run_dir / "videos", video, seed, stochastic)]
+    return result

@@ -94,12 +94,15 @@ class Agent:
         updates: gradient updates made.
         checkpointed: checkpoint name -> dotted attribute path (``"normalize": "inputs.normalize"``);
             ``None``-valued attributes (an absent task encoder) are skipped.
+        acting: the names of ``checkpointed`` that acting needs (a policy export keeps only these).
     """
 
     device: torch.device
     inputs: ObservationInput
     updates: int = 0
     checkpointed: ClassVar[dict[str, str]] = {}
+    #: the checkpointed parts acting needs (what a policy export keeps)
+    acting: ClassVar[tuple[str, ...]] = ()
 
     # ---------------------------------------------------------------- acting
     @torch.no_grad()

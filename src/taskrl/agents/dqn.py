@@ -105,6 +105,7 @@ class DQNAgent(Agent):
         device: torch device of the networks.
     """
 
+    acting = ("q", "normalize")
     checkpointed = {"q": "q", "q_target": "q_target", "normalize": "inputs.normalize", "optimizer": "optimizer"}
 
     def __init__(

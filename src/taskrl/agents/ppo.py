@@ -219,6 +219,7 @@ class PPOAgent(Agent):
             and the value read the context ``encoder(obs[task_key])``. ``None``: plain MLPs.
     """
 
+    acting = ("policy", "log_std", "normalize", "task_encoder")
     checkpointed = {
         "policy": "policy_net",
         "value": "value_net",

@@ -116,6 +116,7 @@ class QTOptAgent(Agent):
         device: torch device of the networks.
     """
 
+    acting = ("q", "normalize")
     checkpointed = {
         "q": "q",
         "q_target1": "q_target1",

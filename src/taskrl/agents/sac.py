@@ -184,6 +184,7 @@ class SACAgent(Agent):
             use; observations then carry the task index under ``conditioning.task_key``.
     """
 
+    acting = ("actor", "normalize", "task_encoder")
     checkpointed = {
         "actor": "actor",
         "critics": "critics",

@@ -106,6 +106,7 @@ class TD3Agent(Agent):
         device: torch device of the networks.
     """
 
+    acting = ("actor", "normalize")
     checkpointed = {
         "actor": "actor",
         "actor_target": "actor_target",

@@ -77,6 +77,12 @@ class BitFlip(GoalEnvMixin, NativeEnv):
         state = self.state.clone()
         return {"observation": state, "achieved_goal": state, "desired_goal": self.goal.clone()}
 
+    def render_rgb(self, index: int = 0):
+        """A picture of copy ``index``: its bits (top row) and its target (bottom row)."""
+        from taskrl.envs.render import draw_bits
+
+        return draw_bits(self.state[index].cpu().numpy(), self.goal[index].cpu().numpy())
+
     def step(self, action: torch.Tensor) -> StepResult:
         action = torch.as_tensor(action, device=self.device).long().reshape(self.num_envs)
         self.state[self._arange, action] ^= 1
@@ -129,4 +135,7 @@ FAMILY = EnvFamily(
     make=_make_bitflip,
     kind="goal",
     actions="discrete",
+    video_env=lambda s: gym.make(
+        "taskrl/BitFlip-v0", n_bits=s.n_bits, terminate_on_success=s.terminate_on_success, render_mode="rgb_array"
+    ),
 )

@@ -51,6 +51,15 @@ def _maker(env_id: str):
     return make
 
 
+def _video(env_id: str):
+    def make(settings: FetchSettings):
+        from taskrl.envs.gymnasium_adapter import _make_env
+
+        return _make_env(env_id, {"render_mode": "rgb_array"}, None)
+
+    return make
+
+
 FAMILIES = tuple(
     EnvFamily(
         name=name,
@@ -60,6 +69,7 @@ FAMILIES = tuple(
         make=_maker(env_id),
         kind="goal",
         actions="box",
+        video_env=_video(env_id),
     )
     for name, env_id in FETCH_IDS.items()
 )

@@ -27,12 +27,19 @@ class SingleCopyEnv(gym.Env):
     to gymnasium's wrappers here, so ``step`` returns the observation an episode ended in.
     """
 
-    metadata = {"render_modes": []}
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
+    render_mode: str | None = None
 
-    def _wrap(self, env: Any) -> None:
-        self._env = env
+    def _wrap(self, env: Any, render_mode: str | None = None) -> None:
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        self._env, self.render_mode = env, render_mode
         self.observation_space = env.single_observation_space
         self.action_space = env.single_action_space
+
+    def render(self):
+        """An RGB picture of the copy (``render_mode="rgb_array"``)."""
+        return self._env.render_rgb(0) if self.render_mode == "rgb_array" else None
 
     @staticmethod
     def _to_numpy(obs: dict[str, torch.Tensor]) -> dict[str, Any]:
@@ -61,8 +68,8 @@ class BitFlipGymEnv(SingleCopyEnv):
         terminate_on_success: end the episode when the target is reached.
     """
 
-    def __init__(self, n_bits: int = 15, terminate_on_success: bool = True) -> None:
-        self._wrap(BitFlip(n_bits, num_envs=1, terminate_on_success=terminate_on_success, seed=0))
+    def __init__(self, n_bits: int = 15, terminate_on_success: bool = True, render_mode: str | None = None) -> None:
+        self._wrap(BitFlip(n_bits, num_envs=1, terminate_on_success=terminate_on_success, seed=0), render_mode)
 
     def compute_reward(self, achieved_goal: np.ndarray, desired_goal: np.ndarray, info: Any = None) -> np.ndarray:
         achieved, desired = np.asarray(achieved_goal), np.asarray(desired_goal)
@@ -82,14 +89,13 @@ class PointReachGymEnv(SingleCopyEnv):
         terminate_on_success: end the episode when the goal is reached.
     """
 
-    metadata = {"render_modes": []}
-
     def __init__(
         self,
         reward: RewardType = "sparse",
         max_speed: float = 0.1,
         distance_threshold: float = 0.05,
         terminate_on_success: bool = False,
+        render_mode: str | None = None,
     ) -> None:
         self._wrap(
             PointReach(
@@ -100,7 +106,8 @@ class PointReachGymEnv(SingleCopyEnv):
                 distance_threshold=distance_threshold,
                 terminate_on_success=terminate_on_success,
                 seed=0,
-            )
+            ),
+            render_mode,
         )
 
     def compute_reward(self, achieved_goal: np.ndarray, desired_goal: np.ndarray, info: Any = None) -> np.ndarray:

@@ -134,4 +134,11 @@ FAMILY = EnvFamily(
     selected_by="env_id",
     accepts=callable,
     persist=_persist,
+    video_env=lambda s: (
+        None
+        if s.env_id.startswith(PYTHON_SOURCE)
+        else gym.make(
+            s.env_id, render_mode="rgb_array", **({"max_episode_steps": s.max_episode_steps} if s.max_episode_steps else {})
+        )
+    ),
 )

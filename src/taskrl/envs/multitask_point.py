@@ -173,6 +173,14 @@ class MultiTaskPointReach(NativeEnv):
         """
         return self._reward(self.distance_to_region(observation, task))
 
+    def render_rgb(self, index: int = 0):
+        """A picture of copy ``index``: every region (its task's in green) and the point."""
+        from taskrl.envs.render import draw_points
+
+        task = int(self.task[index])
+        regions = [(c.cpu().numpy(), self.radius, i == task) for i, c in enumerate(self.centres)]
+        return draw_points(self.position[index].cpu().numpy(), regions)
+
     def compute_task_success(self, observation: torch.Tensor, task: torch.Tensor) -> torch.Tensor:
         """Whether ``observation`` lies in ``task``'s region, one bool per row."""
         return self.distance_to_region(observation, task) <= self.radius
@@ -193,6 +201,7 @@ class MultiTaskPointReachGymEnv(SingleCopyEnv):
         max_speed: float = 0.1,
         terminate_on_success: bool = False,
         regions: Sequence[tuple[str, str, Sequence[float]]] = DEFAULT_REGIONS,
+        render_mode: str | None = None,
     ) -> None:
         self._wrap(
             MultiTaskPointReach(
@@ -204,7 +213,8 @@ class MultiTaskPointReachGymEnv(SingleCopyEnv):
                 max_speed=max_speed,
                 terminate_on_success=terminate_on_success,
                 seed=0,
-            )
+            ),
+            render_mode,
         )
         self.task_set = self._env.task_set
 
@@ -248,4 +258,7 @@ FAMILY = EnvFamily(
     kind="multitask",
     actions="box",
     per_task_success="final",  # touring several regions must not count
+    video_env=lambda s: gym.make(
+        "taskrl/MultiTaskPointReach-v0", reward=s.reward, terminate_on_success=s.terminate_on_success, render_mode="rgb_array"
+    ),
 )

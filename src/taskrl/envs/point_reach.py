@@ -104,6 +104,13 @@ class PointReach(GoalEnvMixin, NativeEnv):
         position = self.position.clone()
         return {"observation": position, "achieved_goal": position.clone(), "desired_goal": self.goal.clone()}
 
+    def render_rgb(self, index: int = 0):
+        """A picture of copy ``index``: the goal (green, its success radius) and the point (blue)."""
+        from taskrl.envs.render import draw_points
+
+        goal = (self.goal[index].cpu().numpy(), self.distance_threshold, True)
+        return draw_points(self.position[index].cpu().numpy(), [goal])
+
     def step(self, action: torch.Tensor) -> StepResult:
         action = torch.as_tensor(action, device=self.device, dtype=torch.float32).reshape(self.num_envs, 2)
         self.position = (self.position + action.clamp(-1.0, 1.0) * self.max_speed).clamp_(-1.0, 1.0)
@@ -167,4 +174,7 @@ FAMILY = EnvFamily(
     make=_make_point_reach,
     kind="goal",
     actions="box",
+    video_env=lambda s: gym.make(
+        "taskrl/PointReach-v0", reward=s.reward, terminate_on_success=s.terminate_on_success, render_mode="rgb_array"
+    ),
 )

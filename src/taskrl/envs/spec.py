@@ -81,6 +81,8 @@ class EnvFamily:
         accepts: ``accepts(obj) -> bool``: the Python objects this family builds envs from.
         persist: ``persist(obj, run_dir) -> settings``: how a run records such an object in its
             settings (and files of its own in the run directory), so the run can be resumed and loaded.
+        video_env: ``video_env(settings) -> gymnasium.Env`` with ``render_mode="rgb_array"``: one copy to
+            record videos of (``taskrl eval --video``); None where the family cannot render.
     """
 
     name: str
@@ -96,6 +98,7 @@ class EnvFamily:
     selected_by: str | None = None
     accepts: Callable[[Any], bool] | None = None
     persist: Callable[[Any, Path], dict[str, Any]] | None = None
+    video_env: Callable[[Any], Any] | None = None
 
     def success_criterion(self, settings: Any) -> str:
         """``any`` or ``final``: when a multi-task evaluation episode counts as a success."""

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 
 import torch
 
@@ -10,7 +11,7 @@ from taskrl.envs.base import BatchedEnv, Obs
 
 
 @torch.no_grad()
-def evaluate(policy: Callable[[Obs], torch.Tensor], env: BatchedEnv, seed: int) -> dict[str, float]:
+def evaluate(policy: Callable[[Obs], torch.Tensor], env: BatchedEnv, seed: int, details: bool = False) -> dict[str, Any]:
     """Run one episode in each of ``env.num_envs`` copies with ``policy`` (greedy actions).
 
     The same ``seed`` gives the same start states and goals every time, so successive
@@ -18,7 +19,8 @@ def evaluate(policy: Callable[[Obs], torch.Tensor], env: BatchedEnv, seed: int) 
     episode ends.
 
     Returns:
-        ``success_rate``, ``eval_return`` (mean undiscounted) and ``eval_length`` (mean steps).
+        ``success_rate``, ``eval_return`` (mean undiscounted) and ``eval_length`` (mean steps); with
+        ``details``, also ``successes`` (how many) and ``returns`` (one per episode).
     """
     obs = env.reset(seed=seed)
     n = env.num_envs
@@ -36,8 +38,11 @@ def evaluate(policy: Callable[[Obs], torch.Tensor], env: BatchedEnv, seed: int) 
         finished |= ended
         if bool(finished.all()):
             break
-    return {
+    result: dict[str, Any] = {
         "success_rate": int(success.sum().item()) / n,  # an exact fraction of episodes (90 of 100 is 0.9)
         "eval_return": returns.mean().item(),
         "eval_length": lengths.mean().item(),
     }
+    if details:
+        result.update(successes=int(success.sum().item()), returns=returns.tolist())
+    return result
