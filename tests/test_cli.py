@@ -32,7 +32,7 @@ def test_presets_lists_each_with_a_description(capsys):
         (["train", "bitflip-her", "--gamma", "1.0"], "--gamma must be in [0, 1)"),
         (["train", "bitflip-her", "--device", "tpu"], "allowed: cpu, cuda, cuda:N, auto"),
         (["train"], "allowed: bitflip-her"),
-        (["fly"], "allowed: train, eval, export, presets, solve"),
+        (["fly"], "allowed: train, eval, export, plot, presets, solve"),
         (["eval", "/nonexistent/run"], "not a run directory"),
         (["train", "mt10-sac-care", "--architecture", "transformer"], "'concat', 'film', 'care'"),
         (["train", "mt10-sac-care", "--num-envs", "12"], "--num-envs must be a multiple of the 10 tasks"),

@@ -6,6 +6,8 @@
     taskrl train --resume RUN_DIR          continue a run from its last checkpoint
     taskrl eval RUN_DIR                    re-evaluate a saved agent (--json, --video N, --checkpoint STEP)
     taskrl export RUN_DIR --out DIR        write the policy alone (taskrl.load_policy(DIR).predict(obs))
+    taskrl train PRESET --seeds 0 1 2      one run per seed into one folder (--parallel N), then compared
+    taskrl plot RUN_OR_FOLDER ... --out F  compare runs: mean and 95% band over seeds, per task, a table
     taskrl solve MDP [--method ...]        exact dynamic programming on finite MDPs
 
 Bad input exits with code 2 and one line naming the setting and the allowed values.
@@ -22,7 +24,7 @@ import typing
 from collections.abc import Sequence
 from typing import Any
 
-COMMANDS = ("train", "eval", "export", "presets", "solve")
+COMMANDS = ("train", "eval", "export", "plot", "presets", "solve")
 POSITIONAL = ("preset", "run_dir")
 #: Errors about files rather than settings: named as they are, not as flags.
 FILES = {"config": "config.json:", "checkpoint": "checkpoint:", "policy": "policy:"}
@@ -205,6 +207,8 @@ def cmd_train(argv: Sequence[str]) -> int:
         metavar="SECONDS",
         help="without a terminal, also print a progress line every SECONDS between evaluations",
     )
+    parser.add_argument("--seeds", type=int, nargs="+", metavar="S", help="one run per seed into OUT/seed_S, then a comparison")
+    parser.add_argument("--parallel", type=int, default=1, metavar="N", help="with --seeds: N runs at once (processes)")
     parser.add_argument(
         "--config",
         metavar="FILE",
@@ -228,6 +232,17 @@ def cmd_train(argv: Sequence[str]) -> int:
         raise UsageError(f"give a preset (a new run) or --resume {resume} (its own settings), not both")
     if resume is not None and out is not None:
         raise UsageError("--out does not apply with --resume (a run continues in its own directory)")
+    seeds, parallel = args.pop("seeds"), args.pop("parallel")
+    if seeds is not None:
+        if preset is None or resume is not None:
+            raise UsageError("--seeds starts new runs of a preset (resume each seed's run directory on its own)")
+        if parallel < 1:
+            raise UsageError(f"--parallel must be >= 1 (got {parallel})")
+        if "seed" in args:
+            raise UsageError("give --seeds or --seed, not both")
+        if print_config:
+            raise UsageError("--print-config prints one run's settings; drop --seeds")
+        return _train_seeds(argv, preset, seeds, parallel, out)
     if "hidden_sizes" in args:
         args["hidden_sizes"] = tuple(args["hidden_sizes"])
     args = {**file_settings, **args}  # flags override the file
@@ -319,6 +334,102 @@ def cmd_export(argv: Sequence[str]) -> int:
     return 0
 
 
+def cmd_plot(argv: Sequence[str]) -> int:
+    parser = _Parser(prog="taskrl plot", description="Compare runs: success (mean and 95% band over seeds), return, per task.")
+    parser.add_argument("runs", nargs="+", help="run directories, or folders of them (one line per folder: its seeds)")
+    parser.add_argument("--out", required=True, help="the PNG to write (the summary goes beside it as .csv)")
+    parser.add_argument("--threshold", type=float, default=0.9, help="success rate whose env steps and time are reported")
+    args = _parse(parser, argv)
+    from pathlib import Path
+
+    from rich.console import Console
+
+    from taskrl.console import summary_table
+    from taskrl.plots import compare_runs, find_runs
+
+    groups = {}
+    for path in args.runs:
+        found = find_runs(path)
+        if not found:
+            raise UsageError(f"{path} is not a run directory and holds none (no metrics.csv)")
+        groups[Path(path).name or str(path)] = found
+    summary = compare_runs(groups, Path(args.out), args.threshold)
+    Console().print(summary_table(summary))
+    print(f"plot: {args.out}  table: {Path(args.out).with_suffix('.csv')}")
+    return 0
+
+
+def _without(argv: Sequence[str], flags: dict[str, Any]) -> list[str]:
+    """``argv`` without the given flags and their values (1 value, or ``many``: the numbers that follow)."""
+    out, i = [], 0
+    while i < len(argv):
+        token = argv[i]
+        name = token.split("=", 1)[0]
+        if name in flags:
+            i += 1
+            if "=" not in token:
+                if flags[name] == "many":
+                    while i < len(argv) and argv[i].lstrip("-").isdigit():
+                        i += 1
+                else:
+                    i += flags[name]
+            continue
+        out.append(token)
+        i += 1
+    return out
+
+
+def _train_seeds(argv: Sequence[str], preset: str, seeds: list[int], parallel: int, out: str | None) -> int:
+    """One run per seed into ``out/seed_<s>`` (in turn, or ``parallel`` processes), then their comparison."""
+    import datetime
+    import subprocess
+    from pathlib import Path
+
+    from rich.console import Console
+
+    from taskrl.console import summary_table
+    from taskrl.plots import compare_runs
+    from taskrl.rundir import check_new_run_dir
+
+    folder = check_new_run_dir(out or Path("runs") / f"{preset}-seeds-{datetime.datetime.now():%Y%m%d-%H%M%S}")
+    rest = _without(argv, {"--seeds": "many", "--parallel": 1, "--out": 1, "--seed": 1})
+    folder.mkdir(parents=True, exist_ok=True)
+    commands = [
+        [
+            sys.executable,
+            "-m",
+            "taskrl.cli",
+            "train",
+            *rest,
+            "--seed",
+            str(s),
+            "--out",
+            str(folder / f"seed_{s}"),
+            "--no-progress",
+        ]
+        for s in seeds
+    ]
+    failed, running = [], []
+    for seed, command in zip(seeds, commands):
+        running.append((seed, subprocess.Popen(command)))
+        while len(running) >= parallel:
+            seed_done, proc = running.pop(0)
+            if proc.wait() != 0:
+                failed.append(seed_done)
+    for seed_done, proc in running:
+        if proc.wait() != 0:
+            failed.append(seed_done)
+    runs = [folder / f"seed_{s}" for s in seeds if s not in failed]
+    if runs:
+        summary = compare_runs({preset: runs}, folder / "seeds.png")
+        Console(stderr=True).print(summary_table(summary, f"{preset}: {len(runs)} seeds"))
+        print(f"runs: {folder}  plot: {folder / 'seeds.png'}")
+    if failed:
+        print(f"taskrl train: error: seeds {failed} failed (see their output above)", file=sys.stderr)
+        return 1
+    return 0
+
+
 def cmd_solve(argv: Sequence[str]) -> int:
     from taskrl.tabular.cli import main as solve_main
 
@@ -331,7 +442,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(__doc__.strip())
         return 0
     command, rest = argv[0], argv[1:]
-    handlers = {"train": cmd_train, "eval": cmd_eval, "export": cmd_export, "presets": cmd_presets, "solve": cmd_solve}
+    handlers = {
+        "train": cmd_train,
+        "eval": cmd_eval,
+        "export": cmd_export,
+        "plot": cmd_plot,
+        "presets": cmd_presets,
+        "solve": cmd_solve,
+    }
     from taskrl.errors import ConfigError
     from taskrl.training.bookkeeping import TrainingDiverged
 

@@ -163,3 +163,27 @@ def eval_table(result: dict[str, Any], run_dir: Any) -> Table:
     table.add_row("episodes", f"{result['episodes']:,}" + (" per task" if "tasks" in result else ""))
     table.add_row("checkpoint", f"{result['checkpoint_step']:,} env steps")
     return table
+
+
+def summary_table(summary: list[dict[str, Any]], title: str = "runs compared") -> Table:
+    """``taskrl plot``'s table: per group of seeds, final success (mean and 95% half-width), best, and
+    the env steps and seconds to the threshold (medians over the seeds that reached it)."""
+    table = Table(title=title)
+    for column in ("runs", "seeds", "final success", "best success", "reached", "env steps to it", "seconds to it"):
+        table.add_column(column, justify="left" if column == "runs" else "right")
+    for row in summary:
+        reached = next(k for k in row if k.startswith("reached_"))
+
+        def num(value: Any, fmt: str) -> str:
+            return "-" if value is None else format(value, fmt)
+
+        table.add_row(
+            str(row["runs"]),
+            str(row["seeds"]),
+            f"{row['final_success']:.2f} +- {row['final_success_ci95']:.2f}",
+            f"{row['best_success']:.2f}",
+            f"{row[reached]} (>= {reached.split('_', 1)[1]})",
+            num(row["median_env_steps_to_threshold"], ",.0f"),
+            num(row["median_seconds_to_threshold"], ".1f"),
+        )
+    return table

@@ -1,32 +1,219 @@
-"""Learning-curve PNGs from a run's ``metrics.csv``."""
+"""Pictures of runs from their ``metrics.csv``.
+
+- :func:`plot_learning_curve`: one run's ``learning_curve.png``: success and return against env steps
+  and wall-clock, the agent's training scalars (losses, Q, temperature), and per-task success for
+  multi-task runs;
+- :func:`compare_runs`: ``taskrl plot``: several runs or folders of seeds, success (and return)
+  with the mean and a 95% band over seeds, per-task panels, and a summary table (final and best
+  success, env steps and time to a threshold).
+
+Tick labels read ``20k`` / ``1.2M`` at any scale.
+"""
 
 from __future__ import annotations
 
+import csv
+import math
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 from taskrl.logger import read_metrics
 
+__all__ = ["compare_runs", "find_runs", "human_number", "plot_learning_curve"]
 
-def plot_learning_curve(metrics_csv: Path, out_png: Path, title: str = "") -> Path:
-    """Success rate against environment steps and against wall-clock seconds."""
+#: Scalars of the agent's updates worth a panel, when a run logs them.
+TRAINING_SCALARS = ("loss", "critic_loss", "actor_loss", "policy_loss", "value_loss", "q_mean", "alpha", "entropy")
+
+
+def human_number(x: float, _pos: Any = None) -> str:
+    """``1500 -> 1.5k``, ``2_000_000 -> 2M``: tick labels that never run into each other."""
+    for size, suffix in ((1e9, "G"), (1e6, "M"), (1e3, "k")):
+        if abs(x) >= size:
+            text = f"{x / size:.1f}".rstrip("0").rstrip(".")
+            return f"{text}{suffix}"
+    return f"{x:g}"
+
+
+def _pyplot():
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import FuncFormatter, MaxNLocator
 
+    return plt, FuncFormatter(human_number), MaxNLocator
+
+
+def _style(ax, formatter, locator, xlabel: str, ylabel: str) -> None:
+    ax.xaxis.set_major_formatter(formatter)
+    ax.xaxis.set_major_locator(locator(nbins=5))
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.grid(alpha=0.3)
+
+
+def _column(rows: list[dict[str, Any]], name: str) -> tuple[list[float], list[float]]:
+    """(env steps, values) of the rows where ``name`` has a value."""
+    pairs = [(r["env_steps"], r[name]) for r in rows if r.get(name) is not None]
+    return [p[0] for p in pairs], [p[1] for p in pairs]
+
+
+def plot_learning_curve(metrics_csv: Path, out_png: Path, title: str = "") -> Path:
+    """Success and return against env steps and wall-clock, the training scalars the agent logged,
+    and one line per task for multi-task runs."""
+    plt, formatter, locator = _pyplot()
     rows = read_metrics(metrics_csv)
-    steps = [r["env_steps"] for r in rows]
-    seconds = [r["wall_seconds"] for r in rows]
-    success = [r["success_rate"] for r in rows]
-    fig, (left, right) = plt.subplots(1, 2, figsize=(10, 3.8), sharey=True)
-    for ax, x, label in ((left, steps, "environment steps"), (right, seconds, "wall-clock seconds")):
-        ax.plot(x, success, marker="o", markersize=3)
-        ax.set_xlabel(label)
+    columns = list(rows[0]) if rows else []
+    scalars = [c for c in TRAINING_SCALARS if c in columns]
+    tasks = [c for c in columns if c.startswith("success/")]
+    panels = 3 + len(scalars) + (1 if tasks else 0)
+    cols = min(panels, 3)
+    rows_n = math.ceil(panels / cols)
+    fig, axes = plt.subplots(rows_n, cols, figsize=(4.2 * cols, 3.2 * rows_n), squeeze=False)
+    axes = list(axes.flat)
+    steps, success = _column(rows, "success_rate")
+    seconds = [r["wall_seconds"] for r in rows if r.get("success_rate") is not None]
+    axes[0].plot(steps, success, marker="o", markersize=3)
+    _style(axes[0], formatter, locator, "environment steps", "evaluation success rate")
+    axes[1].plot(seconds, success, marker="o", markersize=3)
+    _style(axes[1], formatter, locator, "training seconds", "evaluation success rate")
+    for ax in axes[:2]:
         ax.set_ylim(-0.02, 1.02)
-        ax.grid(alpha=0.3)
-    left.set_ylabel("evaluation success rate")
+    axes[2].plot(*_column(rows, "eval_return"), marker="o", markersize=3, color="tab:orange")
+    _style(axes[2], formatter, locator, "environment steps", "evaluation return")
+    for ax, name in zip(axes[3:], scalars):
+        ax.plot(*_column(rows, name), color="tab:gray")
+        _style(ax, formatter, locator, "environment steps", name)
+        if name == "alpha":
+            ax.set_yscale("log")
+    if tasks:
+        ax = axes[3 + len(scalars)]
+        for name in tasks:
+            ax.plot(*_column(rows, name), label=name.split("/", 1)[1], linewidth=1)
+        _style(ax, formatter, locator, "environment steps", "success per task")
+        ax.set_ylim(-0.02, 1.02)
+        ax.legend(fontsize=6, ncol=2 if len(tasks) > 6 else 1)
+    for ax in axes[panels:]:
+        ax.axis("off")
     fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(out_png, dpi=110)
     plt.close(fig)
     return Path(out_png)
+
+
+# ---------------------------------------------------------------------- several runs
+def find_runs(path: str | Path) -> list[Path]:
+    """A run directory itself, or the run directories below a folder (e.g. ``seed_0``, ``seed_1``)."""
+    path = Path(path)
+    if (path / "metrics.csv").exists():
+        return [path]
+    return sorted(p.parent for p in path.glob("*/metrics.csv"))
+
+
+def _band(values: Sequence[float]) -> tuple[float, float]:
+    """Mean and the half-width of its 95% interval (Student's t over the seeds)."""
+    n = len(values)
+    mean = sum(values) / n
+    if n < 2:
+        return mean, 0.0
+    from scipy import stats
+
+    sd = math.sqrt(sum((v - mean) ** 2 for v in values) / (n - 1))
+    return mean, float(stats.t.ppf(0.975, n - 1)) * sd / math.sqrt(n)
+
+
+def _on_grid(rows: list[dict[str, Any]], name: str, grid: list[float], x: str = "env_steps") -> list[float]:
+    import numpy as np
+
+    xs, ys = zip(*[(r[x], r[name]) for r in rows if r.get(name) is not None]) if rows else ((), ())
+    return list(np.interp(grid, xs, ys)) if xs else [float("nan")] * len(grid)
+
+
+def _reached(rows: list[dict[str, Any]], threshold: float) -> tuple[float | None, float | None]:
+    for r in rows:
+        if r.get("success_rate") is not None and r["success_rate"] >= threshold - 1e-9:
+            return r["env_steps"], r["wall_seconds"]
+    return None, None
+
+
+def compare_runs(groups: dict[str, list[Path]], out_png: Path, threshold: float = 0.9) -> list[dict[str, Any]]:
+    """Plot every group (one line each: the mean over its runs and a 95% band) and return its summary.
+
+    A group is a list of run directories (the seeds of one setting). Curves of a group are compared
+    on the env steps of its first run (others interpolated onto them). Per-task panels are added when
+    the runs are multi-task. Also writes ``out_png`` with ``.csv``: the summary table.
+    """
+    plt, formatter, locator = _pyplot()
+    data = {name: [read_metrics(r / "metrics.csv") for r in runs] for name, runs in groups.items()}
+    tasks = sorted({c for runs in data.values() for rows in runs for c in (rows[0] if rows else {}) if c.startswith("success/")})
+    panels = 3 + len(tasks)
+    cols = min(panels, 3)
+    fig, axes = plt.subplots(math.ceil(panels / cols), cols, figsize=(4.4 * cols, 3.3 * math.ceil(panels / cols)), squeeze=False)
+    axes = list(axes.flat)
+    summary = []
+    for name, runs in data.items():
+        runs = [rows for rows in runs if rows]
+        if not runs:
+            continue
+        grid = [r["env_steps"] for r in runs[0] if r.get("success_rate") is not None]
+        for ax, column in ((axes[0], "success_rate"), (axes[2], "eval_return"), *zip(axes[3:], tasks)):
+            curves = [_on_grid(rows, column, grid) for rows in runs]
+            bands = [_band([c[i] for c in curves]) for i in range(len(grid))]
+            mean = [b[0] for b in bands]
+            line = ax.plot(grid, mean, label=f"{name} ({len(runs)})")[0]
+            ax.fill_between(grid, [m - h for m, h in bands], [m + h for m, h in bands], color=line.get_color(), alpha=0.2)
+        seconds = [statistics_mean([_on_grid(rows, "wall_seconds", [g])[0] for rows in runs]) for g in grid]
+        curves = [_on_grid(rows, "success_rate", grid) for rows in runs]
+        axes[1].plot(seconds, [statistics_mean([c[i] for c in curves]) for i in range(len(grid))], label=name)
+        finals = [next(r["success_rate"] for r in reversed(rows) if r.get("success_rate") is not None) for rows in runs]
+        bests = [max(r["success_rate"] for r in rows if r.get("success_rate") is not None) for rows in runs]
+        reached = [_reached(rows, threshold) for rows in runs]
+        hit = [r for r in reached if r[0] is not None]
+        final_mean, final_half = _band(finals)
+        summary.append(
+            {
+                "runs": name,
+                "seeds": len(runs),
+                "final_success": final_mean,
+                "final_success_ci95": final_half,
+                "best_success": statistics_mean(bests),
+                f"reached_{threshold:g}": f"{len(hit)}/{len(runs)}",
+                "median_env_steps_to_threshold": _median([h[0] for h in hit]),
+                "median_seconds_to_threshold": _median([h[1] for h in hit]),
+            }
+        )
+    labels = (
+        (axes[0], "environment steps", "success rate (mean, 95% band)"),
+        (axes[1], "training seconds", "success rate (mean)"),
+        (axes[2], "environment steps", "evaluation return"),
+        *((ax, "environment steps", t) for ax, t in zip(axes[3:], tasks)),
+    )
+    for ax, xlabel, ylabel in labels:
+        _style(ax, formatter, locator, xlabel, ylabel)
+    for ax in axes[:2] + axes[3 : 3 + len(tasks)]:
+        ax.set_ylim(-0.02, 1.02)
+    axes[0].legend(fontsize=7)
+    for ax in axes[panels:]:
+        ax.axis("off")
+    fig.tight_layout()
+    fig.savefig(out_png, dpi=110)
+    plt.close(fig)
+    csv_path = Path(out_png).with_suffix(".csv")
+    if summary:
+        with csv_path.open("w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=list(summary[0]))
+            writer.writeheader()
+            writer.writerows(summary)
+    return summary
+
+
+def statistics_mean(values: Sequence[float]) -> float:
+    return sum(values) / len(values) if values else float("nan")
+
+
+def _median(values: Sequence[float]) -> float | None:
+    import statistics
+
+    return statistics.median(values) if values else None
