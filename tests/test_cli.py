@@ -97,7 +97,10 @@ def test_train_then_eval_from_the_command_line(tmp_path):
     header = (out / "metrics.csv").read_text().splitlines()[0].split(",")
     assert {"env_steps", "wall_seconds", "success_rate"} <= set(header)
     ev = subprocess.run(
-        [sys.executable, "-m", "taskrl.cli", "eval", str(out), "--episodes", "20"], capture_output=True, text=True, timeout=300
+        [sys.executable, "-m", "taskrl.cli", "eval", str(out), "--episodes", "20", "--json"],
+        capture_output=True,
+        text=True,
+        timeout=300,
     )
     assert ev.returncode == 0, ev.stderr
     result = json.loads(ev.stdout)
@@ -195,6 +198,6 @@ def test_multitask_train_then_eval_per_task_from_the_command_line(capsys, tmp_pa
     )
     assert code == 0, err
     assert json.loads((out / "per_task_success.json").read_text())["episodes_per_task"] == 2
-    code, stdout, err = run_cli(capsys, "eval", str(out), "--episodes", "3")
+    code, stdout, err = run_cli(capsys, "eval", str(out), "--episodes", "3", "--json")
     result = json.loads(stdout)
     assert code == 0 and result["episodes"] == 3 and {"success/top-left", "success/centre"} <= set(result)

@@ -162,7 +162,7 @@ def test_cli_trains_resumes_evaluates_and_loads_a_registered_goal_env(tmp_path):
     refused = cli("eval", str(out), "--episodes", "20", cwd=tmp_path)
     assert refused.returncode == 2 and len(refused.stderr.strip().splitlines()) == 1
     assert "--env-module" in refused.stderr
-    evaluated = cli("eval", str(out), "--episodes", "50", "--env-module", "test_custom_envs", cwd=tmp_path)
+    evaluated = cli("eval", str(out), "--episodes", "50", "--env-module", "test_custom_envs", "--json", cwd=tmp_path)
     assert evaluated.returncode == 0, evaluated.stderr
     assert json.loads(evaluated.stdout)["success_rate"] >= 0.8
 

@@ -82,6 +82,8 @@ class TrainConfig:
             and one at the end).
         checkpoint_minutes: also checkpoint after this many minutes of wall-clock since the last
             checkpoint, so a killed run loses at most that much (0 = by env steps only).
+        tensorboard_interval: environment steps between TensorBoard points of the training scalars
+            (losses, Q, temperature; ``train/...``) between evaluations (0: at evaluations only).
         save_replay: include the replay buffer in checkpoints so a resumed run loses no data.
         max_hours: stop cleanly (evaluation, checkpoint) after this many hours of wall-clock in
             this invocation, to continue later with ``--resume``; 0 = no limit. Ctrl-C and
@@ -114,6 +116,7 @@ class TrainConfig:
     stop_at_success: float = 0.0
     checkpoint_interval: int = 50_000
     checkpoint_minutes: float = 10.0
+    tensorboard_interval: int = 1_000
     save_replay: bool = True
     max_hours: float = 0.0
     threads: int = 1
@@ -233,7 +236,7 @@ def validate(config: TrainConfig) -> TrainConfig:
     one_of(c.sampling, SAMPLINGS, "sampling", "sampling")
     for name in ("total_steps", "num_envs", "batch_size", "eval_interval", "eval_episodes", "checkpoint_interval"):
         require(getattr(c, name) >= 1, name, f"must be >= 1 (got {getattr(c, name)})")
-    for name in ("her_k", "learning_starts", "updates_per_step", "threads"):
+    for name in ("her_k", "learning_starts", "updates_per_step", "threads", "tensorboard_interval"):
         require(getattr(c, name) >= 0, name, f"must be >= 0 (got {getattr(c, name)})")
     require(c.max_hours >= 0, "max_hours", f"must be >= 0 hours (0 = no limit; got {c.max_hours})")
     require(0.0 <= c.stop_at_success <= 1.0, "stop_at_success", f"must be in [0, 1] (got {c.stop_at_success})")

@@ -103,6 +103,12 @@ class RunLogger:
                     self.writer.add_scalar(f"taskrl/{k}", row[k], step)
             self.writer.flush()
 
+    def log_training(self, step: int, values: dict[str, float]) -> None:
+        """Training scalars between evaluations, to TensorBoard only (``train/<name>``)."""
+        if self.writer is not None:
+            for name, value in values.items():
+                self.writer.add_scalar(f"train/{name}", value, step)
+
     def close(self) -> None:
         if self.writer is not None:
             self.writer.close()

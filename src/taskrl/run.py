@@ -546,6 +546,7 @@ def train(
                 checkpoint_seconds=60.0 * config.checkpoint_minutes,
             )
             books.heartbeat = reporter.heartbeat
+            books.on_train_log, books.train_log_interval = logger.log_training, config.tensorboard_interval
             loop = LOOPS[algorithm(config.algo).loop](parts, books)
             try:
                 with stop.on_signals():

@@ -174,6 +174,13 @@ class Bookkeeping:
         self.on_finish: Callable[[], Any] | None = None
         #: called after every step with the env-step count (a console's heartbeat line)
         self.heartbeat: Callable[[int], Any] | None = None
+        #: ``(env_steps, {scalar: mean since the last call})`` every ``train_log_interval`` env steps
+        #: (TensorBoard's training curves between evaluations)
+        self.on_train_log: Callable[[int, dict[str, float]], Any] | None = None
+        self.train_log_interval = 0
+        self._train_base: dict[str, torch.Tensor] = {}
+        self._train_calls = 0
+        self._next_train_log = state.env_steps
         self.total_steps = total_steps
         self.eval_interval, self.checkpoint_interval, self.stop_at_success = eval_interval, checkpoint_interval, stop_at_success
         self.clock = Stopwatch(state.wall_seconds)
@@ -205,6 +212,8 @@ class Bookkeeping:
         state = self.state
         if self.heartbeat is not None:
             self.heartbeat(state.env_steps)
+        if self.on_train_log is not None and self.train_log_interval > 0 and state.env_steps >= self._next_train_log:
+            self._log_training()
         finished = state.env_steps >= self.total_steps
         if not finished and self.stop is not None and self.stop.due():
             finished = True
@@ -231,6 +240,7 @@ class Bookkeeping:
                 missed = (state.env_steps - state.next_eval) // self.eval_interval + 1  # a big step may pass several
                 state.next_eval += missed * self.eval_interval
             self.metric_sums.clear(), self.episodes_done.zero_(), self.episodes_success.zero_()
+            self._train_base, self._train_calls = {}, 0
             self.row_steps = self.row_updates = self.row_calls = 0
             self.row_start = state.wall_seconds
             self.clock.resume()
@@ -248,6 +258,20 @@ class Bookkeeping:
             self.last_checkpoint = time.monotonic()
             self.clock.resume()
         return finished
+
+    def _log_training(self) -> None:
+        """The update scalars' means since the last training point: differences of the row's sums, so
+        the updates themselves do no extra work; one device sync per point."""
+        calls = self.row_calls - self._train_calls
+        if calls > 0 and self.metric_sums:
+            names = list(self.metric_sums)
+            deltas = torch.stack([(self.metric_sums[k] - self._train_base.get(k, 0.0)).float().reshape(()) for k in names])
+            values = (deltas / calls).cpu().tolist()
+            self.on_train_log(self.state.env_steps, dict(zip(names, values)))
+            self._train_base = {k: v.clone() for k, v in self.metric_sums.items()}
+            self._train_calls = self.row_calls
+        missed = (self.state.env_steps - self._next_train_log) // self.train_log_interval + 1
+        self._next_train_log += missed * self.train_log_interval
 
     def check_finite(self) -> None:
         """Raise :class:`TrainingDiverged` if an update scalar since the last row is NaN or infinite."""

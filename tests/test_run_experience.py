@@ -1,0 +1,211 @@
+"""The run experience: logs without a terminal, names kept on resume, evaluation with intervals and
+videos, policy export, settings files, many seeds and their comparison, TensorBoard between evaluations."""
+
+import csv
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import taskrl
+from taskrl.cli import main
+
+TINY = ["--n-bits", "6", "--total-steps", "3000", "--eval-interval", "1000", "--eval-episodes", "20", "--no-tensorboard"]
+
+
+def cli(*args: str, env: dict | None = None) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "taskrl.cli", *args],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        env={**os.environ, **(env or {})},
+    )
+
+
+def rows(run_dir: Path) -> list[dict]:
+    return list(csv.DictReader(open(run_dir / "metrics.csv")))
+
+
+def test_without_a_terminal_a_run_prints_one_line_per_evaluation_and_keeps_its_name_on_resume(tmp_path):
+    out = tmp_path / "run"
+    first = cli("train", "bitflip-her", *TINY, "--out", str(out))  # stderr is a pipe: no terminal
+    assert first.returncode == 0, first.stderr
+    lines = [line for line in first.stderr.splitlines() if line.startswith("bitflip-her  step ")]
+    assert len(lines) == len(rows(out)) >= 4  # one per evaluation, each flushed as it happens
+    assert all("success" in line and "steps/s" in line and "ETA" in line for line in lines)
+    again = cli("train", "--resume", str(out), "--total-steps", "5000", "--no-tensorboard")
+    assert again.returncode == 0, again.stderr
+    resumed = [line for line in again.stderr.splitlines() if " step " in line and "ETA" in line]
+    assert resumed and all(line.startswith("bitflip-her  step ") for line in resumed)  # not "bitflip-dqn"
+
+
+def test_print_config_round_trips_through_config(tmp_path, capsys):
+    assert main(["train", "pointreach-sac-her", "--lr", "3e-3", "--hidden-sizes", "32", "32", "--print-config"]) == 0
+    printed = capsys.readouterr().out
+    (tmp_path / "c.json").write_text(printed)
+    assert main(["train", "--config", str(tmp_path / "c.json"), "--print-config"]) == 0
+    assert capsys.readouterr().out == printed
+    data = json.loads(printed)
+    assert (data["sac"]["lr"], data["sac"]["hidden_sizes"], data["env"]) == (3e-3, [32, 32], "pointreach")
+    (tmp_path / "flat.yaml").write_text("lr: 0.005\ngamma: 0.5\n")  # settings by name, under the flags
+    assert main(["train", "bitflip-her", "--config", str(tmp_path / "flat.yaml"), "--gamma", "0.9", "--print-config"]) == 0
+    dqn = json.loads(capsys.readouterr().out)["dqn"]
+    assert (dqn["lr"], dqn["gamma"]) == (0.005, 0.9)
+
+
+def test_help_shows_the_presets_values_and_budget_warnings_are_said(capsys):
+    with pytest.raises(SystemExit):
+        main(["train", "pointreach-sac-her", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "[here: 0.001]" in text and "[here: 0.95]" in text  # the preset's lr and gamma
+    assert main(["train", "bitflip-her", "--learning-starts", "5000", "--total-steps", "1000", "--print-config"]) == 0
+    assert "warning: learning_starts=5,000 >= total_steps=1,000" in capsys.readouterr().err
+
+
+@pytest.fixture(scope="module")
+def bitflip_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("runs") / "bitflip"
+    assert main(["train", "bitflip-her", *TINY, "--out", str(out), "--no-progress", "--checkpoint-interval", "1000"]) == 0
+    return out
+
+
+def test_eval_gives_intervals_the_checkpoint_step_and_older_checkpoints(bitflip_run, capsys):
+    assert main(["eval", str(bitflip_run), "--episodes", "50", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    lo, hi = result["success_ci95"]
+    assert (
+        lo <= result["success_rate"] <= hi
+        and hi - lo > 0
+        and result["checkpoint_step"] == int(rows(bitflip_run)[-1]["env_steps"])
+    )
+    rlo, rhi = result["eval_return_ci95"]
+    assert rlo < result["eval_return"] < rhi
+    kept = sorted(int(p.name[5:17]) for p in (bitflip_run / "checkpoints").glob("step_*"))
+    assert main(["eval", str(bitflip_run), "--episodes", "20", "--json", "--checkpoint", str(kept[0])]) == 0
+    assert json.loads(capsys.readouterr().out)["checkpoint_step"] == kept[0]
+    assert main(["eval", str(bitflip_run), "--episodes", "20"]) == 0  # a table by default
+    assert "95% interval" in capsys.readouterr().out
+
+
+def test_eval_writes_a_playable_video_of_a_native_env(bitflip_run, capsys):
+    import imageio.v2 as imageio
+
+    assert main(["eval", str(bitflip_run), "--episodes", "5", "--video", "1", "--json"]) == 0
+    video = Path(json.loads(capsys.readouterr().out)["videos"][0])
+    assert video.parent == bitflip_run / "videos" and video.suffix == ".mp4"
+    frames = [frame for frame in imageio.get_reader(video)]  # (list() asks for a length ffmpeg streams lack)
+    assert len(frames) >= 2 and frames[0].ndim == 3  # a first frame and at least one step
+
+
+def test_eval_writes_a_playable_video_of_fetchreach(tmp_path):
+    out = tmp_path / "fetch"
+    trained = cli(
+        "train",
+        "fetchreach-sac-her",
+        "--total-steps",
+        "200",
+        "--learning-starts",
+        "100",
+        "--eval-episodes",
+        "2",
+        "--out",
+        str(out),
+        "--no-progress",
+        "--no-tensorboard",
+    )
+    assert trained.returncode == 0, trained.stderr
+    evaluated = cli("eval", str(out), "--episodes", "2", "--video", "1", "--json")
+    if evaluated.returncode != 0 and "cannot render here" in evaluated.stderr:
+        pytest.skip(f"MuJoCo cannot render on this machine: {evaluated.stderr.strip()[-200:]}")
+    assert evaluated.returncode == 0, evaluated.stderr
+    import imageio.v2 as imageio
+
+    frames = [frame for frame in imageio.get_reader(json.loads(evaluated.stdout)["videos"][0])]
+    assert len(frames) == 51 and frames[0].shape[2] == 3  # FetchReach's 50 steps and the first frame
+
+
+@pytest.mark.parametrize(
+    "preset, env_id, extra",
+    [("bitflip-her", "taskrl/BitFlip-v0", {"n_bits": 6}), ("pointreach-mt-sac-onehot", "taskrl/MultiTaskPointReach-v0", {})],
+)
+def test_an_exported_policy_acts_like_the_runs_agent(tmp_path, capsys, preset, env_id, extra):
+    settings = [f"--{k.replace('_', '-')}={v}" for k, v in extra.items()]
+    run = tmp_path / "run"
+    assert (
+        main(
+            [
+                "train",
+                preset,
+                *settings,
+                "--total-steps",
+                "2000",
+                "--eval-episodes",
+                "4",
+                "--out",
+                str(run),
+                "--no-progress",
+                "--no-tensorboard",
+            ]
+        )
+        == 0
+    )
+    assert main(["export", str(run), "--out", str(tmp_path / "policy")]) == 0
+    policy, agent = taskrl.load_policy(tmp_path / "policy"), taskrl.load(run)
+    vec = gym.make_vec(env_id, num_envs=16, **extra)
+    obs, _ = vec.reset(seed=3)
+    np.testing.assert_array_equal(policy.predict(obs), agent.act(obs))  # a numpy batch in, numpy out
+    single = {k: v[0] for k, v in obs.items()}
+    np.testing.assert_array_equal(np.asarray(policy.predict(single)), np.asarray(agent.act(single)))
+    size = sum(f.stat().st_size for f in (tmp_path / "policy").iterdir())
+    checkpoint = sum(f.stat().st_size for f in next((run / "checkpoints").glob("step_*")).iterdir())
+    assert size < checkpoint / 3  # no replay, no optimiser state, no target networks
+    vec.close()
+
+
+def test_many_seeds_into_one_folder_and_plot_matches_their_metrics(tmp_path, capsys):
+    folder = tmp_path / "seeds"
+    code = main(["train", "bitflip-her", "--seeds", "0", "1", "2", "--parallel", "2", *TINY, "--out", str(folder)])
+    assert code == 0
+    assert sorted(p.name for p in folder.iterdir() if p.is_dir()) == ["seed_0", "seed_1", "seed_2"]
+    seeds = [json.loads((folder / f"seed_{s}" / "config.json").read_text())["seed"] for s in range(3)]
+    assert seeds == [0, 1, 2]
+    assert main(["plot", str(folder), "--out", str(tmp_path / "cmp.png"), "--threshold", "0.9"]) == 0
+    assert (tmp_path / "cmp.png").stat().st_size > 10_000
+    summary = list(csv.DictReader(open(tmp_path / "cmp.csv")))[0]
+    finals = [float(rows(folder / f"seed_{s}")[-1]["success_rate"]) for s in range(3)]
+    bests = [max(float(r["success_rate"]) for r in rows(folder / f"seed_{s}")) for s in range(3)]
+    assert float(summary["final_success"]) == pytest.approx(sum(finals) / 3)
+    assert float(summary["best_success"]) == pytest.approx(sum(bests) / 3)
+    reached = [
+        next((int(r["env_steps"]) for r in rows(folder / f"seed_{s}") if float(r["success_rate"]) >= 0.9), None) for s in range(3)
+    ]
+    hit = sorted(r for r in reached if r is not None)
+    assert summary["reached_0.9"] == f"{len(hit)}/3"
+    if hit:
+        assert float(summary["median_env_steps_to_threshold"]) == pytest.approx(
+            hit[len(hit) // 2] if len(hit) % 2 else (hit[len(hit) // 2 - 1] + hit[len(hit) // 2]) / 2
+        )
+
+
+def test_tensorboard_gets_training_scalars_between_evaluations(tmp_path):
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    run = taskrl.train(
+        "bitflip-her",
+        out=tmp_path / "run",
+        n_bits=6,
+        total_steps=6000,
+        eval_interval=3000,
+        eval_episodes=10,
+        tensorboard_interval=1000,
+    )
+    events = EventAccumulator(str(run.run_dir / "tensorboard")).Reload()
+    steps = [e.step for e in events.Scalars("train/loss")]
+    evaluations = [e.step for e in events.Scalars("taskrl/success_rate")]
+    assert len(steps) >= 4 > len(evaluations) - 1 and steps == sorted(set(steps))
