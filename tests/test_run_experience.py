@@ -209,3 +209,35 @@ def test_tensorboard_gets_training_scalars_between_evaluations(tmp_path):
     steps = [e.step for e in events.Scalars("train/loss")]
     evaluations = [e.step for e in events.Scalars("taskrl/success_rate")]
     assert len(steps) >= 4 > len(evaluations) - 1 and steps == sorted(set(steps))
+
+
+def test_eval_writes_a_video_of_a_metaworld_task(tmp_path):
+    out = tmp_path / "mt1"
+    trained = cli(
+        "train",
+        "mt1-reach-sac",
+        "--total-steps",
+        "100",
+        "--learning-starts",
+        "50",
+        "--max-episode-steps",
+        "20",
+        "--eval-episodes",
+        "1",
+        "--num-envs",
+        "1",
+        "--out",
+        str(out),
+        "--no-progress",
+        "--no-tensorboard",
+    )
+    assert trained.returncode == 0, trained.stderr
+    evaluated = cli("eval", str(out), "--episodes", "1", "--video", "1", "--json")
+    if evaluated.returncode != 0 and "cannot render here" in evaluated.stderr:
+        pytest.skip(f"MuJoCo cannot render on this machine: {evaluated.stderr.strip()[-200:]}")
+    assert evaluated.returncode == 0, evaluated.stderr
+    import imageio.v2 as imageio
+
+    video = Path(json.loads(evaluated.stdout)["videos"][0])
+    frames = [frame for frame in imageio.get_reader(video)]
+    assert video.name == "episode_000_reach.mp4" and len(frames) == 21 and frames[10].std() > 10  # a scene, not black

@@ -163,7 +163,10 @@ def compare_runs(groups: dict[str, list[Path]], out_png: Path, threshold: float 
             bands = [_band([c[i] for c in curves]) for i in range(len(grid))]
             mean = [b[0] for b in bands]
             line = ax.plot(grid, mean, label=f"{name} ({len(runs)})")[0]
-            ax.fill_between(grid, [m - h for m, h in bands], [m + h for m, h in bands], color=line.get_color(), alpha=0.2)
+            low, high = [m - h for m, h in bands], [m + h for m, h in bands]
+            if column.startswith("success"):  # a rate: the band stays within what a rate can be
+                low, high = [max(v, 0.0) for v in low], [min(v, 1.0) for v in high]
+            ax.fill_between(grid, low, high, color=line.get_color(), alpha=0.2)
         seconds = [statistics_mean([_on_grid(rows, "wall_seconds", [g])[0] for rows in runs]) for g in grid]
         curves = [_on_grid(rows, "success_rate", grid) for rows in runs]
         axes[1].plot(seconds, [statistics_mean([c[i] for c in curves]) for i in range(len(grid))], label=name)

@@ -450,6 +450,60 @@ class MetaWorldMultiTaskEnv(GymnasiumVectorEnv):
         return int(min(self.vector_env.call("goal_positions")))
 
 
+class MetaWorldVideoEnv(gym.Env):
+    """One renderable copy of each task of a Meta-World benchmark, for videos (``taskrl eval --video``).
+
+    ``reset(options={"task": k})`` picks task ``k`` (its copy is built on first use); observations are
+    those of :class:`MetaWorldMultiTaskEnv` (``observation`` and ``task``), frames come from MuJoCo.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 40}
+
+    def __init__(
+        self,
+        benchmark: str | Sequence[str],
+        task: str | None = None,
+        max_episode_steps: int = METAWORLD_HORIZON,
+        seed: int | None = 0,
+    ) -> None:
+        import metaworld
+
+        self.task_set = metaworld_task_set(benchmark, task)
+        goals = _benchmark_tasks(metaworld, benchmark, self.task_set.names, seed, METAWORLD_NUM_GOALS)
+        kwargs = {
+            "max_episode_steps": max_episode_steps,
+            "use_one_hot": True,
+            "terminate_on_success": False,
+            "task_select": "random",
+            "reward_function_version": "v2",
+            "render_mode": "rgb_array",
+        }
+        n = len(self.task_set)
+        self._factories = [_MetaWorldFactory(t.index, t.name, *goals[t.name], t.index, n, seed, kwargs) for t in self.task_set]
+        self._envs: dict[int, gym.Env] = {}
+        self._current = 0
+        spec = metaworld_spec(benchmark, task)
+        self.observation_space, self.action_space = spec.single_observation_space, spec.single_action_space
+        self.render_mode = "rgb_array"
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        self._current = int((options or {}).get("task", 0))
+        if self._current not in self._envs:
+            self._envs[self._current] = self._factories[self._current]()
+        return self._envs[self._current].reset(seed=seed)
+
+    def step(self, action):
+        return self._envs[self._current].step(action)
+
+    def render(self):
+        return self._envs[self._current].render()
+
+    def close(self) -> None:
+        for env in self._envs.values():
+            env.close()
+        self._envs.clear()
+
+
 # ---------------------------------------------------------------------------------------------
 # The families: mt1, mt10, mt50
 # ---------------------------------------------------------------------------------------------
@@ -519,6 +573,7 @@ def _metaworld_family(benchmark: str, description: str) -> EnvFamily:
         actions="box",
         per_task_success="any",
         spec=lambda settings, request: metaworld_spec(benchmark, task_of(settings)),
+        video_env=lambda settings: MetaWorldVideoEnv(benchmark, task_of(settings), settings.max_episode_steps),
         check=check,
     )
 
