@@ -65,24 +65,30 @@ def batch_observations(obs: Any, inputs: ObservationInput, device: torch.device)
     """
     if not isinstance(obs, Mapping):
         obs = {"observation": obs}
-    numpy = any(not isinstance(v, torch.Tensor) for v in obs.values())
-    tensors = {
-        k: v.to(device) if isinstance(v, torch.Tensor) else torch.as_tensor(np.asarray(v), device=device) for k, v in obs.items()
-    }
-    missing = [k for k in inputs.keys if k not in tensors]
-    if missing:
-        raise ValueError(f"observation lacks {missing}: the agent reads {list(inputs.keys)}, got {list(tensors)}")
-    read = [tensors[k] for k in inputs.keys]
+    tensors, numpy = {}, False
+    for key, value in obs.items():  # tensors on the device pass through untouched (the loops' path)
+        if isinstance(value, torch.Tensor):
+            tensors[key] = value if value.device == device else value.to(device)
+        else:
+            numpy = True
+            tensors[key] = torch.as_tensor(np.asarray(value), device=device)
+    try:
+        read = [tensors[k] for k in inputs.keys]
+    except KeyError:
+        missing = [k for k in inputs.keys if k not in tensors]
+        raise ValueError(f"observation lacks {missing}: the agent reads {list(inputs.keys)}, got {list(tensors)}") from None
     total = sum(t.numel() for t in read)
     if total % inputs.dim:
         raise ValueError(
             f"observation holds {total} numbers under {list(inputs.keys)}: not a multiple of the agent's input size {inputs.dim}"
         )
-    batch_of_one = all(t.ndim >= 2 and t.shape[0] == 1 for t in read)
-    single = total == inputs.dim and not batch_of_one
+    single = total == inputs.dim and not all(t.ndim >= 2 and t.shape[0] == 1 for t in read)
     if single:
         tensors = {k: t.unsqueeze(0) for k, t in tensors.items()}
-    return tensors, ObservationForm(single=single, numpy=numpy)
+    return tensors, _FORMS[single, numpy]
+
+
+_FORMS = {(s, n): ObservationForm(single=s, numpy=n) for s in (False, True) for n in (False, True)}
 
 
 class Agent:
