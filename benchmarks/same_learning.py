@@ -1,0 +1,78 @@
+"""Does a change leave learning as it was? The same presets, seeds and budgets on a base commit and on
+the working tree, their ``metrics.csv`` compared row by row, and their training speed.
+
+Every learned quantity (success, return, losses, Q) must match exactly; timing columns are only
+reported. The base commit is checked out into a temporary git worktree.
+
+    .venv/bin/python benchmarks/same_learning.py --base 9623a6b [--write]
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+from common import append_results
+
+ROOT = Path(__file__).resolve().parent.parent
+CASES = {
+    "bitflip-her": ["--n-bits", "8", "--total-steps", "6000", "--eval-interval", "2000"],
+    "pointreach-sac-her": ["--total-steps", "4000", "--eval-interval", "2000"],
+    "pointreach-qtopt-her": ["--total-steps", "3000", "--eval-interval", "1500"],
+    "pointreach-mt-ppo-onehot": ["--total-steps", "8192", "--eval-interval", "4096"],
+    "pointreach-mt-sac-onehot": ["--total-steps", "3000", "--eval-interval", "1500"],
+}
+TIMING = {"wall_seconds", "env_steps_per_s", "updates_per_s"}
+#: exploration levels logged under another name (the value is the agent's, at the same step)
+RENAMED = {"epsilon", "random_action_prob"}
+
+
+def run(src: Path, preset: str, args: list[str], out: Path) -> list[dict[str, str]]:
+    env = {**os.environ, "PYTHONPATH": str(src)}
+    subprocess.run(
+        [sys.executable, "-m", "taskrl.cli", "train", preset, *args, "--out", str(out), "--no-progress", "--no-tensorboard"],
+        check=True,
+        env=env,
+        capture_output=True,
+        cwd=out.parent,
+    )
+    return list(csv.DictReader(open(out / "metrics.csv")))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--base", required=True, help="the commit to compare against")
+    parser.add_argument("--presets", nargs="+", default=list(CASES), choices=list(CASES))
+    parser.add_argument("--write", action="store_true")
+    args = parser.parse_args()
+    lines = [
+        "| preset | rows | learned columns compared | identical | training env steps/s (base -> now) |",
+        "|---|---|---|---|---|",
+    ]
+    with tempfile.TemporaryDirectory() as tmp:
+        tree = Path(tmp) / "base"
+        subprocess.run(["git", "worktree", "add", "-q", "--detach", str(tree), args.base], check=True, cwd=ROOT)
+        try:
+            for preset in args.presets:
+                base = run(tree / "src", preset, CASES[preset], Path(tmp) / f"{preset}-base")
+                now = run(ROOT / "src", preset, CASES[preset], Path(tmp) / f"{preset}-now")
+                learned = sorted((set(base[0]) & set(now[0])) - TIMING - RENAMED)
+                same = len(base) == len(now) and all(a[k] == b[k] for a, b in zip(base, now) for k in learned)
+                speed = [float(r[-1]["env_steps"]) / float(r[-1]["wall_seconds"]) for r in (base, now)]
+                lines.append(
+                    f"| {preset} | {len(now)} | {len(learned)} | {'yes' if same else 'NO'} | {speed[0]:,.0f} -> {speed[1]:,.0f} |"
+                )
+                print(lines[-1], flush=True)
+        finally:
+            subprocess.run(["git", "worktree", "remove", "--force", str(tree)], cwd=ROOT)
+    if args.write:
+        append_results(f"Same learning as commit {args.base}", "\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()
