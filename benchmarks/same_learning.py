@@ -1,8 +1,8 @@
 """Does a change leave learning as it was? The same presets, seeds and budgets on a base commit and on
 the working tree, their ``metrics.csv`` compared row by row, and their training speed.
 
-Every learned quantity (success, return, losses, Q) must match exactly; timing columns are only
-reported. The base commit is checked out into a temporary git worktree.
+Every learned quantity (success, return, losses, Q) must match (numbers to float32 precision); timing
+columns are only reported. The base commit is checked out into a temporary git worktree.
 
     .venv/bin/python benchmarks/same_learning.py --base 9623a6b [--write]
 """
@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import math
 import os
 import subprocess
 import sys
@@ -30,6 +31,17 @@ CASES = {
 TIMING = {"wall_seconds", "env_steps_per_s", "updates_per_s"}
 #: exploration levels logged under another name (the value is the agent's, at the same step)
 RENAMED = {"epsilon", "random_action_prob"}
+
+
+def _same(a: str, b: str) -> bool:
+    """Equal values; numbers to float32 precision (success rates became exact fractions of episodes:
+    0.9 where float32 gave 0.8999999761581421)."""
+    if a == b:
+        return True
+    try:
+        return math.isclose(float(a), float(b), rel_tol=1e-6, abs_tol=1e-7)
+    except ValueError:
+        return False
 
 
 def run(src: Path, preset: str, args: list[str], out: Path) -> list[dict[str, str]]:
@@ -62,7 +74,7 @@ def main() -> None:
                 base = run(tree / "src", preset, CASES[preset], Path(tmp) / f"{preset}-base")
                 now = run(ROOT / "src", preset, CASES[preset], Path(tmp) / f"{preset}-now")
                 learned = sorted((set(base[0]) & set(now[0])) - TIMING - RENAMED)
-                same = len(base) == len(now) and all(a[k] == b[k] for a, b in zip(base, now) for k in learned)
+                same = len(base) == len(now) and all(_same(a[k], b[k]) for a, b in zip(base, now) for k in learned)
                 speed = [float(r[-1]["env_steps"]) / float(r[-1]["wall_seconds"]) for r in (base, now)]
                 lines.append(
                     f"| {preset} | {len(now)} | {len(learned)} | {'yes' if same else 'NO'} | {speed[0]:,.0f} -> {speed[1]:,.0f} |"

@@ -72,3 +72,34 @@ def test_metaworld_settings_are_checked_before_anything_is_built(tmp_path):
     with pytest.raises(ConfigError) as err:
         taskrl.train("mt10-sac-onehot", out=tmp_path / "bad", num_envs=15)
     assert err.value.field == "num_envs" and "multiple of the 10 tasks" in str(err.value)
+
+
+def test_a_task_file_of_metaworld_names_runs_with_its_own_descriptions(tmp_path):
+    """Tasks without an env are Meta-World tasks: a custom set keeps the user's sentences and Meta-World's
+    any-step success."""
+    tasks = tmp_path / "tasks.yaml"
+    tasks.write_text(
+        "tasks:\n  - {name: reach, description: Touch the goal with the gripper.}\n"
+        "  - {name: drawer-close, description: Shut the drawer.}\n"
+    )
+    run = taskrl.train(
+        "mt10-sac-onehot",
+        env=None,
+        task_file=str(tasks),
+        out=tmp_path / "run",
+        num_envs=2,
+        total_steps=200,
+        learning_starts=100,
+        max_episode_steps=20,
+        eval_episodes=2,
+        batch_size=32,
+        hidden_sizes=(16,),
+        tensorboard=False,
+    )
+    per_task = json.loads((run.run_dir / "per_task_success.json").read_text())
+    assert run.config.env == "tasks" and per_task["success"] == "reached at any step" and per_task["distinct_goals"]
+    assert {k: v["description"] for k, v in per_task["tasks"].items()} == {
+        "reach": "Touch the goal with the gripper.",
+        "drawer-close": "Shut the drawer.",
+    }
+    assert run.agent.conditioning.num_tasks == 2

@@ -385,7 +385,10 @@ def _env_source(overrides: dict[str, Any]) -> Any:
     ``env_id`` of the ``gym`` family, and a Python object (a factory, a TaskSet) is returned as
     the source its family builds envs from."""
     value = overrides.get("env")
-    if value is None or (isinstance(value, str) and value in ENV_FAMILIES):
+    if value is None:  # env=None: not given
+        overrides.pop("env", None)
+        return None
+    if isinstance(value, str) and value in ENV_FAMILIES:
         return None
     if isinstance(value, str):
         overrides.update(env="gym", env_id=value)
