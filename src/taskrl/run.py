@@ -698,6 +698,8 @@ def evaluate_run(
         os.environ.setdefault("MUJOCO_GL", "egl")
     config, source = _saved_config(run_dir, env, env_module)
     config = dataclasses.replace(config, eval_episodes=episodes)
+    if video and env_family(config.env).video_env is None:  # say so before evaluating, not after
+        raise ConfigError("video", f"the {config.env!r} env family cannot record video here (no rgb_array renderer)")
     try:  # before loading anything
         validate(config)
     except ConfigError as error:  # the only setting this call changes is the episode count
