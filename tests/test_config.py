@@ -4,6 +4,7 @@ import json
 import pytest
 
 from taskrl.agents.registry import ALGORITHMS
+from taskrl.conditioning.networks import ConditioningConfig
 from taskrl.config import TrainConfig, field_help, from_dict, leaf_fields, load, to_dict, validate, with_overrides
 from taskrl.envs.registry import ENV_FAMILIES
 from taskrl.errors import ConfigError
@@ -100,6 +101,15 @@ def test_switching_algorithm_keeps_shared_settings_and_says_so():
     notes = []
     with_overrides(preset_config("bitflip-her"), {"env": "pointreach", "algo": "sac"}, notes)
     assert notes == []  # nothing the preset changed is lost: bitflip's section was at its defaults
+
+
+def test_moving_a_multitask_preset_to_an_env_without_tasks_turns_its_conditioning_off():
+    notes = []
+    c = with_overrides(
+        preset_config("pointreach-mt-sac-care"), {"env": "pointreach", "her": "future", "sampling": "uniform"}, notes
+    )
+    assert any("task conditioning (task_encoder=language, architecture=care, projection_dim=50) is off" in n for n in notes)
+    assert c.conditioning == ConditioningConfig() and validate(c).env == "pointreach"  # what the note says, done
 
 
 def test_env_id_alone_selects_the_gymnasium_family():

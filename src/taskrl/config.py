@@ -377,7 +377,9 @@ def with_overrides(config: TrainConfig, overrides: dict[str, Any], notes: list[s
             notes.append(f"--algo {algo}: learns on-policy, so the preset's hindsight relabelling (her={her}) is off")
             her = "none"
     data = to_dict(
-        dataclasses.replace(config, env=env, algo=algo, her=her, env_settings=env_settings, algo_settings=algo_settings)
+        dataclasses.replace(
+            config, env=env, algo=algo, her=her, env_settings=env_settings, algo_settings=algo_settings, conditioning=conditioning
+        )
     )
     paths = {path[-1]: path for path, _, _ in leaf_fields(env, algo)}
     overrides.pop("env", None), overrides.pop("algo", None)
