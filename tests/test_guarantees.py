@@ -430,6 +430,18 @@ BAD_CLI = [
 ]
 
 
+def test_malformed_settings_and_task_files_are_one_line(tmp_path, capsys):
+    (tmp_path / "bad.yaml").write_text("lr: [1, 2\n")
+    (tmp_path / "bad.json").write_text("{")
+    for args in (
+        ["train", "bitflip-her", "--config", str(tmp_path / "bad.yaml")],
+        ["train", "bitflip-her", "--config", str(tmp_path / "bad.json")],
+        ["train", "pointreach-mt-sac-onehot", "--task-file", str(tmp_path / "bad.yaml")],
+    ):
+        code, _, err = run_cli(capsys, *args, "--print-config")
+        assert code == 2 and len(err.strip().splitlines()) == 1 and "cannot be read" in err, err
+
+
 @pytest.mark.parametrize("args", BAD_CLI, ids=[" ".join(a)[:60] for a in BAD_CLI])
 def test_bad_command_line_input_is_one_line_and_exit_2(capsys, tmp_path, args):
     args = [a if a != "/tmp" or args[0] != "train" else str(tmp_path) for a in args]

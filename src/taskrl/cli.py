@@ -27,7 +27,7 @@ from typing import Any
 COMMANDS = ("train", "eval", "export", "plot", "presets", "solve")
 POSITIONAL = ("preset", "run_dir")
 #: Errors about files rather than settings: named as they are, not as flags.
-FILES = {"config": "config.json:", "checkpoint": "checkpoint:", "policy": "policy:"}
+FILES = {"config": "config.json:", "config_file": "--config", "checkpoint": "checkpoint:", "policy": "policy:"}
 _NUMBER = re.compile(r"-(\d+\.?\d*|\.\d+)(e[-+]?\d+)?", re.IGNORECASE)
 
 
@@ -105,20 +105,15 @@ def _config_file(argv: Sequence[str]) -> tuple[dict[str, Any], Any]:
 
     from taskrl.config import from_dict
     from taskrl.errors import ConfigError
+    from taskrl.files import read_data_file
 
     path = Path(known.config)
     try:
-        text = path.read_text()
-        if path.suffix.lower() in (".yaml", ".yml"):
-            import yaml
-
-            data = yaml.safe_load(text)
-        else:
-            data = json.loads(text)
-    except (OSError, ValueError) as error:  # yaml's errors are ValueErrors too
-        raise ConfigError("config", f"{path} cannot be read ({str(error).splitlines()[0][:120]})") from None
+        data = read_data_file(path)
+    except ValueError as error:
+        raise ConfigError("config_file", str(error)) from None
     if not isinstance(data, dict):
-        raise ConfigError("config", f"{path} must hold a mapping of settings")
+        raise ConfigError("config_file", f"{path} must hold a mapping of settings")
     if any(isinstance(v, dict) for v in data.values()):  # sections: a full config
         return {}, from_dict(data)
     return {k: tuple(v) if isinstance(v, list) else v for k, v in data.items()}, None

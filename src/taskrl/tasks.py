@@ -17,11 +17,12 @@ file (JSON or YAML) lists the same, ``TaskSet.from_file(path)`` reads it::
 
 from __future__ import annotations
 
-import json
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+from taskrl.files import read_data_file
 
 __all__ = ["TaskSet", "TaskSpec"]
 
@@ -107,13 +108,7 @@ class TaskSet(Sequence[TaskSpec]):
         path = Path(path)
         if not path.is_file():
             raise FileNotFoundError(f"task file {path} does not exist")
-        text = path.read_text()
-        if path.suffix.lower() in (".yaml", ".yml"):
-            import yaml
-
-            data = yaml.safe_load(text)  # safe_load builds plain data only: no code runs
-        else:
-            data = json.loads(text)
+        data = read_data_file(path)
         if isinstance(data, dict):
             data = data.get("tasks")
         if not isinstance(data, list):
