@@ -21,7 +21,7 @@ from typing import Any
 import torch
 from safetensors.torch import load_file, save_file
 
-from taskrl.errors import ConfigError
+from taskrl.errors import ConfigError, reason
 from taskrl.rundir import atomic_write_text, fsync_dir
 
 _TENSOR, _ITEMS = "__tensor__", "__items__"
@@ -168,6 +168,7 @@ def load_checkpoint(
             tensors = load_file(str(tensor_file), device=str(device))
             out[part] = unflatten_state(tensors, json.loads(skeleton_file.read_text()))
         except Exception as error:  # truncated, garbage, pickled or foreign files: one line, nothing run
-            reason = str(error).splitlines()[0][:160] if str(error) else type(error).__name__
-            raise ConfigError("checkpoint", f"{folder / part} is damaged or not a taskrl checkpoint ({reason})") from None
+            raise ConfigError(
+                "checkpoint", f"{folder / part} is damaged or not a taskrl checkpoint ({reason(error, 160)})"
+            ) from None
     return out

@@ -22,10 +22,10 @@ import typing
 from pathlib import Path
 from typing import Any, Literal
 
-from taskrl.agents.registry import algorithm
+from taskrl.agents.registry import ALGORITHMS, algorithm
 from taskrl.conditioning.networks import ConditioningConfig
 from taskrl.envs.registry import ENV_FAMILIES, env_family
-from taskrl.errors import ConfigError, one_of, require
+from taskrl.errors import ConfigError, one_of, reason, require
 from taskrl.rundir import atomic_write_text
 
 __all__ = [
@@ -166,7 +166,7 @@ def check_fit(config: TrainConfig, kind: str | None, actions: str | None) -> Non
     c, spec = config, algorithm(config.algo)
     name = _env_label(c)
     fitting = ", ".join(
-        a.name for a in _algorithms() if (actions is None or actions in a.actions) and (kind != "multitask" or a.multitask)
+        a.name for a in ALGORITHMS.values() if (actions is None or actions in a.actions) and (kind != "multitask" or a.multitask)
     )
     if actions is not None and actions not in spec.actions:
         need = " or ".join("continuous (Box)" if a == "box" else "discrete" for a in spec.actions)
@@ -205,12 +205,6 @@ def _env_label(config: TrainConfig) -> str:
     family (``my/Slider-v0``), else the family's name."""
     selector = env_family(config.env).selected_by
     return (getattr(config.env_settings, selector, "") if selector else "") or config.env
-
-
-def _algorithms():
-    from taskrl.agents.registry import ALGORITHMS
-
-    return ALGORITHMS.values()
 
 
 def check_device(name: str, field: str = "device") -> None:
@@ -311,6 +305,11 @@ def _changed(section: Any) -> dict[str, Any]:
     }
 
 
+def _listed(settings: dict[str, Any]) -> str:
+    """``lr=0.001, gamma=0.95``."""
+    return ", ".join(f"{k}={v}" for k, v in settings.items())
+
+
 def _switch_algorithm(old: Any, old_name: str, new_name: str, notes: list[str]) -> Any:
     """The new algorithm's section, keeping the shared settings the old section had changed."""
     new_cls = algorithm(new_name).config
@@ -320,10 +319,10 @@ def _switch_algorithm(old: Any, old_name: str, new_name: str, notes: list[str]) 
     dropped = sorted(set(changed) - set(kept))
     section = new_cls(**kept)
     if kept:
-        notes.append(f"--algo {new_name}: kept {', '.join(f'{k}={v}' for k, v in kept.items())} from {old_name}")
+        notes.append(f"--algo {new_name}: kept {_listed(kept)} from {old_name}")
     if dropped:
         notes.append(
-            f"--algo {new_name}: {old_name}'s {', '.join(f'{k}={changed[k]}' for k in dropped)} "
+            f"--algo {new_name}: {old_name}'s {_listed({k: changed[k] for k in dropped})} "
             f"do{'es' if len(dropped) == 1 else ''} not carry over ({new_name} uses its own defaults)"
         )
     return section
@@ -358,17 +357,11 @@ def with_overrides(config: TrainConfig, overrides: dict[str, Any], notes: list[s
     if family.section != old_family.section:
         changed = _changed(config.env_settings)
         if changed:
-            notes.append(
-                f"--env {env}: {config.env}'s {', '.join(f'{k}={v}' for k, v in changed.items())} "
-                f"do{'es' if len(changed) == 1 else ''} not apply"
-            )
+            notes.append(f"--env {env}: {config.env}'s {_listed(changed)} do{'es' if len(changed) == 1 else ''} not apply")
         env_settings = family.settings()
-    conditioning = config.conditioning
-    if family.kind in ("goal", "plain") and _changed(conditioning):  # the preset's task conditioning has no tasks here
-        notes.append(
-            f"--env {env}: has no tasks, so the preset's task conditioning "
-            f"({', '.join(f'{k}={v}' for k, v in _changed(conditioning).items())}) is off"
-        )
+    conditioning, conditioned = config.conditioning, _changed(config.conditioning)
+    if family.kind in ("goal", "plain") and conditioned:  # the preset's task conditioning has no tasks here
+        notes.append(f"--env {env}: has no tasks, so the preset's task conditioning ({_listed(conditioned)}) is off")
         conditioning = ConditioningConfig()
     algo_settings, her = config.algo_settings, config.her
     if algo != config.algo:
@@ -513,7 +506,7 @@ def load(path: Path) -> TrainConfig:
     try:
         data = json.loads(path.read_text())
     except (OSError, UnicodeDecodeError, ValueError) as error:
-        raise ConfigError("config", f"{path} cannot be read as a taskrl config ({str(error).splitlines()[0][:120]})") from None
+        raise ConfigError("config", f"{path} cannot be read as a taskrl config ({reason(error)})") from None
     if not isinstance(data, dict):
         raise ConfigError("config", f"{path} holds {type(data).__name__}, not a taskrl config (a JSON object)")
     return from_dict(data)

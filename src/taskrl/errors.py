@@ -6,7 +6,7 @@ written once and reads the same from the command line (one line, exit code 2) an
 
 from __future__ import annotations
 
-__all__ = ["ConfigError", "one_of", "require"]
+__all__ = ["ConfigError", "one_of", "reason", "require"]
 
 
 class ConfigError(ValueError):
@@ -27,3 +27,10 @@ def require(ok: bool, field: str, message: str) -> None:
 def one_of(value: object, allowed: tuple, field: str, what: str = "value") -> None:
     """``value`` must be one of ``allowed``; the error lists them."""
     require(value in allowed, field, f"unknown {what} {value!r}; allowed: {', '.join(map(str, allowed))}")
+
+
+def reason(error: BaseException, limit: int = 120) -> str:
+    """An exception's first line, cut to ``limit`` characters (its type where it says nothing): what a
+    one-line message quotes of a library's error."""
+    text = str(error).strip()
+    return text.splitlines()[0][:limit] if text else type(error).__name__

@@ -18,7 +18,7 @@ import numpy as np
 import torch
 from safetensors.torch import load_file, save_file
 
-from taskrl.errors import ConfigError
+from taskrl.errors import ConfigError, reason
 from taskrl.rundir import atomic_write_text
 from taskrl.tasks import TaskSet
 
@@ -67,58 +67,26 @@ def space_from_json(data: dict[str, Any]) -> gym.spaces.Space:
     raise ValueError(f"unknown space type {kind!r}")
 
 
-@dataclasses.dataclass
-class _Spaces:
-    """What an agent is built from: the spaces (and task set) of the env it was trained on."""
-
-    single_observation_space: gym.spaces.Dict
-    single_action_space: gym.spaces.Space
-    task_set: TaskSet | None = None
-
-    def close(self) -> None:
-        """Nothing to release."""
-
-
-def _acting_state(agent: Any) -> dict[str, Any]:
-    full = agent.state_dict()
-    return {name: full[name] for name in agent.acting if name in full}
-
-
 def export_policy(
     run_dir: str | Path, out: str | Path, device: str = "cpu", env: Any = None, env_module: str | None = None
 ) -> Path:
     """Write the acting part of a run's latest checkpoint to ``out`` (a new or empty directory)."""
     from taskrl import config as config_io
     from taskrl.checkpoint import flatten_state
-    from taskrl.envs.registry import env_family
-    from taskrl.run import env_request, load, resolve_device
+    from taskrl.run import load_run
 
     run_dir, out = Path(run_dir), Path(out)
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise ConfigError("out", f"{out} exists and is not an empty directory")
-    agent = load(run_dir, device, env=env, env_module=env_module)
-    config = config_io.load(run_dir / "config.json")
-    family = env_family(config.env)
-    request = dataclasses.replace(
-        env_request(config, resolve_device(device), env if not isinstance(env, str) else None, evaluation=True), eval_episodes=1
-    )
-    spaces = (
-        family.spec(config.env_settings, request)
-        if family.spec is not None and env is None
-        else family.make(config.env_settings, request)
-    )
-    try:
-        task_set = getattr(spaces, "task_set", None)
-        meta = {
-            "format": FORMAT,
-            "config": config_io.to_dict(config),
-            "observation_space": space_to_json(spaces.single_observation_space),
-            "action_space": space_to_json(spaces.single_action_space),
-            "task_set": [{"name": t.name, "description": t.description} for t in task_set] if task_set else None,
-        }
-    finally:
-        spaces.close()
-    tensors, skeleton = flatten_state(_acting_state(agent))
+    agent, config, spaces = load_run(run_dir, device, env=env, env_module=env_module)
+    meta = {
+        "format": FORMAT,
+        "config": config_io.to_dict(config),
+        "observation_space": space_to_json(spaces.single_observation_space),
+        "action_space": space_to_json(spaces.single_action_space),
+        "task_set": [{"name": t.name, "description": t.description} for t in spaces.task_set] if spaces.task_set else None,
+    }
+    tensors, skeleton = flatten_state(agent.state_dict(parts=agent.acting))
     out.mkdir(parents=True, exist_ok=True)
     save_file(tensors, str(out / "policy.safetensors"))
     atomic_write_text(out / "policy.json", json.dumps({**meta, "state": skeleton}, indent=2) + "\n")
@@ -152,7 +120,7 @@ def load_policy(path: str | Path, device: str = "cpu") -> Policy:
     """Read an exported policy (``policy.json`` + ``policy.safetensors``); never executes code."""
     from taskrl.checkpoint import unflatten_state
     from taskrl.config import from_dict
-    from taskrl.run import make_agent, resolve_device
+    from taskrl.run import RunSpaces, make_agent, resolve_device
 
     path = Path(path)
     try:
@@ -164,21 +132,13 @@ def load_policy(path: str | Path, device: str = "cpu") -> Policy:
     except ConfigError:
         raise
     except Exception as error:  # missing, damaged or foreign files: one line
-        raise ConfigError("policy", f"{path} is not a taskrl policy ({str(error).splitlines()[0][:120]})") from None
+        raise ConfigError("policy", f"{path} is not a taskrl policy ({reason(error)})") from None
     config = from_dict(meta["config"])
     tasks = meta.get("task_set")
-    spaces = _Spaces(
+    spaces = RunSpaces(
         observation_space, action_space, TaskSet.from_pairs((t["name"], t["description"]) for t in tasks) if tasks else None
     )
     # acting needs no replay: relabelling and batch sampling are training settings, off here
     agent = make_agent(dataclasses.replace(config, her="none", sampling="uniform"), spaces, resolve_device(device))
-    state = unflatten_state(tensors, meta["state"])
-    parts = agent._parts()
-    for name, value in state.items():
-        obj = parts[name]
-        if isinstance(obj, torch.Tensor):
-            with torch.no_grad():
-                obj.copy_(torch.as_tensor(value).reshape(obj.shape))
-        else:
-            obj.load_state_dict(value)
+    agent.load_parts(unflatten_state(tensors, meta["state"]))
     return Policy(agent, config, observation_space, action_space)

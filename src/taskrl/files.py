@@ -6,6 +6,8 @@ import json
 from pathlib import Path
 from typing import Any
 
+from taskrl.errors import reason
+
 __all__ = ["read_data_file"]
 
 
@@ -25,5 +27,4 @@ def read_data_file(path: str | Path) -> Any:
                 raise ValueError(str(error)) from None
         return json.loads(text)
     except (OSError, UnicodeDecodeError, ValueError) as error:
-        reason = str(error).strip().splitlines()[0][:120] if str(error).strip() else type(error).__name__
-        raise ValueError(f"{path} cannot be read ({reason})") from None
+        raise ValueError(f"{path} cannot be read ({reason(error)})") from None

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import csv
 import math
+import statistics
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -158,18 +159,18 @@ def compare_runs(groups: dict[str, list[Path]], out_png: Path, threshold: float 
         if not runs:
             continue
         grid = [r["env_steps"] for r in runs[0] if r.get("success_rate") is not None]
+        means: dict[str, list[float]] = {}
         for ax, column in ((axes[0], "success_rate"), (axes[2], "eval_return"), *zip(axes[3:], tasks)):
             curves = [_on_grid(rows, column, grid) for rows in runs]
             bands = [_band([c[i] for c in curves]) for i in range(len(grid))]
-            mean = [b[0] for b in bands]
-            line = ax.plot(grid, mean, label=f"{name} ({len(runs)})")[0]
+            means[column] = [b[0] for b in bands]
+            line = ax.plot(grid, means[column], label=f"{name} ({len(runs)})")[0]
             low, high = [m - h for m, h in bands], [m + h for m, h in bands]
             if column.startswith("success"):  # a rate: the band stays within what a rate can be
                 low, high = [max(v, 0.0) for v in low], [min(v, 1.0) for v in high]
             ax.fill_between(grid, low, high, color=line.get_color(), alpha=0.2)
-        seconds = [statistics_mean([_on_grid(rows, "wall_seconds", [g])[0] for rows in runs]) for g in grid]
-        curves = [_on_grid(rows, "success_rate", grid) for rows in runs]
-        axes[1].plot(seconds, [statistics_mean([c[i] for c in curves]) for i in range(len(grid))], label=name)
+        seconds = [_on_grid(rows, "wall_seconds", grid) for rows in runs]  # mean training seconds at each grid step
+        axes[1].plot([statistics.fmean(s[i] for s in seconds) for i in range(len(grid))], means["success_rate"], label=name)
         finals = [next(r["success_rate"] for r in reversed(rows) if r.get("success_rate") is not None) for rows in runs]
         bests = [max(r["success_rate"] for r in rows if r.get("success_rate") is not None) for rows in runs]
         reached = [_reached(rows, threshold) for rows in runs]
@@ -181,7 +182,7 @@ def compare_runs(groups: dict[str, list[Path]], out_png: Path, threshold: float 
                 "seeds": len(runs),
                 "final_success": final_mean,
                 "final_success_ci95": final_half,
-                "best_success": statistics_mean(bests),
+                "best_success": statistics.fmean(bests),
                 f"reached_{threshold:g}": f"{len(hit)}/{len(runs)}",
                 "median_env_steps_to_threshold": _median([h[0] for h in hit]),
                 "median_seconds_to_threshold": _median([h[1] for h in hit]),
@@ -212,11 +213,5 @@ def compare_runs(groups: dict[str, list[Path]], out_png: Path, threshold: float 
     return summary
 
 
-def statistics_mean(values: Sequence[float]) -> float:
-    return sum(values) / len(values) if values else float("nan")
-
-
 def _median(values: Sequence[float]) -> float | None:
-    import statistics
-
     return statistics.median(values) if values else None

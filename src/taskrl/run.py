@@ -43,7 +43,7 @@ from taskrl.console import ConsoleReporter, final_table, per_task_table
 from taskrl.envs.base import BatchedEnv
 from taskrl.envs.registry import ENV_FAMILIES, env_family, family_for_source
 from taskrl.envs.spec import EnvFamily, EnvRequest, env_kind
-from taskrl.errors import ConfigError
+from taskrl.errors import ConfigError, reason
 from taskrl.logger import RunLogger
 from taskrl.plots import plot_learning_curve
 from taskrl.presets import preset_config
@@ -55,7 +55,7 @@ from taskrl.training.offpolicy import LoopSchedule, OffPolicyLoop
 from taskrl.training.onpolicy import OnPolicyLoop
 from taskrl.training.per_task import evaluate_per_task
 
-__all__ = ["Run", "RunParts", "build", "evaluate_run", "load", "make_agent", "make_env", "train"]
+__all__ = ["Run", "RunParts", "RunSpaces", "build", "evaluate_run", "load", "load_run", "make_agent", "make_env", "train"]
 
 #: Observation keys the networks read, where the env has them (the task index is read separately).
 AGENT_INPUT_KEYS = ("observation", "desired_goal")
@@ -312,10 +312,9 @@ def _restore_checked(parts: RunParts, run_dir: Path, saved: TrainConfig, config:
         before, after = config_io.to_dict(saved), config_io.to_dict(config)
         changed = sorted(_changed_paths(before, after))
         what = f"the settings changed ({', '.join(changed)})" if changed else "its settings"
-        reason = str(error).strip().splitlines()[0][:120] if str(error).strip() else type(error).__name__
         raise ConfigError(
             "resume",
-            f"the checkpoint in {run_dir} does not fit {what}: {reason}; resume without changing them (the run is unchanged)",
+            f"the checkpoint in {run_dir} does not fit {what}: {reason(error)}; resume without changing them (the run is unchanged)",
         ) from None
 
 
@@ -634,24 +633,44 @@ def load(
         checkpoint: the env step of the checkpoint to load (default the latest); the loaded agent's
             ``loaded_step`` says which.
     """
+    return load_run(run_dir, device, env, env_module, checkpoint)[0]
+
+
+@dataclasses.dataclass(frozen=True)
+class RunSpaces:
+    """The spaces (and task set) of a run's env: what its agent is built from."""
+
+    single_observation_space: gym.spaces.Space
+    single_action_space: gym.spaces.Space
+    task_set: Any = None
+
+    def close(self) -> None:
+        """Nothing to release."""
+
+
+def load_run(
+    run_dir: str | Path, device: str = "cpu", env: Any = None, env_module: str | None = None, checkpoint: int | None = None
+) -> tuple[Any, TrainConfig, RunSpaces]:
+    """``(agent, config, spaces)`` of a run directory (arguments as :func:`load`); the env is built
+    once, or not at all where its family can give the spaces without it (Meta-World)."""
     run_dir = Path(run_dir)
     config, source = _saved_config(run_dir, env, env_module)
     dev = resolve_device(device)
     family = env_family(config.env)
-    request = env_request(config, dev, source, evaluation=True)
-    request = dataclasses.replace(request, eval_episodes=1)
+    request = dataclasses.replace(env_request(config, dev, source, evaluation=True), eval_episodes=1)
     if family.spec is not None and source is None:  # spaces and task set only: building Meta-World takes seconds
-        spaces = family.spec(config.env_settings, request)
+        built = family.spec(config.env_settings, request)
     else:
-        spaces = family.make(config.env_settings, request)
+        built = family.make(config.env_settings, request)
     try:
-        agent = make_agent(config, spaces, dev)
+        spaces = RunSpaces(built.single_observation_space, built.single_action_space, getattr(built, "task_set", None))
+        agent = make_agent(config, built, dev)
     finally:
-        spaces.close()
+        built.close()
     folder = checkpoint_at(run_dir / "checkpoints", checkpoint)
     agent.load_state_dict(load_checkpoint(run_dir / "checkpoints", ("agent",), dev, step=checkpoint_step(folder))["agent"])
     agent.loaded_step = checkpoint_step(folder)
-    return agent
+    return agent, config, spaces
 
 
 def wilson_interval(successes: float, n: int, z: float = 1.96) -> list[float]:
@@ -698,8 +717,10 @@ def evaluate_run(
         os.environ.setdefault("MUJOCO_GL", "egl")
     config, source = _saved_config(run_dir, env, env_module)
     config = dataclasses.replace(config, eval_episodes=episodes)
-    if video and env_family(config.env).video_env is None:  # say so before evaluating, not after
-        raise ConfigError("video", f"the {config.env!r} env family cannot record video here (no rgb_array renderer)")
+    if video:  # say so before evaluating, not after
+        from taskrl.video import check_can_record
+
+        check_can_record(config)
     try:  # before loading anything
         validate(config)
     except ConfigError as error:  # the only setting this call changes is the episode count

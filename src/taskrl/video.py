@@ -11,31 +11,39 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from taskrl.errors import ConfigError
+from taskrl.errors import ConfigError, reason
 
-__all__ = ["record_episodes"]
+__all__ = ["check_can_record", "record_episodes"]
 
 
-def record_episodes(
-    agent: Any, config: Any, out_dir: Path, episodes: int, seed: int = 0, stochastic: bool = False, max_steps: int = 10_000
-) -> list[Path]:
-    """Run ``episodes`` episodes of ``agent`` on one renderable copy of the run's env; one MP4 each."""
+def check_can_record(config: Any) -> Any:
+    """The run's env family, if it can record video and the MP4 writer is installed; else one line."""
     from taskrl.envs.registry import env_family
 
     family = env_family(config.env)
     if family.video_env is None:
         raise ConfigError("video", f"the {config.env!r} env family cannot record video here (no rgb_array renderer)")
     try:
-        import imageio.v2 as imageio
+        import imageio.v2  # noqa: F401
         import imageio_ffmpeg  # noqa: F401  (the MP4 writer)
     except ImportError as error:
         raise ConfigError("video", f"videos need imageio with ffmpeg: pip install 'taskrl[video]' ({error})") from None
+    return family
+
+
+def record_episodes(
+    agent: Any, config: Any, out_dir: Path, episodes: int, seed: int = 0, stochastic: bool = False, max_steps: int = 10_000
+) -> list[Path]:
+    """Run ``episodes`` episodes of ``agent`` on one renderable copy of the run's env; one MP4 each."""
+    family = check_can_record(config)
+    import imageio.v2 as imageio
+
     try:
         env = family.video_env(config.env_settings)
     except Exception as error:  # e.g. MuJoCo without an OpenGL backend on this machine
         raise ConfigError(
             "video",
-            f"{config.env!r} cannot render here ({str(error).splitlines()[0][:120]}); MuJoCo envs "
+            f"{config.env!r} cannot render here ({reason(error)}); MuJoCo envs "
             f"render off-screen with MUJOCO_GL=egl (or osmesa) set before taskrl starts",
         ) from None
     if env is None:
@@ -43,7 +51,7 @@ def record_episodes(
     out_dir.mkdir(parents=True, exist_ok=True)
     fps = int(env.metadata.get("render_fps", 25) or 25)
     paths = []
-    task_names = [t.name for t in config_tasks(env)]
+    task_names = [t.name for t in _tasks_of(env)]
     try:
         for episode in range(episodes):
             options = {"task": episode % len(task_names)} if task_names else None  # one task after another
@@ -63,7 +71,7 @@ def record_episodes(
     return paths
 
 
-def config_tasks(env: Any) -> list:
+def _tasks_of(env: Any) -> list:
     """The tasks of a multi-task gymnasium view (its ``task_set``), or none."""
     task_set = getattr(env.unwrapped, "task_set", None)
     return list(task_set) if task_set is not None else []

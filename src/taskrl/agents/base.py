@@ -144,20 +144,34 @@ class Agent:
                 parts[name] = obj
         return parts
 
-    def state_dict(self) -> dict[str, Any]:
-        """Every checkpointed module, optimiser and tensor, and the update count."""
-        state: dict[str, Any] = {}
-        for name, obj in self._parts().items():
-            state[name] = obj.detach().clone() if isinstance(obj, torch.Tensor) else obj.state_dict()
-        state["updates"] = self.updates
+    def state_dict(self, parts: tuple[str, ...] | None = None) -> dict[str, Any]:
+        """Every checkpointed module, optimiser and tensor, and the update count; or only the named
+        ``parts`` (e.g. ``self.acting``, what a policy export keeps), without it."""
+        chosen = self._parts()
+        if parts is not None:
+            chosen = {name: obj for name, obj in chosen.items() if name in parts}
+        state: dict[str, Any] = {
+            name: obj.detach().clone() if isinstance(obj, torch.Tensor) else obj.state_dict() for name, obj in chosen.items()
+        }
+        if parts is None:
+            state["updates"] = self.updates
         return state
 
-    def load_state_dict(self, state: dict[str, Any]) -> None:
-        """Restore what :meth:`state_dict` saved (tensors in place, so optimisers keep their references)."""
+    def load_parts(self, state: dict[str, Any]) -> None:
+        """Restore the parts ``state`` holds (tensors in place, so optimisers keep their references)."""
         for name, obj in self._parts().items():
+            if name not in state:
+                continue
             if isinstance(obj, torch.Tensor):
                 with torch.no_grad():
                     obj.copy_(torch.as_tensor(state[name]).reshape(obj.shape))
             else:
                 obj.load_state_dict(state[name])
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Restore what :meth:`state_dict` saved: every part, and the update count."""
+        missing = [name for name in (*self._parts(), "updates") if name not in state]
+        if missing:
+            raise KeyError(f"the saved agent lacks {missing}")
+        self.load_parts(state)
         self.updates = int(state["updates"])

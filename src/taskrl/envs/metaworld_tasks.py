@@ -308,6 +308,19 @@ def _benchmark_tasks(
         metaworld._N_GOALS = saved
 
 
+def _slot_kwargs(
+    max_episode_steps: int, use_one_hot: bool = True, terminate_on_success: bool = False, reward_function_version: str = "v2"
+) -> dict[str, Any]:
+    """What Meta-World builds each slot's env with (``task_select="random"``: a new goal every reset)."""
+    return {
+        "max_episode_steps": max_episode_steps,
+        "use_one_hot": use_one_hot,
+        "terminate_on_success": terminate_on_success,
+        "task_select": "random",
+        "reward_function_version": reward_function_version,
+    }
+
+
 class _MetaWorldFactory:
     """Picklable zero-argument factory of one slot's env (async workers build their own)."""
 
@@ -412,13 +425,7 @@ class MetaWorldMultiTaskEnv(GymnasiumVectorEnv):
             raise ImportError(_INSTALL_HINT) from e
         self.use_one_hot = use_one_hot
         self.envs_per_task = envs_per_task
-        kwargs = {
-            "max_episode_steps": max_episode_steps,
-            "use_one_hot": use_one_hot,
-            "terminate_on_success": bool(terminate_on_success),
-            "task_select": "random",
-            "reward_function_version": reward_function_version,
-        }
+        kwargs = _slot_kwargs(max_episode_steps, use_one_hot, bool(terminate_on_success), reward_function_version)
         num_tasks = len(self.task_set)
         goals = _benchmark_tasks(metaworld, benchmark, self.task_set.names, seed, num_goals)
         factories = [
@@ -470,14 +477,7 @@ class MetaWorldVideoEnv(gym.Env):
 
         self.task_set = metaworld_task_set(benchmark, task)
         goals = _benchmark_tasks(metaworld, benchmark, self.task_set.names, seed, METAWORLD_NUM_GOALS)
-        kwargs = {
-            "max_episode_steps": max_episode_steps,
-            "use_one_hot": True,
-            "terminate_on_success": False,
-            "task_select": "random",
-            "reward_function_version": "v2",
-            "render_mode": "rgb_array",
-        }
+        kwargs = {**_slot_kwargs(max_episode_steps), "render_mode": "rgb_array"}
         n = len(self.task_set)
         self._factories = [_MetaWorldFactory(t.index, t.name, *goals[t.name], t.index, n, seed, kwargs) for t in self.task_set]
         self._envs: dict[int, gym.Env] = {}
