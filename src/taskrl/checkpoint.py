@@ -158,7 +158,11 @@ def load_checkpoint(
     Absent parts (e.g. a replay that was not saved) are left out of the result. Only safetensors
     and JSON are read: nothing in a checkpoint can run code.
     """
-    folder = checkpoint_at(directory, step)
+    return read_checkpoint(checkpoint_at(directory, step), parts, device)
+
+
+def read_checkpoint(folder: Path, parts: tuple[str, ...], device: str | torch.device = "cpu") -> dict[str, Any]:
+    """Load the named parts of one checkpoint folder (see :func:`load_checkpoint`)."""
     out = {}
     for part in parts:
         skeleton_file, tensor_file = folder / f"{part}.json", folder / f"{part}.safetensors"

@@ -36,7 +36,7 @@ from rich.console import Console
 from taskrl import config as config_io
 from taskrl.agents.registry import algorithm
 from taskrl.agents.spec import AgentInputs
-from taskrl.checkpoint import checkpoint_at, checkpoint_step, load_checkpoint, save_checkpoint
+from taskrl.checkpoint import checkpoint_at, checkpoint_step, load_checkpoint, read_checkpoint, save_checkpoint
 from taskrl.conditioning.networks import make_conditioning
 from taskrl.config import TrainConfig, check_device, check_fit, validate, with_overrides
 from taskrl.console import ConsoleReporter, final_table, per_task_table
@@ -175,8 +175,9 @@ def make_evaluator(
     over tasks and every task adds a ``success/<name>`` column.
     """
     last: dict[str, Any] = {}
-    family = env_family(config.env)
     multitask = env_kind(eval_env) == "multitask"
+    # once, not at every evaluation (a task set's criterion reads its task file)
+    criterion = env_family(config.env).success_criterion(config.env_settings) if multitask else None
 
     def policy(obs):  # greedy unless asked to explore
         return agent.act(obs, explore=stochastic)
@@ -184,9 +185,7 @@ def make_evaluator(
     def run() -> dict[str, float]:
         if not multitask:
             return evaluate(policy, eval_env, seed, details=details)
-        result = evaluate_per_task(
-            policy, eval_env, config.eval_episodes, seed, success=family.success_criterion(config.env_settings)
-        )
+        result = evaluate_per_task(policy, eval_env, config.eval_episodes, seed, success=criterion)
         last.clear(), last.update(result)
         tasks = result["tasks"].values()
         return {
@@ -668,7 +667,7 @@ def load_run(
     finally:
         built.close()
     folder = checkpoint_at(run_dir / "checkpoints", checkpoint)
-    agent.load_state_dict(load_checkpoint(run_dir / "checkpoints", ("agent",), dev, step=checkpoint_step(folder))["agent"])
+    agent.load_state_dict(read_checkpoint(folder, ("agent",), dev)["agent"])
     agent.loaded_step = checkpoint_step(folder)
     return agent, config, spaces
 
