@@ -9,6 +9,8 @@
     taskrl train PRESET --seeds 0 1 2      one run per seed into one folder (--parallel N), then compared
     taskrl plot RUN_OR_FOLDER ... --out F  compare runs: mean and 95% band over seeds, per task, a table
     taskrl solve MDP [--method ...]        exact dynamic programming on finite MDPs
+    taskrl demos collect SOURCE --out DIR  scripted-expert demonstrations (mt10, mt50, ml45, pointreach-mt) as a Minari dataset
+    taskrl demos info DIR                  a demonstration dataset's card
 
 Bad input exits with code 2 and one line naming the setting and the allowed values.
 """
@@ -24,8 +26,8 @@ import typing
 from collections.abc import Sequence
 from typing import Any
 
-COMMANDS = ("train", "eval", "export", "plot", "presets", "solve")
-POSITIONAL = ("preset", "run_dir")
+COMMANDS = ("train", "eval", "export", "plot", "presets", "solve", "demos")
+POSITIONAL = ("preset", "run_dir", "source", "dataset")
 #: Errors about files rather than settings: named as they are, not as flags.
 FILES = {"config": "config.json:", "config_file": "--config", "checkpoint": "checkpoint:", "policy": "policy:"}
 _NUMBER = re.compile(r"-(\d+\.?\d*|\.\d+)(e[-+]?\d+)?", re.IGNORECASE)
@@ -425,6 +427,54 @@ def _train_seeds(argv: Sequence[str], preset: str, seeds: list[int], parallel: i
     return 0
 
 
+def cmd_demos(argv: Sequence[str]) -> int:
+    parser = _Parser(prog="taskrl demos", description="Demonstration datasets: collect with scripted experts, show a card.")
+    sub = parser.add_subparsers(dest="action", required=True, metavar="{collect,info}")
+    collect = sub.add_parser("collect", help="run scripted experts and write their successful episodes (resumable)")
+    collect.add_argument(
+        "source", help="mt10, mt50, ml45 (all 50 tasks, ML45 split in the card), pointreach-mt, or task,task,..."
+    )
+    collect.add_argument("--out", required=True, help="dataset folder (DIR/data is the Minari dataset); run again to resume")
+    collect.add_argument("--episodes", type=int, default=50, help="successful episodes per task (default 50)")
+    collect.add_argument("--noise", type=float, default=0.0, help="std of Gaussian noise on executed actions (DART; default 0)")
+    collect.add_argument("--seed", type=int, default=1, help="seed of goals and noise (default 1)")
+    collect.add_argument("--copies", type=int, default=1, help="env copies per task (default 1)")
+    collect.add_argument("--max-attempts", type=int, default=0, help="episodes a task may try (default 5 x --episodes)")
+    collect.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
+    info = sub.add_parser("info", help="print a dataset's card")
+    info.add_argument("dataset", help="a dataset folder")
+    info.add_argument("--json", action="store_true", help="print the metadata as JSON")
+    args = _parse(parser, argv)
+    from rich.console import Console
+
+    from taskrl.console import dataset_table
+    from taskrl.demos.dataset import dataset_card
+
+    if args.action == "info":
+        card = dataset_card(args.dataset)
+        if args.json:
+            print(json.dumps(card))
+        else:
+            Console().print(dataset_table(card, args.dataset))
+        return 0
+    from taskrl.console import CollectionProgress
+    from taskrl.demos.collect import collect_demos
+
+    with CollectionProgress(f"demos {args.source}", enabled=args.progress) as bar:
+        card = collect_demos(
+            args.source,
+            args.episodes,
+            args.out,
+            seed=args.seed,
+            noise_std=args.noise,
+            copies=args.copies,
+            max_attempts=args.max_attempts,
+            progress=bar.update,
+        )
+    Console().print(dataset_table(card, args.out))
+    return 0
+
+
 def cmd_solve(argv: Sequence[str]) -> int:
     from taskrl.tabular.cli import main as solve_main
 
@@ -444,6 +494,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "plot": cmd_plot,
         "presets": cmd_presets,
         "solve": cmd_solve,
+        "demos": cmd_demos,
     }
     from taskrl.errors import ConfigError
     from taskrl.training.bookkeeping import TrainingDiverged

@@ -187,3 +187,86 @@ def summary_table(summary: list[dict[str, Any]], title: str = "runs compared") -
             num(row["median_seconds_to_threshold"], ".1f"),
         )
     return table
+
+
+class CollectionProgress:
+    """A progress bar of kept demonstrations (``update(kept, wanted)``); plain lines every 10 s without a terminal."""
+
+    def __init__(self, title: str, enabled: bool = True) -> None:
+        self.title, self.enabled = title, enabled
+        self.console = Console(stderr=True)
+        self.progress = Progress(
+            TextColumn("[bold]{task.description}"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TextColumn("episodes"),
+            TimeElapsedColumn(),
+            TimeRemainingColumn(),
+            console=self.console,
+        )
+        self.task = None
+        self.last_line = 0.0
+
+    def __enter__(self) -> CollectionProgress:
+        if self.enabled and self.console.is_terminal:
+            self.progress.start()
+        return self
+
+    def update(self, kept: int, wanted: int) -> None:
+        if not self.enabled:
+            return
+        if self.console.is_terminal:
+            if self.task is None:
+                self.task = self.progress.add_task(self.title, total=wanted)
+            self.progress.update(self.task, completed=kept)
+        elif time.monotonic() - self.last_line >= 10.0 or kept == wanted:
+            self.last_line = time.monotonic()
+            print(f"{self.title}  {kept:,}/{wanted:,} episodes", file=sys.stderr, flush=True)
+
+    def __exit__(self, *exc: Any) -> None:
+        if self.progress.live.is_started:
+            self.progress.stop()
+
+
+def dataset_table(metadata: dict[str, Any], path: Any) -> Table:
+    """A demonstration dataset's card: episodes, expert success and mean length per task, and totals."""
+    card = metadata.get("card") or {}
+    table = Table(title=f"dataset {path} ({card.get('source', 'unknown source')})")
+    table.add_column("task")
+    table.add_column("episodes", justify="right")
+    table.add_column("expert success", justify="right")
+    table.add_column("mean length", justify="right")
+    splits = card.get("splits") or {}
+    if splits:
+        table.add_column("split")
+    episodes, success, length = (
+        card.get("episodes_per_task", {}),
+        card.get("expert_success_rate", {}),
+        card.get("mean_length", {}),
+    )
+    for task in metadata.get("tasks", []):
+        name = task.get("name", "?")
+        cells = [name, str(episodes.get(name, "?")), _fraction(success.get(name)), _fraction(length.get(name), ".1f")]
+        if splits:
+            cells.append(next((s for s, names in splits.items() if name in names), ""))
+        table.add_row(*cells)
+    table.add_section()
+    size = metadata.get("dataset_size")
+    table.add_row(
+        "[bold]total",
+        f"[bold]{metadata.get('total_episodes', 0):,}",
+        "",
+        f"{metadata.get('total_steps', 0):,} steps",
+        *([""] if splits else []),
+    )
+    notes = [f"noise std {card.get('noise_std', 0)}", f"seed {card.get('seed', '?')}"]
+    if size is not None:
+        notes.append(f"{size} MB")
+    if "collection_seconds" in card:
+        notes.append(f"collected in {card['collection_seconds']:.0f} s")
+    table.caption = ", ".join(notes)
+    return table
+
+
+def _fraction(value: Any, spec: str = ".2f") -> str:
+    return format(value, spec) if isinstance(value, (int, float)) else "?"
