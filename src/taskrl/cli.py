@@ -308,7 +308,7 @@ def cmd_eval(argv: Sequence[str]) -> int:
         out.print(
             per_task_table(
                 {"tasks": result["tasks"], "mean_success_rate": result["success_rate"]},
-                f"per-task success, checkpoint at {result['checkpoint_step']:,} env steps",
+                f"per-task success, checkpoint at {result['checkpoint_step']:,} {result.get('checkpoint_unit', 'env steps')}",
             )
         )
     out.print(eval_table(result, args.run_dir))

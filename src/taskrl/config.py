@@ -177,7 +177,7 @@ def check_fit(config: TrainConfig, kind: str | None, actions: str | None) -> Non
         require(
             spec.loop == "off_policy",
             "her",
-            f"{c.algo} learns on-policy from rollouts: there is no replay to relabel; use --her none",
+            f"{c.algo} learns {'offline from a dataset' if spec.loop == 'offline' else 'on-policy from rollouts'}: there is no replay to relabel; use --her none",
         )
         require(
             kind in (None, "goal"),
@@ -367,7 +367,8 @@ def with_overrides(config: TrainConfig, overrides: dict[str, Any], notes: list[s
     if algo != config.algo:
         algo_settings = _switch_algorithm(config.algo_settings, config.algo, algo, notes)
         if algorithm(algo).loop != "off_policy" and her != "none" and "her" not in overrides:
-            notes.append(f"--algo {algo}: learns on-policy, so the preset's hindsight relabelling (her={her}) is off")
+            how = "offline" if algorithm(algo).loop == "offline" else "on-policy"
+            notes.append(f"--algo {algo}: learns {how}, so the preset's hindsight relabelling (her={her}) is off")
             her = "none"
     data = to_dict(
         dataclasses.replace(

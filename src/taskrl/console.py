@@ -33,6 +33,7 @@ class ConsoleReporter:
         log_every: also print a heartbeat line every this many seconds between evaluations (0: never).
         terminal: force the bar (True) or the plain lines (False); default: whether stderr is a terminal.
         file: where the plain lines go (default stderr).
+        axis: the row's progress column: ``env_steps``, or ``updates`` for offline runs.
     """
 
     def __init__(
@@ -44,8 +45,10 @@ class ConsoleReporter:
         log_every: float = 0.0,
         terminal: bool | None = None,
         file: Any = None,
+        axis: str = "env_steps",
     ) -> None:
         self.title, self.total_steps, self.enabled, self.log_every = title, total_steps, enabled, log_every
+        self.axis = axis  # what the bar counts: env_steps, or updates for offline runs
         self.console = Console(stderr=True)
         self.terminal = self.console.is_terminal if terminal is None else terminal
         self.file = file if file is not None else sys.stderr
@@ -78,13 +81,13 @@ class ConsoleReporter:
         if self.terminal:
             self.progress.update(
                 self.task,
-                completed=row["env_steps"],
+                completed=row[self.axis],
                 success=f"{row['success_rate']:.2f}",
                 ret=f"{row.get('eval_return', float('nan')):.2f}",
-                speed=f"{row['env_steps_per_s']:,.0f} steps/s",
+                speed=f"{row[self.axis + '_per_s']:,.0f} {'steps' if self.axis == 'env_steps' else 'updates'}/s",
             )
         elif self.enabled:
-            self._line(row["env_steps"], row)
+            self._line(row[self.axis], row)
 
     def heartbeat(self, env_steps: int) -> None:
         """Called as training goes: a plain line every ``log_every`` seconds between evaluations."""
@@ -96,7 +99,8 @@ class ConsoleReporter:
         elapsed = now - self.started
         done = max(env_steps - self.start_step, 0)
         eta = elapsed / done * max(self.total_steps - env_steps, 0) if done else float("nan")
-        parts = [self.title, f"step {env_steps:,}/{self.total_steps:,} ({100 * env_steps / max(self.total_steps, 1):.0f}%)"]
+        unit = "step" if self.axis == "env_steps" else "update"
+        parts = [self.title, f"{unit} {env_steps:,}/{self.total_steps:,} ({100 * env_steps / max(self.total_steps, 1):.0f}%)"]
         if row:
             what = "last success" if beat else "success"
             parts += [
@@ -161,7 +165,7 @@ def eval_table(result: dict[str, Any], run_dir: Any) -> Table:
     table.add_row("return", ret)
     table.add_row("episode length", f"{result['eval_length']:.1f}")
     table.add_row("episodes", f"{result['episodes']:,}" + (" per task" if "tasks" in result else ""))
-    table.add_row("checkpoint", f"{result['checkpoint_step']:,} env steps")
+    table.add_row("checkpoint", f"{result['checkpoint_step']:,} {result.get('checkpoint_unit', 'env steps')}")
     return table
 
 

@@ -44,12 +44,16 @@ class RunLogger:
     Args:
         run_dir: the run directory.
         tensorboard: also write TensorBoard events under ``run_dir/tensorboard``.
+        axis: the column that counts the run's progress (``env_steps``; ``updates`` for offline runs).
         resume_from_step: when resuming, rows logged after this step (by a run killed before
             its next checkpoint) are dropped so the file has no duplicates.
     """
 
-    def __init__(self, run_dir: Path, tensorboard: bool = True, resume_from_step: int | None = None) -> None:
+    def __init__(
+        self, run_dir: Path, tensorboard: bool = True, resume_from_step: int | None = None, axis: str = "env_steps"
+    ) -> None:
         self.path = Path(run_dir) / "metrics.csv"
+        self.axis = axis  # the progress column: env_steps, or updates for offline runs
         self.columns: list[str] | None = None
         if resume_from_step is not None and self.path.exists():
             with self.path.open(newline="") as f:
@@ -58,8 +62,8 @@ class RunLogger:
             # Rows past the checkpoint (logged by a run killed before its next checkpoint) go, and so
             # does a row the kill cut short.
             rows = []
-            if self.columns and "env_steps" in self.columns:
-                at = self.columns.index("env_steps")
+            if self.columns and axis in self.columns:
+                at = self.columns.index(axis)
                 for r in raw[1:]:
                     try:
                         if len(r) == len(self.columns) and float(r[at]) <= resume_from_step:
@@ -97,7 +101,7 @@ class RunLogger:
         with self.path.open("a", newline="") as f:
             csv.DictWriter(f, fieldnames=self.columns).writerow({k: row.get(k, "") for k in self.columns})
         if self.writer is not None:
-            step = int(row["env_steps"])
+            step = int(row[self.axis])
             for k in self.columns[1:]:
                 if isinstance(row.get(k), (int, float)):
                     self.writer.add_scalar(f"taskrl/{k}", row[k], step)

@@ -54,9 +54,18 @@ def _style(ax, formatter, locator, xlabel: str, ylabel: str) -> None:
     ax.grid(alpha=0.3)
 
 
+def x_axis(rows: list[dict[str, Any]]) -> tuple[str, str]:
+    """``(column, label)`` of a run's progress: env steps, or gradient updates for an offline run
+    (one that never steps an env while it trains)."""
+    if rows and not any(r.get("env_steps") for r in rows) and any(r.get("updates") for r in rows):
+        return "updates", "gradient updates"
+    return "env_steps", "environment steps"
+
+
 def _column(rows: list[dict[str, Any]], name: str) -> tuple[list[float], list[float]]:
-    """(env steps, values) of the rows where ``name`` has a value."""
-    pairs = [(r["env_steps"], r[name]) for r in rows if r.get(name) is not None]
+    """(progress, values) of the rows where ``name`` has a value."""
+    x = x_axis(rows)[0]
+    pairs = [(r[x], r[name]) for r in rows if r.get(name) is not None]
     return [p[0] for p in pairs], [p[1] for p in pairs]
 
 
@@ -68,6 +77,7 @@ def plot_learning_curve(metrics_csv: Path, out_png: Path, title: str = "") -> Pa
     columns = list(rows[0]) if rows else []
     scalars = [c for c in TRAINING_SCALARS if c in columns]
     tasks = [c for c in columns if c.startswith("success/")]
+    xlabel = x_axis(rows)[1]
     panels = 3 + len(scalars) + (1 if tasks else 0)
     cols = min(panels, 3)
     rows_n = math.ceil(panels / cols)
@@ -76,23 +86,23 @@ def plot_learning_curve(metrics_csv: Path, out_png: Path, title: str = "") -> Pa
     steps, success = _column(rows, "success_rate")
     seconds = [r["wall_seconds"] for r in rows if r.get("success_rate") is not None]
     axes[0].plot(steps, success, marker="o", markersize=3)
-    _style(axes[0], formatter, locator, "environment steps", "evaluation success rate")
+    _style(axes[0], formatter, locator, xlabel, "evaluation success rate")
     axes[1].plot(seconds, success, marker="o", markersize=3)
     _style(axes[1], formatter, locator, "training seconds", "evaluation success rate")
     for ax in axes[:2]:
         ax.set_ylim(-0.02, 1.02)
     axes[2].plot(*_column(rows, "eval_return"), marker="o", markersize=3, color="tab:orange")
-    _style(axes[2], formatter, locator, "environment steps", "evaluation return")
+    _style(axes[2], formatter, locator, xlabel, "evaluation return")
     for ax, name in zip(axes[3:], scalars):
         ax.plot(*_column(rows, name), color="tab:gray")
-        _style(ax, formatter, locator, "environment steps", name)
+        _style(ax, formatter, locator, xlabel, name)
         if name == "alpha":
             ax.set_yscale("log")
     if tasks:
         ax = axes[3 + len(scalars)]
         for name in tasks:
             ax.plot(*_column(rows, name), label=name.split("/", 1)[1], linewidth=1)
-        _style(ax, formatter, locator, "environment steps", "success per task")
+        _style(ax, formatter, locator, xlabel, "success per task")
         ax.set_ylim(-0.02, 1.02)
         ax.legend(fontsize=6, ncol=2 if len(tasks) > 6 else 1)
     for ax in axes[panels:]:
@@ -133,9 +143,10 @@ def _on_grid(rows: list[dict[str, Any]], name: str, grid: list[float], x: str = 
 
 
 def _reached(rows: list[dict[str, Any]], threshold: float) -> tuple[float | None, float | None]:
+    x = x_axis(rows)[0]
     for r in rows:
         if r.get("success_rate") is not None and r["success_rate"] >= threshold - 1e-9:
-            return r["env_steps"], r["wall_seconds"]
+            return r[x], r["wall_seconds"]
     return None, None
 
 
@@ -158,10 +169,11 @@ def compare_runs(groups: dict[str, list[Path]], out_png: Path, threshold: float 
         runs = [rows for rows in runs if rows]
         if not runs:
             continue
-        grid = [r["env_steps"] for r in runs[0] if r.get("success_rate") is not None]
+        x, xlabel = x_axis(runs[0])
+        grid = [r[x] for r in runs[0] if r.get("success_rate") is not None]
         means: dict[str, list[float]] = {}
         for ax, column in ((axes[0], "success_rate"), (axes[2], "eval_return"), *zip(axes[3:], tasks)):
-            curves = [_on_grid(rows, column, grid) for rows in runs]
+            curves = [_on_grid(rows, column, grid, x) for rows in runs]
             bands = [_band([c[i] for c in curves]) for i in range(len(grid))]
             means[column] = [b[0] for b in bands]
             line = ax.plot(grid, means[column], label=f"{name} ({len(runs)})")[0]
@@ -169,7 +181,7 @@ def compare_runs(groups: dict[str, list[Path]], out_png: Path, threshold: float 
             if column.startswith("success"):  # a rate: the band stays within what a rate can be
                 low, high = [max(v, 0.0) for v in low], [min(v, 1.0) for v in high]
             ax.fill_between(grid, low, high, color=line.get_color(), alpha=0.2)
-        seconds = [_on_grid(rows, "wall_seconds", grid) for rows in runs]  # mean training seconds at each grid step
+        seconds = [_on_grid(rows, "wall_seconds", grid, x) for rows in runs]  # mean training seconds at each grid step
         axes[1].plot([statistics.fmean(s[i] for s in seconds) for i in range(len(grid))], means["success_rate"], label=name)
         finals = [next(r["success_rate"] for r in reversed(rows) if r.get("success_rate") is not None) for rows in runs]
         bests = [max(r["success_rate"] for r in rows if r.get("success_rate") is not None) for rows in runs]
@@ -188,14 +200,15 @@ def compare_runs(groups: dict[str, list[Path]], out_png: Path, threshold: float 
                 "median_seconds_to_threshold": _median([h[1] for h in hit]),
             }
         )
+    progress = x_axis(next((rows for runs in data.values() for rows in runs if rows), []))[1]
     labels = (
-        (axes[0], "environment steps", "success rate (mean, 95% band)"),
+        (axes[0], progress, "success rate (mean, 95% band)"),
         (axes[1], "training seconds", "success rate (mean)"),
-        (axes[2], "environment steps", "evaluation return"),
-        *((ax, "environment steps", t) for ax, t in zip(axes[3:], tasks)),
+        (axes[2], progress, "evaluation return"),
+        *((ax, progress, t) for ax, t in zip(axes[3:], tasks)),
     )
-    for ax, xlabel, ylabel in labels:
-        _style(ax, formatter, locator, xlabel, ylabel)
+    for ax, label, ylabel in labels:
+        _style(ax, formatter, locator, label, ylabel)
     for ax in axes[:2] + axes[3 : 3 + len(tasks)]:
         ax.set_ylim(-0.02, 1.02)
     axes[0].legend(fontsize=7)

@@ -98,6 +98,23 @@ _POINTREACH_MT = {
     "gamma": 0.95,
     "batch_size": 256,
 }
+# Multi-task behaviour cloning (BC-Z's choices): FiLM in every hidden layer, noise of std 0.1 on
+# sentence and demo embeddings, batches stratified over tasks; total_steps and the intervals count
+# gradient updates (an offline run steps no env while it trains). Each preset reads the dataset
+# `taskrl demos collect <source> --out data/<source>` writes; --dataset DIR points elsewhere.
+_BC = {
+    "algo": "bc",
+    "her": "none",
+    "sampling": "uniform",
+    "architecture": "film",
+    "batch_size": 256,
+    "eval_episodes": 10,
+    "checkpoint_interval": 10_000,
+}
+_BC_METAWORLD = {**_BC, "total_steps": 30_000, "eval_interval": 10_000, "hidden_sizes": (256, 256, 256)}
+_BC_LANGUAGE = {"task_encoder": "language", "embedding_noise": 0.1}
+_BC_DEMO = {"task_encoder": "language", "task_input": "demo", "embedding_noise": 0.1}
+
 # Multi-task PPO: on-policy, so no replay, relabelling or task-balanced batches (every rollout holds
 # every copy's task in proportion to its copies: one copy per task on Meta-World).
 _PPO = {"algo": "ppo", "her": "none", "sampling": "uniform"}
@@ -224,6 +241,63 @@ PRESETS: dict[str, Preset] = {
             "care_encoders": 6,
             "total_steps": 100_000_000,
             "eval_interval": 500_000,
+        },
+    ),
+    "pointreach-mt-bc": Preset(
+        "behaviour cloning on multi-task PointReach from scripted demonstrations, one-hot task, FiLM (data/pointreach-mt)",
+        {
+            **_BC,
+            "env": "pointreach-mt",
+            "dataset": "data/pointreach-mt",
+            "task_encoder": "onehot",
+            "embedding_noise": 0.0,
+            "hidden_sizes": (64, 64),
+            "total_steps": 2_000,
+            "eval_interval": 500,
+            "eval_episodes": 20,
+        },
+    ),
+    "bc-mt10-onehot": Preset(
+        "multi-task behaviour cloning on MT10 from scripted demonstrations, one-hot task, FiLM (data/mt10)",
+        {
+            **_BC_METAWORLD,
+            "env": "mt10",
+            "num_envs": 10,
+            "dataset": "data/mt10",
+            "task_encoder": "onehot",
+            "embedding_noise": 0.0,
+        },
+    ),
+    "bc-mt10-language": Preset(
+        "BC-Z on MT10: FiLM by the sentence embedding of the task description, embedding noise 0.1 (data/mt10)",
+        {**_BC_METAWORLD, **_BC_LANGUAGE, "env": "mt10", "num_envs": 10, "dataset": "data/mt10"},
+    ),
+    "bc-mt10-demo": Preset(
+        "BC-Z on MT10 prompted by one demonstration (a demo encoder), aligned to the description's embedding (data/mt10)",
+        {**_BC_METAWORLD, **_BC_DEMO, "env": "mt10", "num_envs": 10, "dataset": "data/mt10"},
+    ),
+    "bc-mt50-language": Preset(
+        "BC-Z on MT50, language-conditioned (data/mt50)",
+        {
+            **_BC_METAWORLD,
+            **_BC_LANGUAGE,
+            "env": "mt50",
+            "num_envs": 50,
+            "dataset": "data/mt50",
+            "total_steps": 60_000,
+            "eval_interval": 20_000,
+        },
+    ),
+    "bc-ml45-language": Preset(
+        "BC-Z on ML45's 45 training tasks, language-conditioned; its 5 test tasks held out for zero-shot prompts (data/ml45)",
+        {
+            **_BC_METAWORLD,
+            **_BC_DEMO,
+            "env": "ml45",
+            "num_envs": 45,
+            "dataset": "data/ml45",
+            "total_steps": 60_000,
+            "eval_interval": 20_000,
         },
     ),
     "bitflip-dqn": Preset(

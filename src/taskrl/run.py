@@ -51,6 +51,7 @@ from taskrl.replay import EpisodeReplay, HindsightRelabeler, TaskBalancedSampler
 from taskrl.rundir import RunLock, atomic_write_text, check_new_run_dir
 from taskrl.training.bookkeeping import Bookkeeping, LoopState, StopRequest
 from taskrl.training.evaluation import evaluate
+from taskrl.training.offline import OfflineLoop
 from taskrl.training.offpolicy import LoopSchedule, OffPolicyLoop
 from taskrl.training.onpolicy import OnPolicyLoop
 from taskrl.training.per_task import evaluate_per_task
@@ -234,7 +235,11 @@ def build(config: TrainConfig, source: Any = None) -> RunParts:
     device = resolve_device(config.device)
     torch.manual_seed(config.seed)
     family = env_family(config.env)
-    env = make_env(config, device, source=source)
+    offline = algorithm(config.algo).loop == "offline"
+    if offline and family.spec is not None and source is None:  # trains from a dataset: spaces, no env to step
+        env = family.spec(config.env_settings, env_request(config, device))
+    else:
+        env = make_env(config, device, source=source)
     eval_env = None
     try:
         eval_env = make_env(config, device, evaluation=True, source=source)
@@ -257,12 +262,36 @@ def build(config: TrainConfig, source: Any = None) -> RunParts:
             parts.relabel = make_relabeler(config, env)
             if config.sampling == "task_balanced":
                 parts.sampler = TaskBalancedSampler(parts.replay, len(env.task_set))
+        if offline:
+            parts.sampler = _dataset_sampler(config, env, agent, device)
         return parts
     except BaseException:
         env.close()
         if eval_env is not None:
             eval_env.close()
         raise
+
+
+def _dataset_sampler(config: TrainConfig, env: Any, agent: Any, device: torch.device) -> Any:
+    """An offline run's batches: its dataset (``dataset`` of the algorithm's settings), restricted to the
+    env's tasks in the env's order, handed to the agent (which returns its sampler)."""
+    from taskrl.demos.dataset import read_demonstrations
+
+    path = getattr(config.algo_settings, "dataset", "")
+    if not path:
+        raise ConfigError(
+            "dataset", "an offline algorithm learns from a dataset: --dataset DIR (make one with: taskrl demos collect)"
+        )
+    demos = read_demonstrations(path, device)
+    task_set = getattr(env, "task_set", None)
+    if task_set is not None:
+        demos = demos.select_tasks(task_set.names)
+    return agent.use_dataset(demos)
+
+
+def progress_axis(config: TrainConfig) -> str:
+    """What a run's ``total_steps`` counts: ``env_steps``, or ``updates`` for an offline algorithm."""
+    return "updates" if algorithm(config.algo).loop == "offline" else "env_steps"
 
 
 def available_memory(device: torch.device) -> int | None:
@@ -325,7 +354,9 @@ def _changed_paths(before: Any, after: Any, prefix: str = "") -> list[str]:
 
 
 def checkpointer(parts: RunParts, run_dir: Path) -> Callable[[LoopState], None]:
-    """``(loop state) -> None`` writing agent, loop and (``save_replay``) replay parts."""
+    """``(loop state) -> None`` writing agent, loop and (``save_replay``) replay parts, named by the
+    run's progress (env steps; gradient updates for offline runs)."""
+    axis = progress_axis(parts.config)
 
     def checkpoint(state: LoopState) -> None:
         saved: dict[str, Any] = {
@@ -334,7 +365,7 @@ def checkpointer(parts: RunParts, run_dir: Path) -> Callable[[LoopState], None]:
         }
         if parts.config.save_replay and parts.replay is not None:
             saved["replay"] = parts.replay.state_dict()
-        save_checkpoint(run_dir / "checkpoints", saved, state.env_steps)
+        save_checkpoint(run_dir / "checkpoints", saved, state.updates if axis == "updates" else state.env_steps)
 
     return checkpoint
 
@@ -354,7 +385,17 @@ def _on_policy_loop(parts: RunParts, books: Bookkeeping) -> OnPolicyLoop:
     return OnPolicyLoop(parts.env, parts.agent, parts.config.total_steps, books, parts.generator)
 
 
-LOOPS: dict[str, Callable[[RunParts, Bookkeeping], Any]] = {"off_policy": _off_policy_loop, "on_policy": _on_policy_loop}
+def _offline_loop(parts: RunParts, books: Bookkeeping) -> OfflineLoop:
+    return OfflineLoop(
+        parts.agent, parts.sampler.sample, parts.config.total_steps, parts.config.batch_size, books, parts.generator
+    )
+
+
+LOOPS: dict[str, Callable[[RunParts, Bookkeeping], Any]] = {
+    "off_policy": _off_policy_loop,
+    "on_policy": _on_policy_loop,
+    "offline": _offline_loop,
+}
 
 
 RUN_INFO = "run.json"
@@ -447,7 +488,7 @@ def budget_warnings(config: TrainConfig) -> list[str]:
                 f"updates_per_step={c.updates_per_step} over {c.total_steps - c.learning_starts:,} env steps "
                 f"after learning_starts is less than one gradient update"
             )
-    else:
+    elif algorithm(c.algo).loop == "on_policy":
         rollout = getattr(c.algo_settings, "rollout_steps", 1) * c.num_envs
         if c.total_steps < rollout:
             out.append(f"total_steps={c.total_steps:,} is less than one rollout ({rollout:,} env steps): one rollout runs")
@@ -521,12 +562,14 @@ def train(
     try:
         _note(console, notes)
         config_io.save(config, run_dir / "config.json")
-        logger = RunLogger(run_dir, tensorboard=tensorboard, resume_from_step=state.env_steps if resume else None)
+        axis = progress_axis(config)
+        at = state.updates if axis == "updates" else state.env_steps
+        logger = RunLogger(run_dir, tensorboard=tensorboard, resume_from_step=at if resume else None, axis=axis)
         rows: list[dict[str, Any]] = []
         title = _run_title(run_dir, preset if resume is None else None, config)
         evaluator, last_eval = make_evaluator(config, parts.eval_env, parts.agent, config.seed + EVAL_SEED_OFFSET)
         stop = StopRequest(config.max_hours)
-        with ConsoleReporter(title, config.total_steps, state.env_steps, enabled=progress, log_every=log_every) as reporter:
+        with ConsoleReporter(title, config.total_steps, at, enabled=progress, log_every=log_every, axis=axis) as reporter:
 
             def on_log(row: dict[str, Any]) -> None:
                 rows.append(row)
@@ -545,6 +588,7 @@ def train(
                 parts.device,
                 stop,
                 checkpoint_seconds=60.0 * config.checkpoint_minutes,
+                axis=axis,
             )
             books.heartbeat = reporter.heartbeat
             books.on_train_log, books.train_log_interval = logger.log_training, config.tensorboard_interval
@@ -578,9 +622,10 @@ def report(
     out = console or Console(stderr=True)
     curve = plot_learning_curve(metrics_csv, run_dir / "learning_curve.png", title=f"{title} ({run_dir.name})")
     if last_eval:  # multi-task: the per-task table of the last evaluation, printed and saved
-        (run_dir / "per_task_success.json").write_text(json.dumps({"env_steps": state.env_steps, **last_eval}, indent=2) + "\n")
+        at = {"env_steps": state.env_steps, "updates": state.updates}
+        (run_dir / "per_task_success.json").write_text(json.dumps({**at, **last_eval}, indent=2) + "\n")
         if progress:
-            out.print(per_task_table(last_eval, f"per-task success at {state.env_steps:,} env steps"))
+            out.print(per_task_table(last_eval, f"per-task success at {_progress_text(config, state)}"))
     final = (
         rows[-1]
         if rows
@@ -595,12 +640,18 @@ def report(
         out.print(final_table({"eval_return": float("nan"), **final}, run_dir, curve))
     if stop.stopped_by:
         out.print(
-            f"stopped early ({stop.stopped_by}) at {state.env_steps:,} env steps, checkpoint saved; "
+            f"stopped early ({stop.stopped_by}) at {_progress_text(config, state)}, checkpoint saved; "
             f"continue with: taskrl train --resume {run_dir}",
             soft_wrap=True,
             markup=False,
         )
     return final
+
+
+def _progress_text(config: TrainConfig, state: LoopState) -> str:
+    if progress_axis(config) == "updates":
+        return f"{state.updates:,} gradient updates"
+    return f"{state.env_steps:,} env steps"
 
 
 # ---------------------------------------------------------------------- loading
@@ -730,6 +781,7 @@ def evaluate_run(
     try:
         run, last = make_evaluator(config, eval_env, agent, seed, stochastic=stochastic, details=True)
         result = {**run(), "episodes": episodes, "checkpoint_step": agent.loaded_step}
+        result["checkpoint_unit"] = "gradient updates" if progress_axis(config) == "updates" else "env steps"
     finally:
         eval_env.close()
     if last:  # multi-task: an interval for every task and for the mean's share of episodes

@@ -6,13 +6,13 @@ Each algorithm's file declares its ``SPEC``; adding one is that file plus one li
 
 from __future__ import annotations
 
-from taskrl.agents import dqn, ppo, qtopt, sac, td3
+from taskrl.agents import bc, dqn, ppo, qtopt, sac, td3
 from taskrl.agents.spec import AlgorithmSpec
 from taskrl.registry import Registry
 
 __all__ = ["ALGORITHMS", "algorithm", "register_algorithm"]
 
-BUILT_IN: tuple[AlgorithmSpec, ...] = (dqn.SPEC, qtopt.SPEC, sac.SPEC, td3.SPEC, ppo.SPEC)
+BUILT_IN: tuple[AlgorithmSpec, ...] = (dqn.SPEC, qtopt.SPEC, sac.SPEC, td3.SPEC, ppo.SPEC, bc.SPEC)
 
 #: name -> spec, in registration order.
 ALGORITHMS: Registry[AlgorithmSpec] = Registry("algo", BUILT_IN)

@@ -11,7 +11,7 @@ import torch
 
 __all__ = ["AgentInputs", "AlgorithmSpec", "LoopKind"]
 
-LoopKind = Literal["off_policy", "on_policy"]
+LoopKind = Literal["off_policy", "on_policy", "offline"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -34,7 +34,8 @@ class AlgorithmSpec:
         config: its settings dataclass (a ``validate()`` method raises ``ConfigError``).
         build: ``build(inputs, config, device, conditioning) -> agent``; ``conditioning`` is a
             ``TaskConditioning`` on multi-task envs, else None.
-        loop: ``off_policy`` (replay, relabelling) or ``on_policy`` (rollouts).
+        loop: ``off_policy`` (replay, relabelling), ``on_policy`` (rollouts) or ``offline`` (a dataset;
+            its settings name it in ``dataset``; ``total_steps`` counts gradient updates).
         actions: the action spaces it supports: ``discrete`` (``Discrete``), ``box`` (``Box``).
         multitask: whether it can condition its networks on a task (multi-task envs).
     """

@@ -93,7 +93,7 @@ def write_dataset(
         dataset_id: Minari's id of the dataset.
     """
     MinariStorage, EpisodeBuffer = _minari()
-    out = Path(out)
+    out = Path(out).resolve()  # Minari joins relative paths twice
     names = [name for name, _ in tasks]
     index = {name: i for i, name in enumerate(names)}
     dim = int(episodes[0].observations.shape[1]) if episodes else 0
@@ -266,7 +266,7 @@ class Demonstrations:
 def read_demonstrations(path: str | Path, device: str | torch.device = "cpu") -> Demonstrations:
     """Every episode of a Minari dataset (a folder written by ``taskrl demos collect``, or any Minari
     data folder whose episodes carry a ``task`` in their metadata or observations)."""
-    data = _data_path(path)
+    data = _data_path(path).resolve()
     metadata = dataset_card(data)
     MinariStorage, _ = _minari()
     try:

@@ -29,10 +29,8 @@ from taskrl.envs.base import BatchedEnv
 from taskrl.errors import ConfigError
 from taskrl.tasks import TaskSet
 
-__all__ = ["ML45_TEST_TASKS", "DemoSource", "demo_source"]
+__all__ = ["DemoSource", "demo_source"]
 
-#: Meta-World's ML45 test tasks (its ``ML45_V3["test"]``), version-free.
-ML45_TEST_TASKS = ("bin-picking", "box-close", "hand-insert", "door-lock", "door-unlock")
 
 Expert = Callable[[dict[str, torch.Tensor]], torch.Tensor]
 
@@ -61,7 +59,7 @@ class DemoSource:
 
 # ---------------------------------------------------------------------- Meta-World
 def _metaworld_source(name: str, benchmark: Any) -> DemoSource:
-    from taskrl.envs.metaworld_tasks import MetaWorldMultiTaskEnv, metaworld_task_set
+    from taskrl.envs.metaworld_tasks import ML45_TEST_TASKS, MetaWorldMultiTaskEnv, metaworld_task_set
 
     def make_env(names: Sequence[str], copies: int, seed: int) -> BatchedEnv:
         return MetaWorldMultiTaskEnv(list(names), envs_per_task=copies, seed=seed, terminate_on_success=True)

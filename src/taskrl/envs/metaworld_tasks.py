@@ -129,6 +129,9 @@ MT10_TASKS: tuple[str, ...] = (
     "window-close",
 )
 BENCHMARKS = ("MT1", "MT10", "MT50")
+#: Meta-World's ML45 split (its ``ML45_V3``): 5 test tasks, and the other 45 in MT50's order for training.
+ML45_TEST_TASKS: tuple[str, ...] = ("bin-picking", "box-close", "hand-insert", "door-lock", "door-unlock")
+ML45_TRAIN_TASKS: tuple[str, ...] = tuple(n for n in MT50_TASKS if n not in ML45_TEST_TASKS)
 
 
 def version_free(name: str) -> str:
@@ -531,7 +534,7 @@ class MetaWorldSettings:
         one_of(self.vector_strategy, VECTOR_STRATEGIES, "vector_strategy", "strategy")
 
 
-def _metaworld_family(benchmark: str, description: str) -> EnvFamily:
+def _metaworld_family(benchmark: str | Sequence[str], description: str, name: str | None = None) -> EnvFamily:
     def task_of(settings: MetaWorldSettings) -> str | None:
         return settings.task if benchmark == "MT1" else None
 
@@ -554,7 +557,7 @@ def _metaworld_family(benchmark: str, description: str) -> EnvFamily:
         require(
             run.num_envs % tasks == 0,
             "num_envs",
-            f"must be a multiple of the {tasks} tasks of {benchmark} (one or more copies per task; got {run.num_envs})",
+            f"must be a multiple of the {tasks} tasks of {label} (one or more copies per task; got {run.num_envs})",
         )
         require(
             run.eval_episodes <= METAWORLD_NUM_GOALS,
@@ -563,10 +566,18 @@ def _metaworld_family(benchmark: str, description: str) -> EnvFamily:
             f"episodes per task (got {run.eval_episodes})",
         )
 
+    def tasks_env(settings: MetaWorldSettings, request: EnvRequest, names: Sequence[str]) -> MetaWorldMultiTaskEnv:
+        return MetaWorldMultiTaskEnv(
+            list(names), max_episode_steps=settings.max_episode_steps, seed=request.run_seed, device=request.device
+        )
+
+    label = name.upper() if name else str(benchmark)
     return EnvFamily(
-        name=benchmark.lower(),
+        name=name or str(benchmark).lower(),
         description=description,
         section="metaworld",
+        tasks_env=tasks_env,
+        known_tasks=lambda settings: metaworld_task_set("MT50"),
         settings=MetaWorldSettings,
         make=make,
         kind="multitask",
@@ -582,4 +593,9 @@ FAMILIES = (
     _metaworld_family("MT1", "Meta-World v3, one task (--task) with goal positions resampled every episode (metaworld extra)"),
     _metaworld_family("MT10", "Meta-World v3 MT10: ten manipulation tasks, the task index in the observation (metaworld extra)"),
     _metaworld_family("MT50", "Meta-World v3 MT50: fifty manipulation tasks (metaworld extra)"),
+    _metaworld_family(
+        ML45_TRAIN_TASKS,
+        "Meta-World v3 ML45's 45 training tasks (its 5 test tasks held out: bin-picking, box-close, hand-insert, door-lock, door-unlock)",
+        name="ml45",
+    ),
 )

@@ -249,8 +249,23 @@ def _make_multitask_point(settings: PointReachSettings, request: EnvRequest) -> 
     )
 
 
+def _regions_env(settings: PointReachSettings, request: EnvRequest, names) -> MultiTaskPointReach:
+    known = {r[0]: r for r in DEFAULT_REGIONS}
+    return MultiTaskPointReach(
+        num_envs=len(names) * request.eval_episodes,
+        device=request.device,
+        regions=[known[n] for n in names],
+        reward=settings.reward,
+        task_sampling="fixed",
+        terminate_on_success=settings.terminate_on_success,
+        seed=request.seed,
+    )
+
+
 FAMILY = EnvFamily(
     name="pointreach-mt",
+    tasks_env=_regions_env,
+    known_tasks=lambda settings: TaskSet.from_pairs((n, d) for n, d, _ in DEFAULT_REGIONS),
     description="multi-task point reaching: 5 regions named in words, the task index in the observation, native torch",
     section="pointreach_mt",
     settings=PointReachSettings,

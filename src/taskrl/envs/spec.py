@@ -4,7 +4,7 @@ of it: :class:`EnvRequest`. Each family's file declares its families next to its
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, Literal
 
@@ -81,6 +81,10 @@ class EnvFamily:
         accepts: ``accepts(obj) -> bool``: the Python objects this family builds envs from.
         persist: ``persist(obj, run_dir) -> settings``: how a run records such an object in its
             settings (and files of its own in the run directory), so the run can be resumed and loaded.
+        tasks_env: multi-task families: ``tasks_env(settings, request, names) -> env`` of other tasks of the
+            family (held-out tasks a prompted policy is evaluated on), one copy per named task, task i = names[i].
+        known_tasks: multi-task families: ``known_tasks(settings) -> TaskSet`` of every task the family can
+            build (what a sentence given to ``taskrl eval --task`` is matched against).
         video_env: ``video_env(settings) -> gymnasium.Env`` with ``render_mode="rgb_array"``: one copy to
             record videos of (``taskrl eval --video``); None where the family cannot render.
     """
@@ -99,6 +103,8 @@ class EnvFamily:
     accepts: Callable[[Any], bool] | None = None
     persist: Callable[[Any, Path], dict[str, Any]] | None = None
     video_env: Callable[[Any], Any] | None = None
+    tasks_env: Callable[[Any, EnvRequest, Sequence[str]], BatchedEnv] | None = None
+    known_tasks: Callable[[Any], Any] | None = None
 
     def success_criterion(self, settings: Any) -> str:
         """``any`` or ``final``: when a multi-task evaluation episode counts as a success."""

@@ -146,6 +146,8 @@ class Bookkeeping:
         stop: ends the run early (time limit, signals) with an evaluation and a checkpoint.
         checkpoint_seconds: also checkpoint once this much wall-clock has passed since the last one
             (0: by env steps only).
+        axis: what ``total_steps`` and the intervals count: ``env_steps``, or ``updates`` for an
+            offline loop (which never steps an env while it trains).
 
     Before each metrics row and each checkpoint the update scalars since the last row are checked:
     a NaN or infinite one raises :class:`TrainingDiverged`, so no diverged weights are ever saved.
@@ -164,7 +166,9 @@ class Bookkeeping:
         device: torch.device,
         stop: StopRequest | None = None,
         checkpoint_seconds: float = 0.0,
+        axis: str = "env_steps",
     ) -> None:
+        self.axis = axis
         self.state, self.evaluate, self.on_log, self.on_checkpoint = state, evaluate, on_log, on_checkpoint
         self.stop = stop
         self.checkpoint_seconds = checkpoint_seconds
@@ -180,7 +184,7 @@ class Bookkeeping:
         self.train_log_interval = 0
         self._train_base: dict[str, torch.Tensor] = {}
         self._train_calls = 0
-        self._next_train_log = state.env_steps
+        self._next_train_log = self.progress()
         self.total_steps = total_steps
         self.eval_interval, self.checkpoint_interval, self.stop_at_success = eval_interval, checkpoint_interval, stop_at_success
         self.clock = Stopwatch(state.wall_seconds)
@@ -189,6 +193,10 @@ class Bookkeeping:
         self.episodes_success = torch.zeros((), device=device)
         self.row_steps = self.row_updates = self.row_calls = 0
         self.row_start = self.clock.read()
+
+    def progress(self) -> int:
+        """The count the schedule follows: env steps, or gradient updates (``axis``)."""
+        return self.state.updates if self.axis == "updates" else self.state.env_steps
 
     def add_steps(self, n: int) -> None:
         self.state.env_steps += n
@@ -209,15 +217,15 @@ class Bookkeeping:
 
     def after_step(self, extra: dict[str, Any] | None = None) -> bool:
         """Evaluate, log and checkpoint when due; returns whether the run is finished."""
-        state = self.state
+        state, at = self.state, self.progress()
         if self.heartbeat is not None:
-            self.heartbeat(state.env_steps)
-        if self.on_train_log is not None and self.train_log_interval > 0 and state.env_steps >= self._next_train_log:
+            self.heartbeat(at)
+        if self.on_train_log is not None and self.train_log_interval > 0 and at >= self._next_train_log:
             self._log_training()
-        finished = state.env_steps >= self.total_steps
+        finished = at >= self.total_steps
         if not finished and self.stop is not None and self.stop.due():
             finished = True
-        if state.env_steps >= state.next_eval or finished:
+        if at >= state.next_eval or finished:
             self.check_finite()
             state.wall_seconds = self.clock.pause()
             elapsed = max(state.wall_seconds - self.row_start, 1e-9)
@@ -236,8 +244,8 @@ class Bookkeeping:
             self.on_log(row)
             state.last_success = result["success_rate"]
             state.best_success = max(state.best_success, result["success_rate"])
-            if state.env_steps >= state.next_eval:  # an early stop's evaluation keeps the schedule as it was
-                missed = (state.env_steps - state.next_eval) // self.eval_interval + 1  # a big step may pass several
+            if at >= state.next_eval:  # an early stop's evaluation keeps the schedule as it was
+                missed = (at - state.next_eval) // self.eval_interval + 1  # a big step may pass several
                 state.next_eval += missed * self.eval_interval
             self.metric_sums.clear(), self.episodes_done.zero_(), self.episodes_success.zero_()
             self._train_base, self._train_calls = {}, 0
@@ -249,10 +257,10 @@ class Bookkeeping:
         overdue = self.checkpoint_seconds > 0 and time.monotonic() - self.last_checkpoint >= self.checkpoint_seconds
         if finished and self.on_finish is not None:
             self.on_finish()
-        if state.env_steps >= state.next_checkpoint or finished or overdue:
+        if at >= state.next_checkpoint or finished or overdue:
             self.check_finite()
             state.wall_seconds = self.clock.pause()
-            state.next_checkpoint = state.env_steps + self.checkpoint_interval
+            state.next_checkpoint = at + self.checkpoint_interval
             with self.stop.critical() if self.stop is not None else contextlib.nullcontext():
                 self.on_checkpoint(state)
             self.last_checkpoint = time.monotonic()
@@ -267,10 +275,10 @@ class Bookkeeping:
             names = list(self.metric_sums)
             deltas = torch.stack([(self.metric_sums[k] - self._train_base.get(k, 0.0)).float().reshape(()) for k in names])
             values = (deltas / calls).cpu().tolist()
-            self.on_train_log(self.state.env_steps, dict(zip(names, values)))
+            self.on_train_log(self.progress(), dict(zip(names, values)))
             self._train_base = {k: v.clone() for k, v in self.metric_sums.items()}
             self._train_calls = self.row_calls
-        missed = (self.state.env_steps - self._next_train_log) // self.train_log_interval + 1
+        missed = (self.progress() - self._next_train_log) // self.train_log_interval + 1
         self._next_train_log += missed * self.train_log_interval
 
     def check_finite(self) -> None:
@@ -281,7 +289,7 @@ class Bookkeeping:
         bad = [name for name, ok in zip(self.metric_sums, torch.isfinite(values).tolist()) if not ok]
         if bad:
             raise TrainingDiverged(
-                f"training diverged by env step {self.state.env_steps:,}: {', '.join(bad)} "
+                f"training diverged by {self.axis.replace('_', ' ')[:-1]} {self.progress():,}: {', '.join(bad)} "
                 f"became {values[list(self.metric_sums).index(bad[0])].item()}; nothing after the "
                 f"last checkpoint was saved (try a lower --lr or a --max-grad-norm)"
             )
