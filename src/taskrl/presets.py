@@ -111,7 +111,7 @@ _BC = {
     "eval_episodes": 10,
     "checkpoint_interval": 10_000,
 }
-_BC_METAWORLD = {**_BC, "total_steps": 30_000, "eval_interval": 10_000, "hidden_sizes": (256, 256, 256)}
+_BC_METAWORLD = {**_BC, "total_steps": 5_000, "eval_interval": 2_500, "hidden_sizes": (256, 256, 256)}
 _BC_LANGUAGE = {"task_encoder": "language", "embedding_noise": 0.1}
 _BC_DEMO = {"task_encoder": "language", "task_input": "demo", "embedding_noise": 0.1}
 
@@ -284,20 +284,21 @@ PRESETS: dict[str, Preset] = {
             "env": "mt50",
             "num_envs": 50,
             "dataset": "data/mt50",
-            "total_steps": 60_000,
-            "eval_interval": 20_000,
+            "total_steps": 15_000,
+            "eval_interval": 5_000,
         },
     ),
     "bc-ml45-language": Preset(
-        "BC-Z on ML45's 45 training tasks, language-conditioned; its 5 test tasks held out for zero-shot prompts (data/ml45)",
+        "BC-Z on ML45's 45 training tasks, prompted by the description or one demonstration (demo encoder aligned to the "
+        "description's embedding); its 5 test tasks held out for zero-shot prompts (data/ml45)",
         {
             **_BC_METAWORLD,
             **_BC_DEMO,
             "env": "ml45",
             "num_envs": 45,
             "dataset": "data/ml45",
-            "total_steps": 60_000,
-            "eval_interval": 20_000,
+            "total_steps": 15_000,
+            "eval_interval": 5_000,
         },
     ),
     "bitflip-dqn": Preset(

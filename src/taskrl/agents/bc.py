@@ -132,7 +132,7 @@ class BCAgent(Agent):
         if config.task_input == "demo":
             if conditioning is None:
                 raise ConfigError("task_input", "demo input conditions on a task: it needs a multi-task env")
-            width = self.task_encoder.embedding_dim if self.language else 128
+            width = self.task_encoder.embedding_dim if self.language else 64
             self.demo_encoder = DemoEncoder(self.state_dim, width).to(self.device)
             context_dim = width
         else:

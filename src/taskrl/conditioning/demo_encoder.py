@@ -26,7 +26,7 @@ class DemoEncoder(nn.Module):
         hidden: width of the per-frame features and of the convolutions.
     """
 
-    def __init__(self, state_dim: int, out_dim: int, hidden: int = 128) -> None:
+    def __init__(self, state_dim: int, out_dim: int, hidden: int = 64) -> None:
         super().__init__()
         self.frame = nn.Sequential(nn.Linear(state_dim, hidden), nn.ReLU())
         self.temporal = nn.Sequential(

@@ -1,0 +1,126 @@
+"""Multi-task behaviour cloning on Meta-World from scripted demonstrations: per-task success, wall time, memory.
+
+For each preset and seed: ``taskrl train PRESET --dataset DIR --seed S`` (its own process, so its peak
+memory is its own), then ``taskrl eval RUN --episodes 50 --json`` (Meta-World's protocol: 50 distinct
+goal positions per task, success at any step of a 500-step episode), then, for presets with held-out
+tasks, the held-out evaluation by description, by paraphrase and by one demonstration
+(``taskrl eval RUN --held-out --prompt ...``). Raw results go to ``benchmarks/results/bc_<name>.json``
+and a section to RESULTS.md.
+
+    .venv/bin/python benchmarks/bc_metaworld.py --presets bc-mt10-onehot bc-mt10-language bc-mt10-demo \
+        --dataset data/mt10 --seeds 0 1 --name mt10
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).parent))
+from common import append_results  # noqa: E402
+
+TASKRL = str(Path(sys.executable).with_name("taskrl"))
+
+
+def run(command: list[str]) -> tuple[str, float, float]:
+    """(stdout, wall seconds, peak RSS MiB of the child)."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+    start = time.perf_counter()
+    done = subprocess.run(command, capture_output=True, text=True)
+    if done.returncode != 0:
+        raise SystemExit(f"{' '.join(command)} failed:\n{done.stderr[-3000:]}")
+    peak = max(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss, before) / 1024
+    return done.stdout, time.perf_counter() - start, peak
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--presets", nargs="+", required=True)
+    parser.add_argument("--dataset", required=True)
+    parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1])
+    parser.add_argument("--episodes", type=int, default=50)
+    parser.add_argument("--name", required=True)
+    parser.add_argument("--out", default="runs/bench-bc")
+    parser.add_argument("--extra", nargs="*", default=[], help="more train flags, e.g. --total-steps 20000")
+    args = parser.parse_args()
+    results = []
+    for preset in args.presets:
+        for seed in args.seeds:
+            run_dir = Path(args.out) / f"{preset}-seed{seed}"
+            if run_dir.exists():
+                raise SystemExit(f"{run_dir} exists; remove it or choose another --out")
+            train_out, train_s, train_mib = run(
+                [TASKRL, "train", preset, "--dataset", args.dataset, "--seed", str(seed), "--out", str(run_dir), "--no-progress", *args.extra]
+            )
+            metrics = json.loads(train_out.strip().splitlines()[-1])
+            eval_out, eval_s, _ = run([TASKRL, "eval", str(run_dir), "--episodes", str(args.episodes), "--json"])
+            result = json.loads(eval_out)
+            entry = {
+                "preset": preset,
+                "seed": seed,
+                "train_seconds": round(train_s, 1),
+                "training_wall_seconds": metrics["wall_seconds"],
+                "updates": metrics["updates"],
+                "train_peak_mib": round(train_mib),
+                "eval_seconds": round(eval_s, 1),
+                "success_rate": result["success_rate"],
+                "per_task": {k: v["success_rate"] for k, v in result["tasks"].items()},
+            }
+            config = json.loads((run_dir / "config.json").read_text())
+            if config.get("env") == "ml45":
+                for prompt in ("description", "paraphrase", "demo"):
+                    out, seconds, _ = run(
+                        [TASKRL, "eval", str(run_dir), "--held-out", "--prompt", prompt, "--dataset", args.dataset]
+                        + ["--episodes", str(args.episodes), "--json"]
+                    )
+                    held = json.loads(out)
+                    entry[f"held_out_{prompt}"] = {
+                        "success_rate": held["success_rate"],
+                        "per_task": {k: v["success_rate"] for k, v in held["tasks"].items()},
+                        "seconds": round(seconds, 1),
+                    }
+            results.append(entry)
+            print(json.dumps(entry), flush=True)
+    Path("benchmarks/results").mkdir(exist_ok=True)
+    Path(f"benchmarks/results/bc_{args.name}.json").write_text(json.dumps(results, indent=2) + "\n")
+    lines = [
+        f"Dataset `{args.dataset}`; {args.episodes} evaluation episodes per task (distinct goal positions, "
+        "success at any step of 500); each preset's own settings. Raw: "
+        f"`benchmarks/results/bc_{args.name}.json`.",
+        "",
+        "| preset | seeds | success (mean over tasks), per seed | mean | train wall s (per seed) | peak MiB |",
+        "|---|---|---|---|---|---|",
+    ]
+    for preset in args.presets:
+        rows = [r for r in results if r["preset"] == preset]
+        per_seed = ", ".join(f"{r['success_rate']:.3f}" for r in rows)
+        lines.append(
+            f"| {preset} | {len(rows)} | {per_seed} | {statistics.fmean(r['success_rate'] for r in rows):.3f} | "
+            f"{', '.join(str(r['train_seconds']) for r in rows)} | {max(r['train_peak_mib'] for r in rows)} |"
+        )
+    tasks = list(results[0]["per_task"])
+    lines += ["", "Per task (mean over seeds):", "", "| task | " + " | ".join(args.presets) + " |", "|---" * (len(args.presets) + 1) + "|"]
+    for task in tasks:
+        cells = [f"{statistics.fmean(r['per_task'][task] for r in results if r['preset'] == p):.2f}" for p in args.presets]
+        lines.append(f"| {task} | " + " | ".join(cells) + " |")
+    held = [r for r in results if "held_out_description" in r]
+    if held:
+        lines += ["", "Held-out tasks, zero-shot (mean over seeds):", "", "| task | description | paraphrase | one demonstration |", "|---|---|---|---|"]
+        for task in held[0]["held_out_description"]["per_task"]:
+            cells = [
+                f"{statistics.fmean(r[f'held_out_{p}']['per_task'][task] for r in held):.2f}" for p in ("description", "paraphrase", "demo")
+            ]
+            lines.append(f"| {task} | " + " | ".join(cells) + " |")
+        means = [f"{statistics.fmean(r[f'held_out_{p}']['success_rate'] for r in held):.3f}" for p in ("description", "paraphrase", "demo")]
+        lines.append("| **mean** | " + " | ".join(means) + " |")
+    append_results(f"Multi-task behaviour cloning: {args.name}", "\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()
