@@ -56,7 +56,19 @@ def main() -> None:
             if run_dir.exists():
                 raise SystemExit(f"{run_dir} exists; remove it or choose another --out")
             train_out, train_s, train_mib = run(
-                [TASKRL, "train", preset, "--dataset", args.dataset, "--seed", str(seed), "--out", str(run_dir), "--no-progress", *args.extra]
+                [
+                    TASKRL,
+                    "train",
+                    preset,
+                    "--dataset",
+                    args.dataset,
+                    "--seed",
+                    str(seed),
+                    "--out",
+                    str(run_dir),
+                    "--no-progress",
+                    *args.extra,
+                ]
             )
             metrics = json.loads(train_out.strip().splitlines()[-1])
             eval_out, eval_s, _ = run([TASKRL, "eval", str(run_dir), "--episodes", str(args.episodes), "--json"])
@@ -105,19 +117,35 @@ def main() -> None:
             f"{', '.join(str(r['train_seconds']) for r in rows)} | {max(r['train_peak_mib'] for r in rows)} |"
         )
     tasks = list(results[0]["per_task"])
-    lines += ["", "Per task (mean over seeds):", "", "| task | " + " | ".join(args.presets) + " |", "|---" * (len(args.presets) + 1) + "|"]
+    lines += [
+        "",
+        "Per task (mean over seeds):",
+        "",
+        "| task | " + " | ".join(args.presets) + " |",
+        "|---" * (len(args.presets) + 1) + "|",
+    ]
     for task in tasks:
         cells = [f"{statistics.fmean(r['per_task'][task] for r in results if r['preset'] == p):.2f}" for p in args.presets]
         lines.append(f"| {task} | " + " | ".join(cells) + " |")
     held = [r for r in results if "held_out_description" in r]
     if held:
-        lines += ["", "Held-out tasks, zero-shot (mean over seeds):", "", "| task | description | paraphrase | one demonstration |", "|---|---|---|---|"]
+        lines += [
+            "",
+            "Held-out tasks, zero-shot (mean over seeds):",
+            "",
+            "| task | description | paraphrase | one demonstration |",
+            "|---|---|---|---|",
+        ]
         for task in held[0]["held_out_description"]["per_task"]:
             cells = [
-                f"{statistics.fmean(r[f'held_out_{p}']['per_task'][task] for r in held):.2f}" for p in ("description", "paraphrase", "demo")
+                f"{statistics.fmean(r[f'held_out_{p}']['per_task'][task] for r in held):.2f}"
+                for p in ("description", "paraphrase", "demo")
             ]
             lines.append(f"| {task} | " + " | ".join(cells) + " |")
-        means = [f"{statistics.fmean(r[f'held_out_{p}']['success_rate'] for r in held):.3f}" for p in ("description", "paraphrase", "demo")]
+        means = [
+            f"{statistics.fmean(r[f'held_out_{p}']['success_rate'] for r in held):.3f}"
+            for p in ("description", "paraphrase", "demo")
+        ]
         lines.append("| **mean** | " + " | ".join(means) + " |")
     append_results(f"Multi-task behaviour cloning: {args.name}", "\n".join(lines))
 

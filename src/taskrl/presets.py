@@ -296,6 +296,7 @@ PRESETS: dict[str, Preset] = {
             **_BC_DEMO,
             "env": "ml45",
             "num_envs": 45,
+            "held_out_tasks": "bin-picking,box-close,hand-insert,door-lock,door-unlock",
             "dataset": "data/ml45",
             "total_steps": 15_000,
             "eval_interval": 5_000,

@@ -63,6 +63,8 @@ class BCConfig:
         chunk: actions predicted per step (BC-Z predicts 10 waypoints; 1: the next action).
         ensemble_decay: temporal ensembling of chunks: weight ``exp(-decay * h)`` of a prediction made h steps ahead.
         weight_decay: AdamW weight decay.
+        held_out_tasks: task names (comma-separated) left out of training and kept for zero-shot
+            evaluation (``taskrl eval RUN --held-out``); their demonstrations still serve as prompts there.
     """
 
     dataset: str = ""
@@ -79,6 +81,11 @@ class BCConfig:
     chunk: int = 1
     ensemble_decay: float = 0.5
     weight_decay: float = 1e-4
+    held_out_tasks: str = ""
+
+    def held_out(self) -> list[str]:
+        """The held-out task names."""
+        return [n.strip() for n in self.held_out_tasks.split(",") if n.strip()]
 
     def validate(self) -> None:
         """Raise :class:`~taskrl.errors.ConfigError` naming the first bad setting."""
@@ -171,6 +178,11 @@ class BCAgent(Agent):
             if len(episodes):
                 self.prompt_demos[task] = frames[int(episodes[0])]
         frames_per_prompt = self.config.demo_frames if self.demo_encoder is not None else 0
+        held_out = [n for n in self.config.held_out() if n in demos.task_names]
+        if held_out:  # their demonstrations prompt, they are never imitated
+            demos = demos.without_tasks(held_out)
+            if demos.num_episodes == 0:
+                raise ConfigError("held_out_tasks", "holds out every task of the dataset: nothing is left to train on")
         return DemoSampler(demos.to(self.device), chunk=self.config.chunk, frames=frames_per_prompt)
 
     # ---------------------------------------------------------------- contexts

@@ -230,6 +230,21 @@ class Demonstrations:
         s, n = int(self.starts[e]), int(self.lengths[e])
         return self.observations[s : s + n], self.actions[s : s + n]
 
+    def without_tasks(self, names: Sequence[str]) -> Demonstrations:
+        """The episodes of every other task, task indices unchanged (held-out tasks left out of training)."""
+        drop = torch.tensor([n in names for n in self.task_names], dtype=torch.bool, device=self.tasks.device)
+        keep_episode, keep_step = ~drop[self.episode_tasks], ~drop[self.tasks]
+        lengths = self.lengths[keep_episode]
+        return dataclasses.replace(
+            self,
+            observations=self.observations[keep_step],
+            actions=self.actions[keep_step],
+            tasks=self.tasks[keep_step],
+            starts=torch.cumsum(lengths, 0) - lengths,
+            lengths=lengths,
+            episode_tasks=self.episode_tasks[keep_episode],
+        )
+
     def select_tasks(self, names: Sequence[str], setting: str = "dataset") -> Demonstrations:
         """The episodes of ``names`` only, re-indexed so task ``i`` is ``names[i]`` (an env's task order).
 

@@ -115,6 +115,29 @@ METAWORLD_DESCRIPTIONS: dict[str, str] = {
 }
 
 MT50_TASKS: tuple[str, ...] = tuple(METAWORLD_DESCRIPTIONS)
+
+#: Other wordings of the MT10 tasks and of ML45's test tasks, never seen in training: how robust a
+#: language-conditioned policy is to how its task is said (``taskrl eval --held-out --prompt paraphrase``).
+METAWORLD_PARAPHRASES: dict[str, tuple[str, ...]] = {
+    "reach": ("Bring the robot's hand to the target.", "Put the end effector on the goal point."),
+    "push": ("Slide the puck over the table until it reaches the target.", "Shove the small disc to the goal."),
+    "pick-place": ("Grab the puck and set it down on the target.", "Lift the disc and put it where the goal is."),
+    "door-open": ("Swing the door open.", "Open the door by pulling it around its hinge."),
+    "drawer-open": ("Open the drawer.", "Grab the drawer handle and pull it out."),
+    "drawer-close": ("Close the drawer.", "Shove the drawer back in."),
+    "button-press-topdown": ("Push the button from the top.", "Press down on the button below the gripper."),
+    "peg-insert-side": ("Grab the peg and push it into the hole from the side.", "Insert the peg horizontally into the slot."),
+    "window-open": ("Open the window by sliding it.", "Push the window sideways to open it."),
+    "window-close": ("Close the window by sliding it.", "Slide the window shut."),
+    "bin-picking": (
+        "Move the puck from the first bin into the second one.",
+        "Take the disc out of its bin and drop it in the other.",
+    ),
+    "box-close": ("Put the lid on the box.", "Grab the cover and close the box with it."),
+    "hand-insert": ("Put the gripper into the hole in the table.", "Lower the hand into the opening in the table top."),
+    "door-lock": ("Lock the door by turning its lock down.", "Rotate the door's lock downwards."),
+    "door-unlock": ("Unlock the door by turning its lock up.", "Rotate the door's lock upwards."),
+}
 # Meta-World's MT10 order (the one-hot index of each task).
 MT10_TASKS: tuple[str, ...] = (
     "reach",
@@ -577,7 +600,7 @@ def _metaworld_family(benchmark: str | Sequence[str], description: str, name: st
         description=description,
         section="metaworld",
         tasks_env=tasks_env,
-        known_tasks=lambda settings: metaworld_task_set("MT50"),
+        task_sentences=lambda settings: {n: [d, *METAWORLD_PARAPHRASES.get(n, ())] for n, d in METAWORLD_DESCRIPTIONS.items()},
         settings=MetaWorldSettings,
         make=make,
         kind="multitask",

@@ -55,6 +55,16 @@ DEFAULT_REGIONS: tuple[tuple[str, str, tuple[float, float]], ...] = (
 )
 
 
+#: Other wordings of each region's task, never used in training: robustness of language prompts.
+PARAPHRASES: dict[str, tuple[str, ...]] = {
+    "top-left": ("Go to the upper left corner.",),
+    "top-right": ("Head for the corner at the top on the right.",),
+    "bottom-left": ("Drive the dot down to the lower-left corner.",),
+    "bottom-right": ("Go to the lower right corner of the box.",),
+    "centre": ("Stop in the middle of the square.",),
+}
+
+
 class MultiTaskPointReach(NativeEnv):
     """``num_envs`` copies of multi-task point reaching, stepped at once in torch.
 
@@ -265,7 +275,7 @@ def _regions_env(settings: PointReachSettings, request: EnvRequest, names) -> Mu
 FAMILY = EnvFamily(
     name="pointreach-mt",
     tasks_env=_regions_env,
-    known_tasks=lambda settings: TaskSet.from_pairs((n, d) for n, d, _ in DEFAULT_REGIONS),
+    task_sentences=lambda settings: {n: [d, *PARAPHRASES.get(n, ())] for n, d, _ in DEFAULT_REGIONS},
     description="multi-task point reaching: 5 regions named in words, the task index in the observation, native torch",
     section="pointreach_mt",
     settings=PointReachSettings,

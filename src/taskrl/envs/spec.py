@@ -83,8 +83,9 @@ class EnvFamily:
             settings (and files of its own in the run directory), so the run can be resumed and loaded.
         tasks_env: multi-task families: ``tasks_env(settings, request, names) -> env`` of other tasks of the
             family (held-out tasks a prompted policy is evaluated on), one copy per named task, task i = names[i].
-        known_tasks: multi-task families: ``known_tasks(settings) -> TaskSet`` of every task the family can
-            build (what a sentence given to ``taskrl eval --task`` is matched against).
+        task_sentences: multi-task families: ``task_sentences(settings) -> {name: [description, paraphrase, ...]}``
+            of every task ``tasks_env`` can build: what a sentence given to ``taskrl eval --task`` is
+            matched against, and the paraphrases held-out prompts are tested with.
         video_env: ``video_env(settings) -> gymnasium.Env`` with ``render_mode="rgb_array"``: one copy to
             record videos of (``taskrl eval --video``); None where the family cannot render.
     """
@@ -104,7 +105,7 @@ class EnvFamily:
     persist: Callable[[Any, Path], dict[str, Any]] | None = None
     video_env: Callable[[Any], Any] | None = None
     tasks_env: Callable[[Any, EnvRequest, Sequence[str]], BatchedEnv] | None = None
-    known_tasks: Callable[[Any], Any] | None = None
+    task_sentences: Callable[[Any], dict[str, list[str]]] | None = None
 
     def success_criterion(self, settings: Any) -> str:
         """``any`` or ``final``: when a multi-task evaluation episode counts as a success."""
