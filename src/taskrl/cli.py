@@ -279,11 +279,23 @@ def cmd_eval(argv: Sequence[str]) -> int:
     parser.add_argument("--video", type=int, default=0, metavar="N", help="also record N episodes to RUN_DIR/videos/ (MP4)")
     parser.add_argument("--json", action="store_true", help="print one line of JSON instead of tables")
     parser.add_argument("--env-module", default=None, help="import this module first (one that registers the run's gymnasium id)")
+    prompted = parser.add_argument_group("prompted policies (--algo bc with language or demo input)")
+    prompted.add_argument("--held-out", action="store_true", help="evaluate the run's held-out tasks, zero-shot")
+    prompted.add_argument(
+        "--tasks", default=None, metavar="NAME,NAME", help="evaluate these tasks of the run's family, zero-shot"
+    )
+    prompted.add_argument(
+        "--task", default=None, metavar="SENTENCE", help="evaluate the task this sentence names, prompted with it"
+    )
+    prompted.add_argument("--prompt", default="description", help="description, paraphrase or demo (default description)")
+    prompted.add_argument("--dataset", default=None, help="demonstrations for --prompt demo (default the run's dataset)")
     args = _parse(parser, argv)
     if args.episodes < 1:
         raise UsageError(f"--episodes must be >= 1 (got {args.episodes})")
     if args.video < 0:
         raise UsageError(f"--video must be >= 0 episodes (got {args.video})")
+    if args.held_out or args.tasks or args.task:
+        return _eval_prompted(args)
     from taskrl.run import evaluate_run
 
     result = evaluate_run(
@@ -314,6 +326,45 @@ def cmd_eval(argv: Sequence[str]) -> int:
     out.print(eval_table(result, args.run_dir))
     for path in result.get("videos", []):
         out.print(f"video: {path}", soft_wrap=True, markup=False)
+    return 0
+
+
+def _eval_prompted(args: argparse.Namespace) -> int:
+    from rich.console import Console
+
+    from taskrl.console import per_task_table
+    from taskrl.prompting import evaluate_prompted
+
+    if sum(bool(x) for x in (args.held_out, args.tasks, args.task)) > 1:
+        raise UsageError("choose one of --held-out, --tasks and --task")
+    tasks = [n.strip() for n in args.tasks.split(",") if n.strip()] if args.tasks else None
+    result = evaluate_prompted(
+        args.run_dir,
+        tasks,
+        sentence=args.task,
+        prompt=args.prompt,
+        dataset=args.dataset,
+        episodes=args.episodes,
+        seed=args.seed,
+        device=args.device,
+    )
+    if args.json:
+        print(json.dumps(result))
+        return 0
+    out = Console()
+    if "matched" in result:
+        m = result["matched"]
+        out.print(f"the sentence names {m['task']!r} (cosine {m['cosine']:.2f}); prompted with the sentence itself", markup=False)
+    lo, hi = result["success_ci95"]
+    out.print(
+        per_task_table(
+            {"tasks": result["tasks"], "mean_success_rate": result["success_rate"]}, f"zero-shot, prompted by {result['prompt']}"
+        )
+    )
+    out.print(
+        f"success {result['success_rate']:.3f} (95% interval {lo:.3f} - {hi:.3f}), {result['episodes']} episodes per task",
+        markup=False,
+    )
     return 0
 
 

@@ -50,7 +50,7 @@ from taskrl.presets import preset_config
 from taskrl.replay import EpisodeReplay, HindsightRelabeler, TaskBalancedSampler
 from taskrl.rundir import RunLock, atomic_write_text, check_new_run_dir
 from taskrl.training.bookkeeping import Bookkeeping, LoopState, StopRequest
-from taskrl.training.evaluation import evaluate
+from taskrl.training.evaluation import ActingPolicy, evaluate
 from taskrl.training.offline import OfflineLoop
 from taskrl.training.offpolicy import LoopSchedule, OffPolicyLoop
 from taskrl.training.onpolicy import OnPolicyLoop
@@ -180,8 +180,7 @@ def make_evaluator(
     # once, not at every evaluation (a task set's criterion reads its task file)
     criterion = env_family(config.env).success_criterion(config.env_settings) if multitask else None
 
-    def policy(obs):  # greedy unless asked to explore
-        return agent.act(obs, explore=stochastic)
+    policy = ActingPolicy(agent, explore=stochastic)  # greedy unless asked to explore
 
     def run() -> dict[str, float]:
         if not multitask:

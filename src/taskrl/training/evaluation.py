@@ -10,6 +10,29 @@ import torch
 from taskrl.envs.base import BatchedEnv, Obs
 
 
+class ActingPolicy:
+    """``obs -> actions`` of an agent (greedy unless ``explore``), told when episodes end, so a policy with
+    per-episode state (a chunked policy's ensembled predictions) starts every episode afresh."""
+
+    def __init__(self, agent: Any, explore: bool = False) -> None:
+        self.agent, self.explore = agent, explore
+
+    def __call__(self, obs: Obs) -> Any:
+        return self.agent.act(obs, explore=self.explore)
+
+    def episodes_ended(self, ended: torch.Tensor) -> None:
+        notify = getattr(self.agent, "episodes_ended", None)
+        if notify is not None:
+            notify(ended)
+
+
+def episodes_ended(policy: Any, ended: torch.Tensor) -> None:
+    """Tell ``policy`` which copies' episodes just ended (a no-op for a plain function)."""
+    notify = getattr(policy, "episodes_ended", None)
+    if notify is not None:
+        notify(ended)
+
+
 @torch.no_grad()
 def evaluate(policy: Callable[[Obs], torch.Tensor], env: BatchedEnv, seed: int, details: bool = False) -> dict[str, Any]:
     """Run one episode in each of ``env.num_envs`` copies with ``policy`` (greedy actions).
@@ -24,6 +47,7 @@ def evaluate(policy: Callable[[Obs], torch.Tensor], env: BatchedEnv, seed: int, 
     """
     obs = env.reset(seed=seed)
     n = env.num_envs
+    episodes_ended(policy, torch.ones(n, dtype=torch.bool, device=env.device))
     finished = torch.zeros(n, dtype=torch.bool, device=env.device)
     success = torch.zeros(n, dtype=torch.bool, device=env.device)
     returns = torch.zeros(n, device=env.device)

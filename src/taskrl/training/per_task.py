@@ -18,6 +18,7 @@ import torch
 
 from taskrl.envs.base import BatchedEnv
 from taskrl.tasks import TaskSet
+from taskrl.training.evaluation import episodes_ended
 from taskrl.types import Obs
 
 __all__ = ["evaluate_per_task"]
@@ -128,6 +129,7 @@ def _evaluate_per_task(policy, env, n, seed, task_set, save_to, max_steps, crite
     done_slot = torch.zeros(num_envs, dtype=torch.long)  # episodes recorded per slot
     try:
         obs = env.reset(seed=seed)
+        episodes_ended(policy, torch.ones(num_envs, dtype=torch.bool))
         ep_task = obs["task"].detach().cpu().long().clone()
         ep_success = torch.zeros(num_envs, dtype=torch.bool)
         ep_return = torch.zeros(num_envs, dtype=torch.float64)
@@ -148,6 +150,7 @@ def _evaluate_per_task(policy, env, n, seed, task_set, save_to, max_steps, crite
             ep_return += reward.detach().cpu().double()
             ep_length += 1
             ended = (terminated | truncated).detach().cpu()
+            episodes_ended(policy, ended)
             for s in torch.nonzero(ended).flatten().tolist():
                 t = int(ep_task[s])
                 keep = done_slot[s] < quotas[s] if quotas is not None else episodes[t] < n
