@@ -26,6 +26,20 @@ def load(*args, **kwargs):
     return _load(*args, **kwargs)
 
 
+def evaluate_run(*args, **kwargs):
+    """See :func:`taskrl.run.evaluate_run`."""
+    from taskrl.run import evaluate_run as _evaluate_run
+
+    return _evaluate_run(*args, **kwargs)
+
+
+def evaluate_prompted(*args, **kwargs):
+    """See :func:`taskrl.prompting.evaluate_prompted` (held-out tasks of a prompted policy)."""
+    from taskrl.prompting import evaluate_prompted as _evaluate_prompted
+
+    return _evaluate_prompted(*args, **kwargs)
+
+
 def load_policy(*args, **kwargs):
     """See :func:`taskrl.export.load_policy`."""
     from taskrl.export import load_policy as _load_policy
@@ -33,4 +47,4 @@ def load_policy(*args, **kwargs):
     return _load_policy(*args, **kwargs)
 
 
-__all__ = ["train", "load", "load_policy", "__version__"]
+__all__ = ["train", "load", "load_policy", "evaluate_run", "evaluate_prompted", "__version__"]

@@ -27,7 +27,7 @@ from collections.abc import Sequence
 from typing import Any
 
 COMMANDS = ("train", "eval", "export", "plot", "presets", "solve", "demos")
-POSITIONAL = ("preset", "run_dir", "source", "dataset")
+POSITIONAL = ("preset", "run_dir", "source")
 #: Errors about files rather than settings: named as they are, not as flags.
 FILES = {"config": "config.json:", "config_file": "--config", "checkpoint": "checkpoint:", "policy": "policy:"}
 _NUMBER = re.compile(r"-(\d+\.?\d*|\.\d+)(e[-+]?\d+)?", re.IGNORECASE)
@@ -502,7 +502,12 @@ def cmd_demos(argv: Sequence[str]) -> int:
     from taskrl.demos.dataset import dataset_card
 
     if args.action == "info":
-        card = dataset_card(args.dataset)
+        from taskrl.errors import ConfigError
+
+        try:
+            card = dataset_card(args.dataset)
+        except ConfigError as error:  # the folder is the positional argument, not a --dataset flag
+            raise UsageError(error.message) from None
         if args.json:
             print(json.dumps(card))
         else:
