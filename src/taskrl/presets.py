@@ -111,7 +111,8 @@ _BC = {
     "eval_episodes": 10,
     "checkpoint_interval": 10_000,
 }
-_BC_METAWORLD = {**_BC, "total_steps": 5_000, "eval_interval": 2_500, "hidden_sizes": (256, 256, 256)}
+# Meta-World evaluation episodes end at their first success: the same outcomes, several times faster.
+_BC_METAWORLD = {**_BC, "total_steps": 5_000, "eval_interval": 2_500, "hidden_sizes": (256, 256, 256), "eval_until_success": True}
 _BC_LANGUAGE = {"task_encoder": "language", "embedding_noise": 0.1}
 _BC_DEMO = {"task_encoder": "language", "task_input": "demo", "embedding_noise": 0.1}
 

@@ -541,11 +541,15 @@ class MetaWorldSettings:
         task: the task of ``mt1`` (``reach``, ``push``, ... or with its ``-v3`` suffix).
         max_episode_steps: episode length (Meta-World's own is 500).
         vector_strategy: ``sync`` or ``async`` (one process per copy).
+        eval_until_success: end evaluation episodes at their first success. Meta-World counts success at
+            any step, so every episode's outcome is the same and evaluation is faster; the evaluation
+            return and length then stop at the success (training episodes are unchanged).
     """
 
     task: str = "reach"
     max_episode_steps: int = METAWORLD_HORIZON
     vector_strategy: Literal["sync", "async"] = "sync"
+    eval_until_success: bool = False
 
     def validate(self) -> None:
         require(
@@ -573,6 +577,7 @@ def _metaworld_family(benchmark: str | Sequence[str], description: str, name: st
             seed=request.run_seed,
             device=request.device,
             vector_strategy=settings.vector_strategy,
+            terminate_on_success=settings.eval_until_success and request.evaluation,
         )
 
     def check(settings: MetaWorldSettings, run: Any) -> None:
@@ -591,7 +596,11 @@ def _metaworld_family(benchmark: str | Sequence[str], description: str, name: st
 
     def tasks_env(settings: MetaWorldSettings, request: EnvRequest, names: Sequence[str]) -> MetaWorldMultiTaskEnv:
         return MetaWorldMultiTaskEnv(
-            list(names), max_episode_steps=settings.max_episode_steps, seed=request.run_seed, device=request.device
+            list(names),
+            max_episode_steps=settings.max_episode_steps,
+            seed=request.run_seed,
+            device=request.device,
+            terminate_on_success=settings.eval_until_success,
         )
 
     label = name.upper() if name else str(benchmark)
