@@ -136,11 +136,15 @@ def test_dart_noise_changes_what_runs_not_the_labels(tmp_path):
 
 @pytest.mark.timeout(300)
 def test_metaworld_experts_collect_successful_episodes(tmp_path):
-    card = collect_demos("reach,drawer-open", 2, tmp_path / "mw", seed=1)
+    card = collect_demos("reach,drawer-open", 2, tmp_path / "mw", seed=1, after_success=5)
     assert card["card"]["episodes_per_task"] == {"reach": 2, "drawer-open": 2}
     demos = read_demonstrations(tmp_path / "mw")
     assert demos.observations.shape[1] == 39 and demos.actions.shape[1] == 4
-    assert (demos.lengths < 500).all()  # each episode ended at its first success
+    import minari
+
+    for e, episode in enumerate(minari.MinariDataset(tmp_path / "mw" / "data").iterate_episodes()):
+        first = int(np.argmax(episode.infos["success"]))
+        assert episode.infos["success"][first] and demos.lengths[e] == first + 1 + 5  # 5 steps kept after the first success
 
 
 # ---------------------------------------------------------------------- sampling
@@ -301,7 +305,7 @@ def test_ending_evaluation_episodes_at_success_keeps_every_outcome():
         try:
             expert = _metaworld_expert(env)
             # a deterministic expert that gives up on half of the goals (a function of the state alone)
-            biased = lambda obs: expert(obs) * (obs["observation"][:, 36:37] > 0.0)
+            biased = lambda obs, expert=expert: expert(obs) * (obs["observation"][:, 36:37] > 0.0)
             results.append(evaluate_per_task(biased, env, 8, seed=0, success="any")["tasks"]["reach"])
         finally:
             env.close()

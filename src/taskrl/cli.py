@@ -491,6 +491,9 @@ def cmd_demos(argv: Sequence[str]) -> int:
     collect.add_argument("--seed", type=int, default=1, help="seed of goals and noise (default 1)")
     collect.add_argument("--copies", type=int, default=1, help="env copies per task (default 1)")
     collect.add_argument("--max-attempts", type=int, default=0, help="episodes a task may try (default 5 x --episodes)")
+    collect.add_argument(
+        "--after-success", type=int, default=10, help="Meta-World: steps kept after the first success (default 10)"
+    )
     collect.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     info = sub.add_parser("info", help="print a dataset's card")
     info.add_argument("dataset", help="a dataset folder")
@@ -525,6 +528,7 @@ def cmd_demos(argv: Sequence[str]) -> int:
             noise_std=args.noise,
             copies=args.copies,
             max_attempts=args.max_attempts,
+            after_success=args.after_success,
             progress=bar.update,
         )
     Console().print(dataset_table(card, args.out))

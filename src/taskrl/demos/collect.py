@@ -13,6 +13,7 @@ what is missing and then writes the Minari dataset (``OUT/data``) and removes th
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import shutil
@@ -104,6 +105,7 @@ def collect_demos(
     noise_std: float = 0.0,
     copies: int = 1,
     max_attempts: int = 0,
+    after_success: int = 10,
     flush_seconds: float = 30.0,
     progress: Callable[[int, int], Any] | None = None,
 ) -> dict[str, Any]:
@@ -119,6 +121,7 @@ def collect_demos(
         noise_std: standard deviation of the Gaussian noise on executed actions (0: none).
         copies: env slots per task.
         max_attempts: episodes a task may try before it stops short (0: ``5 * episodes``).
+        after_success: Meta-World: steps recorded after the first success before the episode ends.
         flush_seconds: how often finished episodes are saved (what an interruption can lose).
         progress: ``(kept, wanted)`` after every step.
     """
@@ -130,12 +133,21 @@ def collect_demos(
         raise ConfigError("copies", f"must be an integer >= 1 (got {copies!r})")
     if isinstance(max_attempts, bool) or not isinstance(max_attempts, int) or max_attempts < 0:
         raise ConfigError("max_attempts", f"must be an integer >= 0 (got {max_attempts!r})")
+    if isinstance(after_success, bool) or not isinstance(after_success, int) or after_success < 0:
+        raise ConfigError("after_success", f"must be an integer >= 0 (got {after_success!r})")
     src = demo_source(source) if isinstance(source, str) else source
     out = Path(out)
     if (out / DATA_FOLDER).exists():
         raise ConfigError("out", f"{out} already holds a dataset (see: taskrl demos info {out}); choose another --out")
     max_attempts = max_attempts or 5 * episodes
-    settings = {"source": src.name, "episodes": episodes, "seed": seed, "noise_std": float(noise_std), "copies": copies}
+    settings = {
+        "source": src.name,
+        "episodes": episodes,
+        "seed": seed,
+        "noise_std": float(noise_std),
+        "copies": copies,
+        "after_success": after_success,
+    }
     _check_settings(out, settings)
     parts = out / PARTS
     kept = _read_parts(parts) if parts.exists() else []
@@ -145,26 +157,22 @@ def collect_demos(
     attempts_file = parts / "attempts.json"
     attempts = {**dict.fromkeys(have, 0), **(json.loads(attempts_file.read_text()) if attempts_file.exists() else {})}
     number = len(list(parts.glob("part-*.npz"))) if parts.exists() else 0
-    wanted = episodes * len(src.task_set)
     started = time.perf_counter()
     missing = [n for n in have if have[n] < episodes and attempts[n] < max_attempts]
     if missing:
+        tally = _Tally(kept, have, attempts, parts, number)
         _run(
             src,
             missing,
+            tally,
             copies,
             seed + 7919 * number,
+            after_success,
             episodes,
             max_attempts,
             noise_std,
-            kept,
-            have,
-            attempts,
-            parts,
-            number,
             flush_seconds,
             progress,
-            wanted,
         )
     by_task = {t.name: [e for e in kept if e.task == t.name][:episodes] for t in src.task_set}
     chosen = [e for t in src.task_set for e in by_task[t.name]]
@@ -176,7 +184,10 @@ def collect_demos(
         "episodes_per_task": {n: len(v) for n, v in by_task.items()},
         "expert_success_rate": {n: have[n] / max(attempts[n], 1) for n in have},
         "attempts": attempts,
-        "success": "reached at any step (episodes end at the first success)" if src.success == "any" else "at the final step",
+        "success": f"reached at any step (episodes end {after_success} steps after the first success)"
+        if src.success == "any"
+        else "at the final step",
+        "after_success": after_success if src.success == "any" else 0,
         "seed": seed,
         "noise_std": float(noise_std),
         "mean_length": {n: float(np.mean([len(e) for e in v])) if v else 0.0 for n, v in by_task.items()},
@@ -198,24 +209,22 @@ def collect_demos(
     return dataset_card(out)
 
 
-def _run(
-    src,
-    names,
-    copies,
-    seed,
-    episodes,
-    max_attempts,
-    noise_std,
-    kept,
-    have,
-    attempts,
-    parts,
-    number,
-    flush_seconds,
-    progress,
-    wanted,
-):
-    env = src.make_env(names, copies, seed)
+@dataclasses.dataclass
+class _Tally:
+    """What a collection has so far: its episodes, successes and attempts per task, and its saved parts."""
+
+    kept: list[Episode]
+    have: dict[str, int]
+    attempts: dict[str, int]
+    parts: Path
+    number: int  # parts written
+
+
+def _run(src, names, tally, copies, seed, after_success, episodes, max_attempts, noise_std, flush_seconds, progress):
+    """Run the experts of ``names`` until each has ``episodes`` successes or ``max_attempts`` tries."""
+    kept, have, attempts, parts = tally.kept, tally.have, tally.attempts, tally.parts
+    wanted = episodes * len(src.task_set)
+    env = src.make_env(names, copies, seed, after_success)
     try:
         expert = src.expert(env)
         generator = torch.Generator(device=env.device)
@@ -228,10 +237,10 @@ def _run(
         last_flush = time.monotonic()
 
         def flush() -> None:
-            nonlocal pending, number, last_flush
+            nonlocal pending, last_flush
             if pending:
-                _write_part(parts, number, pending)
-                number += 1
+                _write_part(parts, tally.number, pending)
+                tally.number += 1
                 pending = []
             (parts / "attempts.json").write_text(json.dumps(attempts))
             last_flush = time.monotonic()

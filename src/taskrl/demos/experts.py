@@ -10,9 +10,10 @@
 - ``pointreach-mt``: the native multi-task point reaching tasks, with the optimal controller
   (straight to the region at full speed, then stay).
 
-A source says when a demonstration counts: Meta-World episodes end at their first success (as
-Meta-World's ``terminate_on_success``; success at any step is its protocol), PointReach episodes
-run their 50 steps and count when they end inside the region (its per-task criterion).
+A source says when a demonstration counts: Meta-World episodes end ``after_success`` steps after
+their first success (success at any step is Meta-World's protocol; the steps after it show the
+expert settling at the goal, which precise tasks such as reach need), PointReach episodes run their
+50 steps and count when they end inside the region (its per-task criterion).
 """
 
 from __future__ import annotations
@@ -42,8 +43,9 @@ class DemoSource:
     Attributes:
         name: what ``taskrl demos collect`` was given.
         task_set: the tasks, in index order.
-        make_env: ``(task names, copies per task, seed) -> batched env`` whose slot ``s`` runs task
-            ``names[s // copies]`` (``slot_tasks``), episodes ending at the horizon or as ``success`` says.
+        make_env: ``(task names, copies per task, seed, after_success) -> batched env`` whose slot ``s`` runs
+            task ``names[s // copies]`` (``slot_tasks``), episodes ending at the horizon or, where
+            ``success`` is ``any``, ``after_success`` steps after the first success.
         expert: ``env -> (obs -> actions)``: the batched expert of that env's slots.
         success: ``any`` (the episode ends at its first success) or ``final`` (success at the last step).
         splits: named task lists (ML45's ``train`` and ``test``), recorded in the dataset card.
@@ -51,7 +53,7 @@ class DemoSource:
 
     name: str
     task_set: TaskSet
-    make_env: Callable[[Sequence[str], int, int], BatchedEnv]
+    make_env: Callable[[Sequence[str], int, int, int], BatchedEnv]
     expert: Callable[[BatchedEnv], Expert]
     success: Literal["any", "final"]
     splits: dict[str, list[str]] = dataclasses.field(default_factory=dict)
@@ -61,8 +63,10 @@ class DemoSource:
 def _metaworld_source(name: str, benchmark: Any) -> DemoSource:
     from taskrl.envs.metaworld_tasks import ML45_TEST_TASKS, MetaWorldMultiTaskEnv, metaworld_task_set
 
-    def make_env(names: Sequence[str], copies: int, seed: int) -> BatchedEnv:
-        return MetaWorldMultiTaskEnv(list(names), envs_per_task=copies, seed=seed, terminate_on_success=True)
+    def make_env(names: Sequence[str], copies: int, seed: int, after_success: int) -> BatchedEnv:
+        return MetaWorldMultiTaskEnv(
+            list(names), envs_per_task=copies, seed=seed, terminate_on_success=True, success_hold=after_success
+        )
 
     task_set = metaworld_task_set(benchmark)
     splits = {}
@@ -95,8 +99,8 @@ def _metaworld_expert(env: Any) -> Expert:
 def _pointreach_source() -> DemoSource:
     from taskrl.envs.multitask_point import DEFAULT_REGIONS, MultiTaskPointReach
 
-    def make_env(names: Sequence[str], copies: int, seed: int) -> BatchedEnv:
-        regions = [r for r in DEFAULT_REGIONS if r[0] in names]
+    def make_env(names: Sequence[str], copies: int, seed: int, after_success: int) -> BatchedEnv:
+        regions = [r for r in DEFAULT_REGIONS if r[0] in names]  # episodes run their 50 steps: no cut at success
         return MultiTaskPointReach(num_envs=len(regions) * copies, regions=regions, task_sampling="fixed", seed=seed)
 
     def expert(env: Any) -> Expert:

@@ -247,9 +247,13 @@ class MetaWorldTaskWrapper(gym.Wrapper):
     :func:`~taskrl.training.per_task.evaluate_per_task` to visit distinct goals); ``None`` restores random goals.
     """
 
-    def __init__(self, env: gym.Env, slot: int, task_index: int, num_tasks: int, use_one_hot: bool) -> None:
+    def __init__(
+        self, env: gym.Env, slot: int, task_index: int, num_tasks: int, use_one_hot: bool, success_hold: int = 0
+    ) -> None:
         super().__init__(env)
         self.slot, self.task_index, self.num_tasks, self.use_one_hot = slot, task_index, num_tasks, use_one_hot
+        self.success_hold = success_hold  # > 0: terminate this many steps after the first success
+        self._since_success = -1
         space = env.observation_space
         expected = METAWORLD_OBS_DIM + (num_tasks if use_one_hot else 0)
         if not isinstance(space, gym.spaces.Box) or space.shape != (expected,):
@@ -296,10 +300,15 @@ class MetaWorldTaskWrapper(gym.Wrapper):
             self._next += 1
             self.env.unwrapped.set_task(self.env.get_wrapper_attr("tasks")[goal])
         obs, info = self.env.reset(seed=seed, options=options)
+        self._since_success = -1
         return self._dict_obs(obs), info
 
     def step(self, action):
         obs, reward, terminated, truncated, info = self.env.step(action)
+        if self.success_hold > 0:
+            if self._since_success >= 0 or info.get("success", 0.0) >= 1.0:
+                self._since_success += 1
+            terminated = terminated or self._since_success >= self.success_hold
         return self._dict_obs(obs), reward, terminated, truncated, info
 
 
@@ -363,6 +372,7 @@ class _MetaWorldFactory:
     ) -> None:
         self.slot, self.name, self.env_cls, self.goals = slot, name, env_cls, goals
         self.task_index, self.num_tasks, self.seed, self.kwargs = task_index, num_tasks, seed, kwargs
+        self.success_hold = 0
         self.__name__ = f"Meta-World/{name}"
 
     def __call__(self) -> gym.Env:
@@ -383,7 +393,9 @@ class _MetaWorldFactory:
         steps = self.kwargs["max_episode_steps"]
         if steps > env.unwrapped.max_path_length:  # Meta-World refuses steps past max_path_length
             env.unwrapped.max_path_length = steps
-        return MetaWorldTaskWrapper(env, self.slot, self.task_index, self.num_tasks, self.kwargs["use_one_hot"])
+        return MetaWorldTaskWrapper(
+            env, self.slot, self.task_index, self.num_tasks, self.kwargs["use_one_hot"], self.success_hold
+        )
 
 
 class MetaWorldMultiTaskEnv(GymnasiumVectorEnv):
@@ -408,6 +420,8 @@ class MetaWorldMultiTaskEnv(GymnasiumVectorEnv):
         device: torch device of every returned tensor.
         vector_strategy: ``"sync"`` or ``"async"`` (a process per slot).
         terminate_on_success: end episodes at the first success (Meta-World's default: no).
+        success_hold: with ``terminate_on_success``, end episodes this many steps after the first
+            success instead (demonstrations then show the expert settling at the goal).
         reward_function_version: Meta-World's reward version, ``"v2"`` (its default) or ``"v1"``.
         num_goals: goal positions Meta-World pre-draws per task (its benchmarks: 50; fewer builds
             faster, e.g. in tests; Meta-World's ``make_vec(..., num_goals=n)`` does the same).
@@ -432,6 +446,7 @@ class MetaWorldMultiTaskEnv(GymnasiumVectorEnv):
         terminate_on_success: bool = False,
         reward_function_version: Literal["v1", "v2"] = "v2",
         num_goals: int = METAWORLD_NUM_GOALS,
+        success_hold: int = 0,
         vector_kwargs: dict[str, Any] | None = None,
     ) -> None:
         self.task_set = metaworld_task_set(benchmark, task)
@@ -451,7 +466,10 @@ class MetaWorldMultiTaskEnv(GymnasiumVectorEnv):
             raise ImportError(_INSTALL_HINT) from e
         self.use_one_hot = use_one_hot
         self.envs_per_task = envs_per_task
-        kwargs = _slot_kwargs(max_episode_steps, use_one_hot, bool(terminate_on_success), reward_function_version)
+        if not isinstance(success_hold, int) or success_hold < 0:
+            raise ValueError(f"success_hold must be an integer >= 0, got {success_hold!r}")
+        hold = success_hold if terminate_on_success else 0
+        kwargs = _slot_kwargs(max_episode_steps, use_one_hot, bool(terminate_on_success) and hold == 0, reward_function_version)
         num_tasks = len(self.task_set)
         goals = _benchmark_tasks(metaworld, benchmark, self.task_set.names, seed, num_goals)
         factories = [
@@ -459,6 +477,8 @@ class MetaWorldMultiTaskEnv(GymnasiumVectorEnv):
             for t in self.task_set
             for c in range(envs_per_task)
         ]
+        for factory in factories:
+            factory.success_hold = hold
         super().__init__(
             factories,
             device=device,
