@@ -15,10 +15,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import resource
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -29,14 +29,15 @@ TASKRL = str(Path(sys.executable).with_name("taskrl"))
 
 
 def run(command: list[str]) -> tuple[str, float, float]:
-    """(stdout, wall seconds, peak RSS MiB of the child)."""
-    before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
-    start = time.perf_counter()
-    done = subprocess.run(command, capture_output=True, text=True)
-    if done.returncode != 0:
-        raise SystemExit(f"{' '.join(command)} failed:\n{done.stderr[-3000:]}")
-    peak = max(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss, before) / 1024
-    return done.stdout, time.perf_counter() - start, peak
+    """(stdout, wall seconds, peak RSS MiB of this command, read by GNU time)."""
+    with tempfile.NamedTemporaryFile("r", suffix=".rss") as rss:
+        start = time.perf_counter()
+        done = subprocess.run(["/usr/bin/time", "-f", "%M", "-o", rss.name, *command], capture_output=True, text=True)
+        seconds = time.perf_counter() - start
+        if done.returncode != 0:
+            raise SystemExit(f"{' '.join(command)} failed:\n{done.stderr[-3000:]}")
+        peak = int(rss.read().strip().splitlines()[-1]) / 1024
+    return done.stdout, seconds, peak
 
 
 def main() -> None:
@@ -49,6 +50,9 @@ def main() -> None:
     parser.add_argument("--out", default="runs/bench-bc")
     parser.add_argument("--extra", nargs="*", default=[], help="more train flags, e.g. --total-steps 20000")
     args = parser.parse_args()
+    card = json.loads(
+        subprocess.run([TASKRL, "demos", "info", args.dataset, "--json"], capture_output=True, text=True, check=True).stdout
+    )
     results = []
     for preset in args.presets:
         for seed in args.seeds:
@@ -101,10 +105,15 @@ def main() -> None:
             print(json.dumps(entry), flush=True)
     Path("benchmarks/results").mkdir(exist_ok=True)
     Path(f"benchmarks/results/bc_{args.name}.json").write_text(json.dumps(results, indent=2) + "\n")
+    info = card.get("card", {})
     lines = [
-        f"Dataset `{args.dataset}`; {args.episodes} evaluation episodes per task (distinct goal positions, "
-        "success at any step of 500); each preset's own settings. Raw: "
-        f"`benchmarks/results/bc_{args.name}.json`.",
+        f"Dataset `{args.dataset}`: {card['total_episodes']:,} episodes, {card['total_steps']:,} steps, "
+        f"{card.get('dataset_size', '?')} MB, made by `taskrl demos collect {info.get('source')}` with noise "
+        f"{info.get('noise_std')} and {info.get('after_success', 0)} steps after success in "
+        f"{info.get('collection_seconds', '?')} s. {args.episodes} evaluation episodes per task (distinct goal "
+        "positions, success at any step of 500); each preset's own settings"
+        + (f" with `{' '.join(args.extra)}`" if args.extra else "")
+        + f". Raw: `benchmarks/results/bc_{args.name}.json`.",
         "",
         "| preset | seeds | success (mean over tasks), per seed | mean | train wall s (per seed) | peak MiB |",
         "|---|---|---|---|---|---|",

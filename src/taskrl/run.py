@@ -281,6 +281,8 @@ def _dataset_sampler(config: TrainConfig, env: Any, agent: Any, device: torch.de
         raise ConfigError(
             "dataset", "an offline algorithm learns from a dataset: --dataset DIR (make one with: taskrl demos collect)"
         )
+    if not Path(path).exists():
+        raise ConfigError("dataset", f"{path} does not exist; make it with: taskrl demos collect {config.env} --out {path}")
     demos = read_demonstrations(path, device)
     task_set = getattr(env, "task_set", None)
     if task_set is not None:
