@@ -267,6 +267,12 @@ def test_prompting_a_one_hot_policy_is_refused(point_demos, tmp_path):
     taskrl.train("pointreach-mt-bc", out=tmp_path / "run", dataset=str(point_demos), tensorboard=False, total_steps=10)
     with pytest.raises(ConfigError, match="language embeddings"):
         evaluate_prompted(tmp_path / "run", tasks=["centre"], episodes=1)
+    with pytest.raises(ConfigError, match="unknown task 'nowhere'"):
+        evaluate_prompted(tmp_path / "run", tasks=["nowhere"], episodes=1)
+    with pytest.raises(ConfigError, match="holds out no task"):
+        evaluate_prompted(tmp_path / "run", episodes=1)
+    done = _cli("eval", str(tmp_path / "run"), "--held-out", "--task", "go left")
+    assert done.returncode == 2 and "choose one of --held-out, --tasks and --task" in done.stderr
 
 
 def _cli(*args: str) -> subprocess.CompletedProcess:
