@@ -219,6 +219,11 @@ def test_bc_learns_multitask_pointreach_from_demonstrations(point_demos, tmp_pat
     assert run.metrics["env_steps"] == 0 and run.metrics["updates"] == 2_000  # offline: updates are the axis
     again = taskrl.evaluate_run(tmp_path / "run", episodes=20)
     assert again["success_rate"] >= 0.9 and again["checkpoint_unit"] == "gradient updates"
+    from taskrl.export import export_policy
+
+    policy = taskrl.load_policy(export_policy(tmp_path / "run", tmp_path / "policy"))
+    action = policy.predict({"observation": np.array([0.5, 0.5], np.float32), "task": 3})  # bottom-right: down
+    assert action.shape == (2,) and action[1] < -0.5
 
 
 @pytest.mark.timeout(300)
