@@ -290,6 +290,12 @@ def _dataset_sampler(config: TrainConfig, env: Any, agent: Any, device: torch.de
     return agent.use_dataset(demos)
 
 
+def _first_evaluation(config: TrainConfig) -> int:
+    """Where a new run first evaluates: at its first step, except offline, where the untrained policy
+    says nothing the dataset does not and a multi-task evaluation costs minutes."""
+    return config.eval_interval if algorithm(config.algo).loop == "offline" else 0
+
+
 def progress_axis(config: TrainConfig) -> str:
     """What a run's ``total_steps`` counts: ``env_steps``, or ``updates`` for an offline algorithm."""
     return "updates" if algorithm(config.algo).loop == "offline" else "env_steps"
@@ -554,7 +560,11 @@ def train(
         parts = build(config, source)
         # A new run checkpoints after its first step (a kill before checkpoint_interval still resumes);
         # a resumed run loads its checkpoint before anything of it is rewritten.
-        state = LoopState(next_checkpoint=0) if resume is None else _restore_checked(parts, run_dir, saved, config)
+        state = (
+            LoopState(next_checkpoint=0, next_eval=_first_evaluation(config))
+            if resume is None
+            else _restore_checked(parts, run_dir, saved, config)
+        )
     except BaseException:
         lock.__exit__()
         if created:  # nothing of this call stays behind
