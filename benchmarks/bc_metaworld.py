@@ -48,7 +48,9 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=50)
     parser.add_argument("--name", required=True)
     parser.add_argument("--out", default="runs/bench-bc")
-    parser.add_argument("--extra", nargs="*", default=[], help="more train flags, e.g. --total-steps 20000")
+    parser.add_argument(
+        "--extra", action="append", default=[], help="one more train flag, e.g. --extra=--total-steps=20000 (repeatable)"
+    )
     args = parser.parse_args()
     card = json.loads(
         subprocess.run([TASKRL, "demos", "info", args.dataset, "--json"], capture_output=True, text=True, check=True).stdout
