@@ -105,8 +105,10 @@ def main() -> None:
                     }
             results.append(entry)
             print(json.dumps(entry), flush=True)
-    Path("benchmarks/results").mkdir(exist_ok=True)
-    Path(f"benchmarks/results/bc_{args.name}.json").write_text(json.dumps(results, indent=2) + "\n")
+            raw.parent.mkdir(exist_ok=True)
+            raw.write_text(json.dumps(results, indent=2) + "\n")  # after every run: a stopped benchmark keeps its runs
+    raw.parent.mkdir(exist_ok=True)
+    raw.write_text(json.dumps(results, indent=2) + "\n")
     info = card.get("card", {})
     lines = [
         f"Dataset `{args.dataset}`: {card['total_episodes']:,} episodes, {card['total_steps']:,} steps, "

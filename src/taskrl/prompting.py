@@ -23,7 +23,7 @@ import torch
 
 from taskrl.envs.registry import env_family
 from taskrl.errors import ConfigError
-from taskrl.run import EVAL_SEED_OFFSET, env_request, load_run, wilson_interval
+from taskrl.run import EVAL_SEED_OFFSET, env_request, load_run, use_run_threads, wilson_interval
 from taskrl.training.evaluation import ActingPolicy
 from taskrl.training.per_task import evaluate_per_task
 
@@ -78,6 +78,7 @@ def evaluate_prompted(
     if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
         raise ConfigError("episodes", f"must be an integer >= 1 (got {episodes!r})")
     agent, config, _ = load_run(run_dir, device)
+    use_run_threads(config)
     family = env_family(config.env)
     if family.tasks_env is None or family.task_sentences is None:
         raise ConfigError(

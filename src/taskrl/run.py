@@ -734,6 +734,13 @@ def load_run(
     return agent, config, spaces
 
 
+def use_run_threads(config: TrainConfig) -> None:
+    """Evaluate with the torch threads the run trained with (``--threads``; 0 keeps torch's default):
+    more threads than free cores makes small policies many times slower."""
+    if config.threads:
+        torch.set_num_threads(config.threads)
+
+
 def wilson_interval(successes: float, n: int, z: float = 1.96) -> list[float]:
     """The 95% Wilson score interval of a success rate (sound at 0 and 1, where a normal one is not)."""
     if n <= 0:
@@ -778,6 +785,7 @@ def evaluate_run(
         os.environ.setdefault("MUJOCO_GL", "egl")
     config, source = _saved_config(run_dir, env, env_module)
     config = dataclasses.replace(config, eval_episodes=episodes)
+    use_run_threads(config)
     if video:  # say so before evaluating, not after
         from taskrl.video import check_can_record
 
