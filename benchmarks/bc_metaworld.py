@@ -55,8 +55,9 @@ def main() -> None:
     card = json.loads(
         subprocess.run([TASKRL, "demos", "info", args.dataset, "--json"], capture_output=True, text=True, check=True).stdout
     )
-    results = []
-    for preset in args.presets:
+    raw = Path(f"benchmarks/results/bc_{args.name}.json")
+    results = json.loads(Path(args.report).read_text()) if args.report else []
+    for preset in [] if args.report else args.presets:
         for seed in args.seeds:
             run_dir = Path(args.out) / f"{preset}-seed{seed}"
             if run_dir.exists():
