@@ -48,6 +48,7 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=50)
     parser.add_argument("--name", required=True)
     parser.add_argument("--out", default="runs/bench-bc")
+    parser.add_argument("--report", default=None, help="only write the section from this raw JSON (runs already made)")
     parser.add_argument(
         "--extra", action="append", default=[], help="one more train flag, e.g. --extra=--total-steps=20000 (repeatable)"
     )
