@@ -52,6 +52,11 @@ def test_dataset_round_trip_keeps_episodes_boundaries_and_tasks(tmp_path):
     obs, actions = demos.episode(1)
     assert obs[:, 0].tolist() == [100.0 + t for t in range(5)]  # the final state is not a training row
     assert torch.equal(actions, -obs)
+    import os
+
+    umask = os.umask(0)
+    os.umask(umask)
+    assert (tmp_path / "d" / "data").stat().st_mode & 0o777 == 0o777 & ~umask  # like any folder the user makes
     card = dataset_card(tmp_path / "d")
     assert card["card"] == {"source": "test"} and card["total_episodes"] == 3 and card["total_steps"] == 10
     # Minari itself reads it, with each episode's task in its metadata

@@ -105,6 +105,9 @@ def write_dataset(
     )
     out.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=".data-", dir=out))
+    umask = os.umask(0)
+    os.umask(umask)
+    staging.chmod(0o777 & ~umask)  # mkdtemp makes it private; a dataset is read like any folder the user makes
     try:
         storage = MinariStorage.new(staging, observation_space, action_space, data_format="hdf5")
         buffers = [
