@@ -23,7 +23,7 @@ import torch
 
 from taskrl.envs.registry import env_family
 from taskrl.errors import ConfigError
-from taskrl.run import EVAL_SEED_OFFSET, env_request, load_run, use_run_threads, wilson_interval
+from taskrl.run import EVAL_SEED_OFFSET, env_request, load_run, per_task_intervals, use_run_threads
 from taskrl.training.evaluation import ActingPolicy
 from taskrl.training.per_task import evaluate_per_task
 
@@ -112,12 +112,10 @@ def evaluate_prompted(
             said = [known[n][0] for n in tasks]
     if prompt == "demo":
         from taskrl.demos.dataset import read_demonstrations
-        from taskrl.demos.sampling import episode_frames
+        from taskrl.demos.sampling import prompt_frames
 
         demos = read_demonstrations(dataset or config.algo_settings.dataset, agent.device).select_tasks(tasks)
-        frames = episode_frames(demos, agent.config.demo_frames)
-        first = [int(torch.nonzero(demos.episode_tasks == i).flatten()[0]) for i in range(len(tasks))]
-        agent.prompt_with_demos(frames[first])
+        agent.prompt_with_demos(prompt_frames(demos, agent.config.demo_frames))  # each task's first demonstration
     else:
         agent.prompt_with_descriptions(said)
     seed = config.seed + EVAL_SEED_OFFSET if seed is None else seed
@@ -129,15 +127,12 @@ def evaluate_prompted(
     finally:
         env.close()
         agent.reset_prompts()
-    out_tasks = {}
-    for (name, row), text in zip(result["tasks"].items(), said):
-        interval = wilson_interval(row["success_rate"] * row["episodes"], row["episodes"])
-        out_tasks[name] = {**row, "prompt": "one demonstration" if prompt == "demo" else text, "success_ci95": interval}
-    total = sum(t["episodes"] for t in out_tasks.values())
-    hits = sum(t["success_rate"] * t["episodes"] for t in out_tasks.values())
+    out_tasks, interval = per_task_intervals(result["tasks"])
+    for row, text in zip(out_tasks.values(), said):
+        row["prompt"] = "one demonstration" if prompt == "demo" else text
     return {
         "success_rate": result["mean_success_rate"],
-        "success_ci95": wilson_interval(hits, total),
+        "success_ci95": interval,
         "episodes": episodes,
         "prompt": "sentence" if sentence is not None else prompt,
         "tasks": out_tasks,

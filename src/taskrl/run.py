@@ -372,7 +372,7 @@ def checkpointer(parts: RunParts, run_dir: Path) -> Callable[[LoopState], None]:
         }
         if parts.config.save_replay and parts.replay is not None:
             saved["replay"] = parts.replay.state_dict()
-        save_checkpoint(run_dir / "checkpoints", saved, state.updates if axis == "updates" else state.env_steps)
+        save_checkpoint(run_dir / "checkpoints", saved, state.progress(axis))
 
     return checkpoint
 
@@ -574,7 +574,7 @@ def train(
         _note(console, notes)
         config_io.save(config, run_dir / "config.json")
         axis = progress_axis(config)
-        at = state.updates if axis == "updates" else state.env_steps
+        at = state.progress(axis)
         logger = RunLogger(run_dir, tensorboard=tensorboard, resume_from_step=at if resume else None, axis=axis)
         rows: list[dict[str, Any]] = []
         title = _run_title(run_dir, preset if resume is None else None, config)
@@ -741,6 +741,16 @@ def use_run_threads(config: TrainConfig) -> None:
         torch.set_num_threads(config.threads)
 
 
+def per_task_intervals(tasks: dict[str, dict[str, Any]]) -> tuple[dict[str, dict[str, Any]], list[float]]:
+    """Each task's row with its 95% Wilson interval, and the interval of all their episodes together."""
+    rows = {
+        name: {**t, "success_ci95": wilson_interval(t["success_rate"] * t["episodes"], t["episodes"])}
+        for name, t in tasks.items()
+    }
+    total = sum(t["episodes"] for t in tasks.values())
+    return rows, wilson_interval(sum(t["success_rate"] * t["episodes"] for t in tasks.values()), total)
+
+
 def wilson_interval(successes: float, n: int, z: float = 1.96) -> list[float]:
     """The 95% Wilson score interval of a success rate (sound at 0 and 1, where a normal one is not)."""
     if n <= 0:
@@ -804,12 +814,7 @@ def evaluate_run(
     finally:
         eval_env.close()
     if last:  # multi-task: an interval for every task and for the mean's share of episodes
-        tasks = {}
-        for name, t in last["tasks"].items():
-            tasks[name] = {**t, "success_ci95": wilson_interval(t["success_rate"] * t["episodes"], t["episodes"])}
-        result["tasks"] = tasks
-        total = sum(t["episodes"] for t in tasks.values())
-        result["success_ci95"] = wilson_interval(sum(t["success_rate"] * t["episodes"] for t in tasks.values()), total)
+        result["tasks"], result["success_ci95"] = per_task_intervals(last["tasks"])
     else:
         result["success_ci95"] = wilson_interval(result.pop("successes"), episodes)
         returns = torch.tensor(result.pop("returns"), dtype=torch.float64)

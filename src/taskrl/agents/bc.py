@@ -28,15 +28,21 @@ from typing import Any, Literal
 
 import torch
 import torch.nn.functional as F
-from torch import nn
 
 from taskrl.agents.base import Agent
-from taskrl.agents.parts import ActionBox, ObservationInput, check_non_negative, check_probability, gradient_step
+from taskrl.agents.parts import (
+    ActionBox,
+    ObservationInput,
+    check_learning_settings,
+    check_non_negative,
+    check_probability,
+    gradient_step,
+)
 from taskrl.agents.spec import AlgorithmSpec
 from taskrl.conditioning.demo_encoder import DemoEncoder
-from taskrl.conditioning.networks import ConditionedMLP
+from taskrl.conditioning.networks import ConditionedMLP, ConditioningConfig
 from taskrl.conditioning.task_encoders import LanguageTaskEncoder
-from taskrl.errors import ConfigError, require
+from taskrl.errors import ConfigError, one_of, require
 
 __all__ = ["BCAgent", "BCConfig"]
 
@@ -89,15 +95,10 @@ class BCConfig:
 
     def validate(self) -> None:
         """Raise :class:`~taskrl.errors.ConfigError` naming the first bad setting."""
-        require(self.lr > 0, "lr", f"must be > 0 (got {self.lr})")
-        require(
-            len(self.hidden_sizes) >= 1 and all(int(h) >= 1 for h in self.hidden_sizes),
-            "hidden_sizes",
-            f"must be one or more positive widths (got {list(self.hidden_sizes)})",
-        )
-        require(self.loss in ("huber", "gaussian"), "loss", f"must be huber or gaussian (got {self.loss!r})")
-        require(self.task_input in ("task", "demo"), "task_input", f"must be task or demo (got {self.task_input!r})")
-        check_non_negative(self, "max_grad_norm", "embedding_noise", "language_weight", "ensemble_decay", "weight_decay")
+        check_learning_settings(self)
+        one_of(self.loss, ("huber", "gaussian"), "loss", "loss")
+        one_of(self.task_input, ("task", "demo"), "task_input", "task input")
+        check_non_negative(self, "embedding_noise", "language_weight", "ensemble_decay", "weight_decay")
         check_probability(self, "language_prompts")
         require(self.demo_frames >= 2, "demo_frames", f"must be >= 2 (got {self.demo_frames})")
         require(1 <= self.chunk <= 100, "chunk", f"must be in 1..100 (got {self.chunk})")
@@ -131,7 +132,6 @@ class BCAgent(Agent):
         self.box = ActionBox(inputs.action_space, self.device)
         self.action_dim, self.state_dim = self.box.dim, int(inputs.dim)
         self.inputs = ObservationInput(inputs.keys, inputs.dim, config.normalize_inputs).to(self.device)
-        self.conditioning = conditioning
         self.task_encoder = conditioning.encoder.to(self.device) if conditioning is not None else None
         self.language = isinstance(self.task_encoder, LanguageTaskEncoder)
         self.demo_encoder: DemoEncoder | None = None
@@ -147,36 +147,33 @@ class BCAgent(Agent):
         #: ``[T, L, D]`` one demonstration of each training task: demo input's prompts (set from the dataset)
         self.prompt_demos = torch.zeros(num_tasks, config.demo_frames, self.state_dim, device=self.device)
         outputs = self.action_dim * config.chunk * (2 if config.loss == "gaussian" else 1)
-        architecture = conditioning.config.architecture if conditioning is not None else "concat"
-        c = conditioning.config if conditioning is not None else None
+        c = conditioning.config if conditioning is not None else ConditioningConfig()
         self.net = ConditionedMLP(
             self.state_dim,
             outputs,
             config.hidden_sizes,
             context_dim,
-            architecture,
-            care_encoders=c.care_encoders if c else 4,
-            care_encoder_dim=c.care_encoder_dim if c else 64,
+            c.architecture,
+            care_encoders=c.care_encoders,
+            care_encoder_dim=c.care_encoder_dim,
         ).to(self.device)
         self._params = [p for m in (self.net, self.task_encoder, self.demo_encoder) if m is not None for p in m.parameters()]
         self.optimizer = torch.optim.AdamW(self._params, lr=config.lr, weight_decay=config.weight_decay)
         self.updates = 0
         self.prompts: torch.Tensor | None = None  # contexts of the tasks being acted on (None: the training tasks')
+        self._contexts: torch.Tensor | None = None  # training_contexts() until the weights or prompts change
         self._ensemble: tuple[torch.Tensor, torch.Tensor] | None = None
 
     # ---------------------------------------------------------------- data
     def use_dataset(self, demos: Any) -> Any:
         """Fit the state normaliser to the dataset, keep one prompt demonstration per task (its first), and
         return the sampler of the batches this agent learns from (stratified over tasks)."""
-        from taskrl.demos.sampling import DemoSampler, episode_frames
+        from taskrl.demos.sampling import DemoSampler, prompt_frames
 
-        if isinstance(self.inputs.normalize, nn.Module) and hasattr(self.inputs.normalize, "update"):
-            self.inputs.normalize.update(demos.observations.to(self.device))
-        frames = episode_frames(demos, self.config.demo_frames).to(self.device)
-        for task in range(self.prompt_demos.shape[0]):
-            episodes = torch.nonzero(demos.episode_tasks == task).flatten()
-            if len(episodes):
-                self.prompt_demos[task] = frames[int(episodes[0])]
+        self.inputs.update_statistics({"observation": demos.observations.to(self.device)})
+        with torch.no_grad():
+            self.prompt_demos.copy_(prompt_frames(demos, self.config.demo_frames))
+        self._contexts = None
         frames_per_prompt = self.config.demo_frames if self.demo_encoder is not None else 0
         held_out = [n for n in self.config.held_out() if n in demos.task_names]
         if held_out:  # their demonstrations prompt, they are never imitated
@@ -194,13 +191,22 @@ class BCAgent(Agent):
         """z(D) of demonstrations ``[B, L, D]`` (raw states)."""
         return self.demo_encoder(self._normalize_frames(frames.to(self.device).float()))
 
+    @torch.no_grad()
     def training_contexts(self) -> torch.Tensor | None:
-        """``[T, C]`` the context of every training task (from its prompt demonstration under demo input)."""
+        """``[T, C]`` the context of every training task (from its prompt demonstration under demo input),
+        computed once until the next update or load: acting reads it at every step."""
         if self.task_encoder is None:
             return None
-        if self.demo_encoder is not None:
-            return self.demo_context(self.prompt_demos)
-        return self.task_encoder(torch.arange(self.task_encoder.num_tasks, device=self.device))
+        if self._contexts is None:
+            if self.demo_encoder is not None:
+                self._contexts = self.demo_context(self.prompt_demos)
+            else:
+                self._contexts = self.task_encoder(torch.arange(self.task_encoder.num_tasks, device=self.device))
+        return self._contexts
+
+    def load_parts(self, state: dict[str, Any]) -> None:
+        super().load_parts(state)
+        self._contexts = None
 
     @torch.no_grad()
     def prompt_with_descriptions(self, descriptions: list[str]) -> None:
@@ -305,6 +311,7 @@ class BCAgent(Agent):
         bc_loss = (per * mask).sum() / mask.sum().clamp(min=1)
         loss = bc_loss if language_loss is None else bc_loss + cfg.language_weight * language_loss
         gradient_step(self.optimizer, loss, self._params, cfg.max_grad_norm)
+        self._contexts = None
         self.updates += 1
         metrics = {"bc_loss": bc_loss.detach(), "action_error": (mean[:, 0] - target_actions[:, 0]).abs().mean().detach()}
         if language_loss is not None:

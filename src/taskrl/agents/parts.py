@@ -147,11 +147,12 @@ def linear_schedule(start: float, end: float, decay_steps: int, env_steps: int) 
 
 
 def check_learning_settings(config: Any, gamma_may_be_one: bool = False) -> None:
-    """The checks every algorithm's section shares: lr, gamma, network widths, gradient clip and,
-    where the section has them, the Polyak factor and target clipping's precondition."""
+    """The checks every algorithm's section shares: lr, network widths, gradient clip and, where the
+    section has them, gamma, the Polyak factor and target clipping's precondition."""
     c = config
-    top = "1]" if gamma_may_be_one else "1)"
-    require(0.0 <= c.gamma <= 1.0 and (gamma_may_be_one or c.gamma < 1.0), "gamma", f"must be in [0, {top} (got {c.gamma})")
+    if hasattr(c, "gamma"):  # a learner without returns (behaviour cloning) has none
+        top = "1]" if gamma_may_be_one else "1)"
+        require(0.0 <= c.gamma <= 1.0 and (gamma_may_be_one or c.gamma < 1.0), "gamma", f"must be in [0, {top} (got {c.gamma})")
     require(c.lr > 0, "lr", f"must be > 0 (got {c.lr})")
     require(
         len(c.hidden_sizes) >= 1 and all(int(h) >= 1 for h in c.hidden_sizes),

@@ -233,20 +233,24 @@ class Demonstrations:
         s, n = int(self.starts[e]), int(self.lengths[e])
         return self.observations[s : s + n], self.actions[s : s + n]
 
-    def without_tasks(self, names: Sequence[str]) -> Demonstrations:
-        """The episodes of every other task, task indices unchanged (held-out tasks left out of training)."""
-        drop = torch.tensor([n in names for n in self.task_names], dtype=torch.bool, device=self.tasks.device)
-        keep_episode, keep_step = ~drop[self.episode_tasks], ~drop[self.tasks]
+    def _keep_tasks(self, remap: torch.Tensor) -> Demonstrations:
+        """The episodes of the tasks ``remap`` sends to an index >= 0, their tasks renumbered by it."""
+        remap = remap.to(self.tasks.device)
+        keep_episode, keep_step = remap[self.episode_tasks] >= 0, remap[self.tasks] >= 0
         lengths = self.lengths[keep_episode]
         return dataclasses.replace(
             self,
             observations=self.observations[keep_step],
             actions=self.actions[keep_step],
-            tasks=self.tasks[keep_step],
+            tasks=remap[self.tasks[keep_step]],
             starts=torch.cumsum(lengths, 0) - lengths,
             lengths=lengths,
-            episode_tasks=self.episode_tasks[keep_episode],
+            episode_tasks=remap[self.episode_tasks[keep_episode]],
         )
+
+    def without_tasks(self, names: Sequence[str]) -> Demonstrations:
+        """The episodes of every other task, task indices unchanged (held-out tasks left out of training)."""
+        return self._keep_tasks(torch.tensor([-1 if n in names else i for i, n in enumerate(self.task_names)]))
 
     def select_tasks(self, names: Sequence[str], setting: str = "dataset") -> Demonstrations:
         """The episodes of ``names`` only, re-indexed so task ``i`` is ``names[i]`` (an env's task order).
@@ -262,23 +266,8 @@ class Demonstrations:
         remap = torch.full((len(self.task_names),), -1, dtype=torch.long)
         for i, n in enumerate(names):
             remap[old[n]] = i
-        remap = remap.to(self.tasks.device)
-        keep_episode = remap[self.episode_tasks] >= 0
-        keep_step = remap[self.tasks] >= 0
-        lengths = self.lengths[keep_episode]
-        starts = torch.cumsum(lengths, 0) - lengths
-        descriptions = tuple(self.descriptions[old[n]] for n in names)
-        return Demonstrations(
-            self.observations[keep_step],
-            self.actions[keep_step],
-            remap[self.tasks[keep_step]],
-            starts,
-            lengths,
-            remap[self.episode_tasks[keep_episode]],
-            tuple(names),
-            descriptions,
-            self.card,
-        )
+        picked = self._keep_tasks(remap)
+        return dataclasses.replace(picked, task_names=tuple(names), descriptions=tuple(self.descriptions[old[n]] for n in names))
 
 
 def read_demonstrations(path: str | Path, device: str | torch.device = "cpu") -> Demonstrations:

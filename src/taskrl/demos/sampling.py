@@ -17,7 +17,7 @@ import torch
 
 from taskrl.demos.dataset import Demonstrations
 
-__all__ = ["DemoBatch", "DemoSampler", "episode_frames"]
+__all__ = ["DemoBatch", "DemoSampler", "episode_frames", "prompt_frames"]
 
 
 @dataclasses.dataclass
@@ -44,6 +44,16 @@ def episode_frames(demos: Demonstrations, frames: int) -> torch.Tensor:
     return demos.observations[demos.starts[:, None] + offsets]
 
 
+def prompt_frames(demos: Demonstrations, frames: int) -> torch.Tensor:
+    """``[T, frames, D]``: each task's first demonstration as a prompt (zeros for a task without one)."""
+    table = torch.zeros(len(demos.task_names), frames, demos.observations.shape[1], device=demos.observations.device)
+    first = torch.full((len(demos.task_names),), demos.num_episodes, dtype=torch.long, device=demos.episode_tasks.device)
+    first.scatter_reduce_(0, demos.episode_tasks, torch.arange(demos.num_episodes, device=first.device), "amin")
+    has = first < demos.num_episodes
+    table[has] = episode_frames(demos, frames)[first[has]]
+    return table
+
+
 class DemoSampler:
     """``sample(batch_size, generator) -> DemoBatch`` (stratified over tasks, see the module docstring).
 
@@ -60,9 +70,8 @@ class DemoSampler:
         self.step_order, self.step_counts, self.step_offsets = _grouped(demos.tasks, num_tasks)
         self.episode_order, self.episode_counts, self.episode_offsets = _grouped(demos.episode_tasks, num_tasks)
         self.present = torch.nonzero(self.step_counts > 0).flatten()  # tasks that have demonstrations
-        episode_of_step = torch.repeat_interleave(torch.arange(demos.num_episodes, device=device), demos.lengths)
-        self.step_episode = episode_of_step
-        self.step_end = (demos.starts + demos.lengths)[episode_of_step]  # one past each step's last step
+        self.step_episode = torch.repeat_interleave(torch.arange(demos.num_episodes, device=device), demos.lengths)
+        self.step_end = (demos.starts + demos.lengths)[self.step_episode]  # one past each step's episode's last step
         self.prompt_frames = episode_frames(demos, frames) if frames > 0 else None
 
     def sample(self, batch_size: int, generator: torch.Generator | None = None) -> DemoBatch:

@@ -369,10 +369,11 @@ class _MetaWorldFactory:
         num_tasks: int,
         seed: int | None,
         kwargs: dict[str, Any],
+        success_hold: int = 0,
     ) -> None:
         self.slot, self.name, self.env_cls, self.goals = slot, name, env_cls, goals
         self.task_index, self.num_tasks, self.seed, self.kwargs = task_index, num_tasks, seed, kwargs
-        self.success_hold = 0
+        self.success_hold = success_hold
         self.__name__ = f"Meta-World/{name}"
 
     def __call__(self) -> gym.Env:
@@ -473,12 +474,10 @@ class MetaWorldMultiTaskEnv(GymnasiumVectorEnv):
         num_tasks = len(self.task_set)
         goals = _benchmark_tasks(metaworld, benchmark, self.task_set.names, seed, num_goals)
         factories = [
-            _MetaWorldFactory(t.index * envs_per_task + c, t.name, *goals[t.name], t.index, num_tasks, seed, kwargs)
+            _MetaWorldFactory(t.index * envs_per_task + c, t.name, *goals[t.name], t.index, num_tasks, seed, kwargs, hold)
             for t in self.task_set
             for c in range(envs_per_task)
         ]
-        for factory in factories:
-            factory.success_hold = hold
         super().__init__(
             factories,
             device=device,

@@ -130,6 +130,10 @@ class LoopState:
     best_success: float = 0.0
     last_success: float = 0.0
 
+    def progress(self, axis: str = "env_steps") -> int:
+        """The count a run's schedule follows: env steps, or gradient updates (``axis="updates"``)."""
+        return self.updates if axis == "updates" else self.env_steps
+
 
 class Bookkeeping:
     """Accumulates one metrics row and runs the evaluation / checkpoint schedule.
@@ -196,7 +200,7 @@ class Bookkeeping:
 
     def progress(self) -> int:
         """The count the schedule follows: env steps, or gradient updates (``axis``)."""
-        return self.state.updates if self.axis == "updates" else self.state.env_steps
+        return self.state.progress(self.axis)
 
     def add_steps(self, n: int) -> None:
         self.state.env_steps += n

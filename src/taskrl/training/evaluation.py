@@ -21,9 +21,7 @@ class ActingPolicy:
         return self.agent.act(obs, explore=self.explore)
 
     def episodes_ended(self, ended: torch.Tensor) -> None:
-        notify = getattr(self.agent, "episodes_ended", None)
-        if notify is not None:
-            notify(ended)
+        episodes_ended(self.agent, ended)
 
 
 def episodes_ended(policy: Any, ended: torch.Tensor) -> None:
