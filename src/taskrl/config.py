@@ -24,6 +24,7 @@ from typing import Any, Literal
 
 from taskrl.agents.registry import ALGORITHMS, algorithm
 from taskrl.conditioning.networks import ConditioningConfig
+from taskrl.distributed.settings import DistributedConfig
 from taskrl.envs.registry import ENV_FAMILIES, env_family
 from taskrl.errors import ConfigError, one_of, reason, require
 from taskrl.rundir import atomic_write_text
@@ -85,6 +86,12 @@ class TrainConfig:
         tensorboard_interval: environment steps between TensorBoard points of the training scalars
             (losses, Q, temperature; ``train/...``) between evaluations (0: at evaluations only).
         save_replay: include the replay buffer in checkpoints so a resumed run loses no data.
+        recent_fraction: share of each batch drawn from the most recent ``recent_episodes`` episodes
+            (QT-Opt's on-policy buffer beside its store of all data); 0 = uniform over everything stored.
+        recent_episodes: the size of that window, in episodes.
+        offline_data: a run directory whose last checkpoint's replay preloads this run's replay
+            (QT-Opt's offline data, then online); its env must have the same spaces.
+        offline_updates: gradient updates on the preloaded data before collection starts.
         max_hours: stop cleanly (evaluation, checkpoint) after this many hours of wall-clock in
             this invocation, to continue later with ``--resume``; 0 = no limit. Ctrl-C and
             SIGTERM stop the same way.
@@ -94,6 +101,7 @@ class TrainConfig:
         env_module: a Python module to import before the envs are built (one that registers your
             gymnasium ids). Resuming, evaluating and loading never import it unless you pass it again.
         conditioning: how multi-task networks are told the task (task encoder, architecture).
+        cluster: where the roles run: one process, or collectors and Bellman updaters as Ray actors.
         env_settings: the env family's section (saved under the family's section name).
         algo_settings: the algorithm's section (saved under the algorithm's name).
     """
@@ -118,10 +126,15 @@ class TrainConfig:
     checkpoint_minutes: float = 10.0
     tensorboard_interval: int = 1_000
     save_replay: bool = True
+    recent_fraction: float = 0.0
+    recent_episodes: int = 1_000
+    offline_data: str = ""
+    offline_updates: int = 0
     max_hours: float = 0.0
     threads: int = 1
     env_module: str = ""
     conditioning: ConditioningConfig = dataclasses.field(default_factory=ConditioningConfig)
+    cluster: DistributedConfig = dataclasses.field(default_factory=DistributedConfig)
     env_settings: Any = None
     algo_settings: Any = None
 
@@ -200,6 +213,35 @@ def check_fit(config: TrainConfig, kind: str | None, actions: str | None) -> Non
         )
 
 
+def check_roles(config: TrainConfig) -> None:
+    """What replay, offline data and distributed roles need of the algorithm."""
+    c, spec = config, algorithm(config.algo)
+    replay_settings = {
+        "recent_fraction": c.recent_fraction > 0,
+        "offline_data": bool(c.offline_data),
+        "offline_updates": c.offline_updates > 0,
+        "distributed": c.cluster.distributed,
+    }
+    for name, used in replay_settings.items():
+        require(
+            not used or spec.loop == "off_policy",
+            name,
+            f"needs an off-policy algorithm with a replay (allowed: {', '.join(a.name for a in ALGORITHMS.values() if a.loop == 'off_policy')})",
+        )
+    require(
+        c.offline_updates == 0 or bool(c.offline_data),
+        "offline_updates",
+        "updates before collection need data to learn from: --offline-data RUN_DIR",
+    )
+    if c.cluster.distributed and c.cluster.bellman_updaters > 0:
+        splitting = [a.name for a in ALGORITHMS.values() if a.bellman_updaters]
+        require(
+            spec.bellman_updaters,
+            "bellman_updaters",
+            f"{c.algo} computes its targets in the trainer (the Ape-X layout): use 0; updaters serve {', '.join(splitting)}",
+        )
+
+
 def _env_label(config: TrainConfig) -> str:
     """What to call the run's env in a message: the gymnasium id or task file that selected its
     family (``my/Slider-v0``), else the family's name."""
@@ -230,7 +272,7 @@ def validate(config: TrainConfig) -> TrainConfig:
     one_of(c.sampling, SAMPLINGS, "sampling", "sampling")
     for name in ("total_steps", "num_envs", "batch_size", "eval_interval", "eval_episodes", "checkpoint_interval"):
         require(getattr(c, name) >= 1, name, f"must be >= 1 (got {getattr(c, name)})")
-    for name in ("her_k", "learning_starts", "updates_per_step", "threads", "tensorboard_interval"):
+    for name in ("her_k", "learning_starts", "updates_per_step", "threads", "tensorboard_interval", "offline_updates"):
         require(getattr(c, name) >= 0, name, f"must be >= 0 (got {getattr(c, name)})")
     require(c.max_hours >= 0, "max_hours", f"must be >= 0 hours (0 = no limit; got {c.max_hours})")
     require(0.0 <= c.stop_at_success <= 1.0, "stop_at_success", f"must be in [0, 1] (got {c.stop_at_success})")
@@ -242,7 +284,11 @@ def validate(config: TrainConfig) -> TrainConfig:
             "buffer_size",
             f"must hold at least one batch (batch_size={c.batch_size}; got {c.buffer_size})",
         )
+    require(0.0 <= c.recent_fraction <= 1.0, "recent_fraction", f"must be in [0, 1] (got {c.recent_fraction})")
+    require(c.recent_episodes >= 1, "recent_episodes", f"must be >= 1 (got {c.recent_episodes})")
     c.conditioning.validate()
+    c.cluster.validate()
+    check_roles(c)
     c.env_settings.validate()
     c.algo_settings.validate()
     check_fit(c, family.kind, family.actions)
@@ -283,7 +329,7 @@ def leaf_fields(env: str = "bitflip", algo: str = "dqn") -> list[Leaf]:
 def field_help(env: str = "bitflip", algo: str = "dqn") -> dict[str, str]:
     """``{setting: description}`` for the CLI, from the dataclasses' docstrings."""
     docs = field_docs(TrainConfig)
-    classes = [ConditioningConfig, env_family(env).settings]
+    classes = [ConditioningConfig, DistributedConfig, env_family(env).settings]
     stack = [algorithm(algo).config]
     while stack:  # the algorithm's section and the sections nested in it (QT-Opt's cem)
         cls = stack.pop()
@@ -394,6 +440,7 @@ def to_dict(config: TrainConfig) -> dict[str, Any]:
     """``config.json``'s content: run-level fields, ``conditioning``, and the two sections by name."""
     data = {f.name: getattr(config, f.name) for f in _run_fields()}
     data["conditioning"] = dataclasses.asdict(config.conditioning)
+    data["cluster"] = dataclasses.asdict(config.cluster)
     data[config.env_section] = dataclasses.asdict(config.env_settings)
     data[config.algo] = dataclasses.asdict(config.algo_settings)
     return data
@@ -475,7 +522,7 @@ def _migrate(data: dict[str, Any]) -> dict[str, Any]:
             section.update(random_action_prob=start, random_action_prob_end=end, random_action_decay_steps=steps)
         elif algo == "td3":
             section.update(noise_std=end)  # the loop's level was TD3's noise std
-    for name in [k for k in data if isinstance(data[k], dict) and k not in ("conditioning", family.section)]:
+    for name in [k for k in data if isinstance(data[k], dict) and k not in ("conditioning", "cluster", family.section)]:
         if name != algo:
             data.pop(name)  # every algorithm's section was saved; only the run's own is kept
     data[algo] = section

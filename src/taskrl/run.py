@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import datetime
+import functools
 import importlib
 import json
 import math
@@ -40,6 +41,9 @@ from taskrl.checkpoint import checkpoint_at, checkpoint_step, load_checkpoint, r
 from taskrl.conditioning.networks import make_conditioning
 from taskrl.config import TrainConfig, check_device, check_fit, validate, with_overrides
 from taskrl.console import ConsoleReporter, final_table, per_task_table
+from taskrl.distributed.limiter import UpdateToDataLimiter
+from taskrl.distributed.loop import DistributedLoop
+from taskrl.distributed.roles import BellmanUpdater, Collector
 from taskrl.envs.base import BatchedEnv
 from taskrl.envs.registry import ENV_FAMILIES, env_family, family_for_source
 from taskrl.envs.spec import EnvFamily, EnvRequest, env_kind
@@ -47,12 +51,12 @@ from taskrl.errors import ConfigError, reason
 from taskrl.logger import RunLogger
 from taskrl.plots import plot_learning_curve
 from taskrl.presets import preset_config
-from taskrl.replay import EpisodeReplay, HindsightRelabeler, TaskBalancedSampler
+from taskrl.replay import EpisodeReplay, HindsightRelabeler, RecentMixSampler, TaskBalancedSampler
 from taskrl.rundir import RunLock, atomic_write_text, check_new_run_dir
 from taskrl.training.bookkeeping import Bookkeeping, LoopState, StopRequest
 from taskrl.training.evaluation import ActingPolicy, evaluate
 from taskrl.training.offline import OfflineLoop
-from taskrl.training.offpolicy import LoopSchedule, OffPolicyLoop
+from taskrl.training.offpolicy import LoopSchedule, OffPolicyLoop, batch_sampler
 from taskrl.training.onpolicy import OnPolicyLoop
 from taskrl.training.per_task import evaluate_per_task
 
@@ -219,11 +223,18 @@ class RunParts:
     generator: torch.Generator
     replay: EpisodeReplay | None = None
     relabel: HindsightRelabeler | None = None
-    sampler: TaskBalancedSampler | None = None
+    sampler: Any = None
+    source: Any = None
+    #: called when the run ends, newest first (a distributed run's actors and its local Ray)
+    on_close: list[Callable[[], Any]] = dataclasses.field(default_factory=list)
 
     def close(self) -> None:
-        self.env.close()
-        self.eval_env.close()
+        try:
+            for close in reversed(self.on_close):
+                close()
+        finally:
+            self.env.close()
+            self.eval_env.close()
 
 
 def build(config: TrainConfig, source: Any = None) -> RunParts:
@@ -237,6 +248,8 @@ def build(config: TrainConfig, source: Any = None) -> RunParts:
     offline = algorithm(config.algo).loop == "offline"
     if offline and family.spec is not None and source is None:  # trains from a dataset: spaces, no env to step
         env = family.spec(config.env_settings, env_request(config, device))
+    elif config.cluster.distributed:  # collectors step the envs; the trainer's copy gives spaces and rewards
+        env = make_env(config, device, num_envs=1, source=source)
     else:
         env = make_env(config, device, source=source)
     eval_env = None
@@ -245,7 +258,7 @@ def build(config: TrainConfig, source: Any = None) -> RunParts:
         agent = make_agent(config, env, device)
         generator = torch.Generator(device=device)
         generator.manual_seed(config.seed + 1)
-        parts = RunParts(config, family, device, env, eval_env, agent, generator)
+        parts = RunParts(config, family, device, env, eval_env, agent, generator, source=source)
         if algorithm(config.algo).loop == "off_policy":
             capacity = min(config.buffer_size, config.total_steps + 2 * env.num_envs * env.horizon)
             check_replay_memory(
@@ -261,8 +274,18 @@ def build(config: TrainConfig, source: Any = None) -> RunParts:
             parts.relabel = make_relabeler(config, env)
             if config.sampling == "task_balanced":
                 parts.sampler = TaskBalancedSampler(parts.replay, len(env.task_set))
+            if config.recent_fraction > 0:
+                balanced = parts.sampler.indices if parts.sampler is not None else None
+                parts.sampler = RecentMixSampler(parts.replay, config.recent_fraction, config.recent_episodes, balanced)
         if offline:
             parts.sampler = _dataset_sampler(config, env, agent, device)
+        if config.cluster.distributed:  # before anything is written: an unreachable cluster is one line
+            from taskrl.distributed.actors import start_ray
+
+            if start_ray(config.cluster, config.cluster.collectors + config.cluster.bellman_updaters):
+                import ray
+
+                parts.on_close.append(ray.shutdown)
         return parts
     except BaseException:
         env.close()
@@ -288,6 +311,26 @@ def _dataset_sampler(config: TrainConfig, env: Any, agent: Any, device: torch.de
     if task_set is not None:
         demos = demos.select_tasks(task_set.names)
     return agent.use_dataset(demos)
+
+
+def preload_replay(parts: RunParts, run_dir: str | Path) -> int:
+    """Fill the replay with the stored episodes of another run's last checkpoint (``--offline-data``);
+    how many episodes it now holds."""
+    folder = Path(run_dir) / "checkpoints"
+    try:
+        saved = load_checkpoint(folder, ("replay",), parts.device)
+    except (OSError, KeyError, ValueError, RuntimeError) as error:
+        raise ConfigError(
+            "offline_data",
+            f"{run_dir} has no checkpoint with a replay to start from ({reason(error)}); train it with --save-replay",
+        ) from None
+    if "replay" not in saved:
+        raise ConfigError("offline_data", f"the last checkpoint of {run_dir} holds no replay; train it with --save-replay")
+    try:
+        parts.replay.load_state_dict(saved["replay"])
+    except (KeyError, RuntimeError, ValueError, IndexError) as error:
+        raise ConfigError("offline_data", f"the replay of {run_dir} does not fit this run's env: {reason(error)}") from None
+    return parts.replay.num_episodes
 
 
 def _first_evaluation(config: TrainConfig) -> int:
@@ -381,10 +424,74 @@ def checkpointer(parts: RunParts, run_dir: Path) -> Callable[[LoopState], None]:
 def _off_policy_loop(parts: RunParts, books: Bookkeeping) -> OffPolicyLoop:
     c = parts.config
     schedule = LoopSchedule(
-        total_steps=c.total_steps, batch_size=c.batch_size, learning_starts=c.learning_starts, updates_per_step=c.updates_per_step
+        total_steps=c.total_steps,
+        batch_size=c.batch_size,
+        learning_starts=c.learning_starts,
+        updates_per_step=c.updates_per_step,
+        offline_updates=c.offline_updates,
     )
     return OffPolicyLoop(
         parts.env, parts.agent, parts.replay, parts.relabel, schedule, books, parts.generator, sample=parts.sampler
+    )
+
+
+def collector_env(config: TrainConfig, source: Any, num_envs: int, seed: int) -> BatchedEnv:
+    """A collector's env copies (built in the collector's process, on CPU)."""
+    import_env_module(config.env_module)
+    return make_env(config, "cpu", num_envs=num_envs, seed=seed, source=source)
+
+
+def role_agent(config: TrainConfig, env: Any = None, source: Any = None) -> Any:
+    """The run's agent on CPU in a role's process: for ``env`` (a collector's), or for the run's spaces."""
+    use_run_threads(config)
+    if env is not None:
+        return make_agent(config, env, torch.device("cpu"))
+    import_env_module(config.env_module)
+    family = env_family(config.env)
+    request = dataclasses.replace(env_request(config, torch.device("cpu"), source), num_envs=1)
+    built = family.make(config.env_settings, request)
+    try:
+        return make_agent(config, built, torch.device("cpu"))
+    finally:
+        built.close()
+
+
+def _distributed_loop(parts: RunParts, books: Bookkeeping) -> DistributedLoop:
+    """Collectors (and Bellman updaters) as Ray actors around this process, the trainer (``--distributed``)."""
+    from taskrl.distributed.actors import RayPool
+
+    c, cluster = parts.config, parts.config.cluster
+    each = cluster.envs_each(c.num_envs)
+    at = books.state.env_steps  # a resumed run's collectors start from new seeds
+    collector_args = [
+        (
+            functools.partial(collector_env, c, parts.source, each),
+            functools.partial(role_agent, c),
+            c.seed + 10_007 * (i + 1) + at,
+            c.threads,
+        )
+        for i in range(cluster.collectors)
+    ]
+    collectors = RayPool(Collector, collector_args, num_cpus=1, max_restarts=cluster.max_restarts)
+    parts.on_close.append(collectors.close)
+    updaters = None
+    if cluster.bellman_updaters:
+        updater_args = [
+            (functools.partial(role_agent, c, None, parts.source), c.seed + 20_011 * (j + 1) + at, c.threads)
+            for j in range(cluster.bellman_updaters)
+        ]
+        updaters = RayPool(BellmanUpdater, updater_args, num_cpus=1, max_restarts=cluster.max_restarts)
+        parts.on_close.append(updaters.close)
+    limiter = UpdateToDataLimiter(
+        c.updates_per_step,
+        c.learning_starts,
+        c.offline_updates,
+        lead_steps=cluster.collectors * each * cluster.collector_steps,
+        enabled=cluster.limit_updates,
+    )
+    sample_batch = batch_sampler(parts.replay, parts.relabel, c.batch_size, parts.generator, parts.sampler)
+    return DistributedLoop(
+        parts.agent, parts.replay, sample_batch, collectors, updaters, cluster, c.total_steps, limiter, each, books
     )
 
 
@@ -560,11 +667,17 @@ def train(
         parts = build(config, source)
         # A new run checkpoints after its first step (a kill before checkpoint_interval still resumes);
         # a resumed run loads its checkpoint before anything of it is rewritten.
-        state = (
-            LoopState(next_checkpoint=0, next_eval=_first_evaluation(config))
-            if resume is None
-            else _restore_checked(parts, run_dir, saved, config)
-        )
+        try:
+            if resume is None and config.offline_data:
+                preload_replay(parts, config.offline_data)
+            state = (
+                LoopState(next_checkpoint=0, next_eval=_first_evaluation(config))
+                if resume is None
+                else _restore_checked(parts, run_dir, saved, config)
+            )
+        except BaseException:
+            parts.close()
+            raise
     except BaseException:
         lock.__exit__()
         if created:  # nothing of this call stays behind
@@ -603,7 +716,8 @@ def train(
             )
             books.heartbeat = reporter.heartbeat
             books.on_train_log, books.train_log_interval = logger.log_training, config.tensorboard_interval
-            loop = LOOPS[algorithm(config.algo).loop](parts, books)
+            make_loop = _distributed_loop if config.cluster.distributed else LOOPS[algorithm(config.algo).loop]
+            loop = make_loop(parts, books)
             try:
                 with stop.on_signals():
                     state = loop.run(env_seed=config.seed + state.env_steps)

@@ -117,6 +117,8 @@ class QTOptAgent(Agent):
     """
 
     acting = ("q", "normalize")
+    #: what bellman_target reads: a Bellman updater's copy of the trainer's state
+    bellman_parts = ("q_target1", "q_target2", "normalize")
     checkpointed = {
         "q": "q",
         "q_target1": "q_target1",
@@ -259,4 +261,5 @@ SPEC = AlgorithmSpec(
     build=lambda inputs, config, device, conditioning: QTOptAgent(inputs.keys, inputs.dim, inputs.action_space, config, device),
     loop="off_policy",
     actions=("box",),
+    bellman_updaters=True,
 )

@@ -38,6 +38,9 @@ class AlgorithmSpec:
             its settings name it in ``dataset``; ``total_steps`` counts gradient updates).
         actions: the action spaces it supports: ``discrete`` (``Discrete``), ``box`` (``Box``).
         multitask: whether it can condition its networks on a task (multi-task envs).
+        bellman_updaters: whether its agent splits an update into ``bellman_target(batch)`` and
+            ``regress(batch, target)`` with ``bellman_parts`` (the weights targets read), so Bellman
+            updaters can compute targets apart from the trainer (QT-Opt).
     """
 
     name: str
@@ -47,3 +50,4 @@ class AlgorithmSpec:
     loop: LoopKind
     actions: tuple[str, ...]
     multitask: bool = False
+    bellman_updaters: bool = False

@@ -35,3 +35,16 @@ class Batch:
 
     def replace(self, **changes) -> Batch:
         return dataclasses.replace(self, **changes)
+
+    def to(self, device: str | torch.device) -> Batch:
+        """This batch on ``device`` (itself when already there)."""
+        device = torch.device(device)
+        if self.reward.device == device:
+            return self
+        return Batch(
+            **{
+                f.name: {k: v.to(device) for k, v in value.items()} if isinstance(value, dict) else value.to(device)
+                for f in dataclasses.fields(self)
+                for value in (getattr(self, f.name),)
+            }
+        )

@@ -86,6 +86,7 @@ class EpisodeReplay:
         self.stage_t = torch.zeros(num_envs, dtype=torch.long, device=self.device)
         self.next_slot = 0
         self.num_episodes = 0
+        self.episodes_added = 0  # ever stored (never decreases; overwritten ones included)
         self._cumulative = torch.zeros(self.max_episodes, dtype=torch.long, device=self.device)
         self._env_ids = torch.arange(num_envs, device=self.device)
 
@@ -142,14 +143,30 @@ class EpisodeReplay:
         return int(ids.numel())
 
     def _commit(self, env_ids: torch.Tensor) -> None:
-        n = env_ids.numel()
+        self.add_episodes({key: table[env_ids] for key, table in self.staging.items()}, self.stage_t[env_ids])
+
+    def add_episodes(self, tables: dict[str, torch.Tensor], lengths: torch.Tensor) -> None:
+        """Store whole episodes recorded elsewhere (a collector's :class:`EpisodeRecorder`): ``tables``
+        has this replay's keys, ``[n, horizon + 1, ...]`` observations and ``[n, horizon, ...]`` steps."""
+        n = int(lengths.numel())
+        if n == 0:
+            return
+        if n > self.max_episodes:  # more than fit: the newest ones
+            tables, lengths = {k: v[-self.max_episodes :] for k, v in tables.items()}, lengths[-self.max_episodes :]
+            n = self.max_episodes
         slots = (self.next_slot + torch.arange(n, device=self.device)) % self.max_episodes
         for key, table in self.storage.items():
-            table[slots] = self.staging[key][env_ids]
-        self.length[slots] = self.stage_t[env_ids]
+            table[slots] = tables[key].to(self.device, table.dtype)
+        self.length[slots] = lengths.to(self.device)
         self.next_slot = (self.next_slot + n) % self.max_episodes
         self.num_episodes = min(self.num_episodes + n, self.max_episodes)
+        self.episodes_added += n
         torch.cumsum(self.length, 0, out=self._cumulative)
+
+    def recent_slots(self, count: int) -> torch.Tensor:
+        """Slots of the ``count`` most recently stored episodes (fewer if fewer are stored), newest last."""
+        count = min(count, self.num_episodes)
+        return (torch.arange(-count, 0, device=self.device) + self.next_slot) % self.max_episodes
 
     # ---------------------------------------------------------------- reading
     @property
@@ -188,13 +205,13 @@ class EpisodeReplay:
         """Stored episodes only (a run stores its running ones first, :meth:`cut_running`)."""
         state = {f"storage/{k}": v for k, v in self.storage.items()}
         state["length"] = self.length
-        state["counters"] = torch.tensor([self.next_slot, self.num_episodes])
+        state["counters"] = torch.tensor([self.next_slot, self.num_episodes, self.episodes_added])
         return state
 
     def load_state_dict(self, state: dict[str, torch.Tensor]) -> None:
         """Restore stored episodes; a resumed run may have a different capacity, so the newest
         episodes that fit are kept, oldest first."""
-        next_slot, num_episodes = (int(x) for x in state["counters"])
+        next_slot, num_episodes, *added = (int(x) for x in state["counters"])  # older checkpoints: no count added
         saved_max = state["length"].shape[0]
         order = (torch.arange(num_episodes) + (next_slot - num_episodes)) % saved_max  # oldest -> newest
         order = order[-self.max_episodes :].to(state["length"].device)
@@ -204,4 +221,39 @@ class EpisodeReplay:
         self.length.zero_()
         self.length[:keep] = state["length"][order].to(self.device)
         self.next_slot, self.num_episodes = keep % self.max_episodes, keep
+        self.episodes_added = added[0] if added else num_episodes
         torch.cumsum(self.length, 0, out=self._cumulative)
+
+
+class EpisodeRecorder(EpisodeReplay):
+    """Records the episodes of ``num_envs`` environments and hands each finished one out whole
+    (:meth:`drain`), instead of keeping them: what a collector sends to the replay of a trainer.
+
+    Arguments as :class:`EpisodeReplay`'s, without a capacity (it stores nothing itself).
+    """
+
+    def __init__(
+        self,
+        observation_space: gym.spaces.Dict,
+        action_space: gym.spaces.Space,
+        horizon: int,
+        num_envs: int,
+        device: str | torch.device = "cpu",
+    ) -> None:
+        super().__init__(observation_space, action_space, 2 * num_envs * horizon, horizon, num_envs, device)
+        self.storage = {}  # finished episodes go to _finished instead
+        self._finished: list[tuple[dict[str, torch.Tensor], torch.Tensor]] = []
+
+    def add_episodes(self, tables: dict[str, torch.Tensor], lengths: torch.Tensor) -> None:
+        self._finished.append(({k: v.clone() for k, v in tables.items()}, lengths.clone()))
+        self.episodes_added += int(lengths.numel())
+
+    def drain(self) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
+        """``(tables, lengths)`` of the episodes finished since the last drain (``lengths`` may be empty)."""
+        keys = list(self.staging)
+        if not self._finished:
+            return {k: self.staging[k][:0].clone() for k in keys}, self.stage_t[:0].clone()
+        tables = {k: torch.cat([t[k] for t, _ in self._finished]) for k in keys}
+        lengths = torch.cat([n for _, n in self._finished])
+        self._finished = []
+        return tables, lengths

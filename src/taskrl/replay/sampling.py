@@ -1,4 +1,6 @@
-"""Task-balanced sampling: every task gets the same share of a batch, whatever its share of the data.
+"""Samplers over stored episodes: task-balanced, and a mix of all data with the most recent episodes.
+
+Task-balanced sampling: every task gets the same share of a batch, whatever its share of the data.
 
 Uniform sampling over transitions lets the tasks that produce the most data (more copies, longer
 episodes, a uniform task draw that happened to favour them) dominate the gradient. Multi-task SAC
@@ -15,7 +17,7 @@ import torch
 from taskrl.replay.batch import Batch
 from taskrl.replay.episodes import EpisodeReplay
 
-__all__ = ["TaskBalancedSampler"]
+__all__ = ["RecentMixSampler", "TaskBalancedSampler"]
 
 
 class TaskBalancedSampler:
@@ -58,6 +60,52 @@ class TaskBalancedSampler:
         # indices), then back to task-major order
         flat = torch.arange(T * per, device=r.device).view(T, per).t().reshape(-1)[:batch_size].sort().values
         return episode.reshape(-1)[flat], step.reshape(-1)[flat]
+
+    def __call__(self, batch_size: int, generator: torch.Generator | None = None) -> Batch:
+        return self.replay.gather(*self.indices(batch_size, generator))
+
+
+class RecentMixSampler:
+    """``sampler(batch_size, generator) -> Batch``: a fixed share of each batch from the most recent
+    episodes (the "on-policy" window), the rest from everything stored (the "off-policy" store).
+
+    QT-Opt trains on a mix of its store of all past grasps and a buffer of fresh on-policy data
+    (Kalashnikov et al., 2018, sec. 4.2); with data preloaded from an earlier run (``--offline-data``)
+    the window keeps new experience from being drowned by the old. Rows of the window come first.
+
+    Args:
+        replay: the episode storage.
+        recent_fraction: share of each batch drawn from the window, in [0, 1].
+        recent_episodes: the window: this many most recently stored episodes.
+        sample_all: ``(n, generator) -> (episode, step)`` for the rest (default uniform over all stored transitions).
+    """
+
+    def __init__(self, replay: EpisodeReplay, recent_fraction: float, recent_episodes: int, sample_all=None) -> None:
+        if not 0.0 <= recent_fraction <= 1.0:
+            raise ValueError(f"recent_fraction: must be in [0, 1] (got {recent_fraction})")
+        if recent_episodes < 1:
+            raise ValueError(f"recent_episodes: must be >= 1 (got {recent_episodes})")
+        self.replay, self.recent_fraction, self.recent_episodes = replay, recent_fraction, recent_episodes
+        self.sample_all = sample_all if sample_all is not None else replay.sample_indices
+
+    def recent_indices(self, n: int, generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """``n`` transitions uniform over the window's transitions."""
+        r = self.replay
+        slots = r.recent_slots(self.recent_episodes)
+        cumulative = r.length[slots].cumsum(0)
+        total = cumulative[-1]
+        u = (torch.rand(n, generator=generator, device=r.device) * total).long().minimum(total - 1)
+        at = torch.searchsorted(cumulative, u, right=True)
+        step = u - (cumulative[at] - r.length[slots[at]])
+        return slots[at], step
+
+    def indices(self, batch_size: int, generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        if self.replay.num_episodes == 0:
+            raise RuntimeError("cannot sample from an empty replay: no episode has finished yet")
+        n_recent = round(batch_size * self.recent_fraction)
+        recent_episode, recent_step = self.recent_indices(n_recent, generator)
+        episode, step = self.sample_all(batch_size - n_recent, generator)
+        return torch.cat([recent_episode, episode]), torch.cat([recent_step, step])
 
     def __call__(self, batch_size: int, generator: torch.Generator | None = None) -> Batch:
         return self.replay.gather(*self.indices(batch_size, generator))

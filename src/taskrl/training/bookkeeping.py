@@ -186,6 +186,8 @@ class Bookkeeping:
         #: (TensorBoard's training curves between evaluations)
         self.on_train_log: Callable[[int, dict[str, float]], Any] | None = None
         self.train_log_interval = 0
+        #: ``(seconds of the row) -> columns`` added to every metrics row (a distributed loop's per-role figures)
+        self.row_metrics: Callable[[float], dict[str, Any]] | None = None
         self._train_base: dict[str, torch.Tensor] = {}
         self._train_calls = 0
         self._next_train_log = self.progress()
@@ -242,6 +244,7 @@ class Bookkeeping:
                 "train_success": (self.episodes_success / self.episodes_done.clamp(min=1)).item(),
                 **{name: (total / max(self.row_calls, 1)).item() for name, total in self.metric_sums.items()},
                 **(extra or {}),
+                **(self.row_metrics(elapsed) if self.row_metrics is not None else {}),
                 "env_steps_per_s": self.row_steps / elapsed,
                 "updates_per_s": self.row_updates / elapsed,
             }

@@ -21,7 +21,7 @@ from taskrl.replay.episodes import EpisodeReplay
 from taskrl.training.bookkeeping import Bookkeeping, LoopState
 from taskrl.types import Obs
 
-__all__ = ["LoopSchedule", "LoopState", "OffPolicyLoop"]
+__all__ = ["LoopSchedule", "LoopState", "OffPolicyLoop", "batch_sampler"]
 
 
 class OffPolicyAgent(Protocol):
@@ -35,6 +35,23 @@ class OffPolicyAgent(Protocol):
 Relabel = Callable[[Batch, EpisodeReplay, torch.Generator], Batch]
 
 
+def batch_sampler(
+    replay: EpisodeReplay,
+    relabel: Relabel | None,
+    batch_size: int,
+    generator: torch.Generator,
+    sample: Callable[[int, torch.Generator], Batch] | None = None,
+) -> Callable[[], Batch]:
+    """``() -> Batch``: a sampled (``sample``, default uniform) and relabelled batch of ``batch_size``."""
+    draw = sample if sample is not None else replay.sample
+
+    def sample_batch() -> Batch:
+        batch = draw(batch_size, generator)
+        return relabel(batch, replay, generator) if relabel else batch
+
+    return sample_batch
+
+
 @dataclasses.dataclass
 class LoopSchedule:
     """When learning happens, in environment steps (evaluation and checkpoints: the Bookkeeping's).
@@ -44,12 +61,14 @@ class LoopSchedule:
         batch_size: transitions per gradient update.
         learning_starts: environment steps collected before the first update.
         updates_per_step: gradient updates per environment step (fractions accumulate).
+        offline_updates: gradient updates on preloaded data before the first env step.
     """
 
     total_steps: int
     batch_size: int
     learning_starts: int
     updates_per_step: float
+    offline_updates: int = 0
 
 
 class OffPolicyLoop:
@@ -79,12 +98,8 @@ class OffPolicyLoop:
         sample: Callable[[int, torch.Generator], Batch] | None = None,
     ) -> None:
         self.env, self.agent, self.replay, self.relabel = env, agent, replay, relabel
-        self.sample = sample if sample is not None else replay.sample
+        self.sample_batch = batch_sampler(replay, relabel, schedule.batch_size, generator, sample)
         self.schedule, self.books, self.generator = schedule, books, generator
-
-    def sample_batch(self) -> Batch:
-        batch = self.sample(self.schedule.batch_size, self.generator)
-        return self.relabel(batch, self.replay, self.generator) if self.relabel else batch
 
     def run(self, env_seed: int) -> LoopState:
         s, env, agent, replay, books = self.schedule, self.env, self.agent, self.replay, self.books
@@ -92,6 +107,10 @@ class OffPolicyLoop:
         obs = env.reset(seed=env_seed)
         replay.start(obs)
         books.on_finish = replay.cut_running  # a stop or the end keeps the episodes still running
+        while state.updates < s.offline_updates:  # learning from preloaded data first (--offline-data)
+            books.add_update(agent.update(self.sample_batch()))
+            if books.after_step(agent.exploration(0)):
+                return books.close()
         while state.env_steps < s.total_steps:
             acted_at = state.env_steps
             action = agent.act(obs, explore=True, generator=self.generator, env_steps=acted_at)

@@ -1,0 +1,128 @@
+"""The Ray shell around the roles: start or join Ray, run role objects as actors, publish weights.
+
+The only module that imports Ray (the ``distributed`` extra); a run without ``--distributed`` never
+loads it. Actors take the role's class name, so an operator sees ``ray::Collector`` and
+``ray::BellmanUpdater`` in ``ps``; Ray restarts a dead one (``max_restarts``) by re-running its
+constructor, and the trainer re-sends its work.
+"""
+
+from __future__ import annotations
+
+import logging
+import socket
+from collections.abc import Callable, Sequence
+from typing import Any
+
+from taskrl.distributed.pools import RoleDied
+from taskrl.distributed.settings import DistributedConfig
+from taskrl.errors import ConfigError, reason
+
+__all__ = ["RayPool", "start_ray"]
+
+
+def _ray() -> Any:
+    try:
+        import ray
+    except ImportError:
+        raise ConfigError("distributed", "needs Ray: pip install 'taskrl[distributed]' (or: pip install 'ray>=2.9')") from None
+    return ray
+
+
+def start_ray(settings: DistributedConfig, actors: int) -> bool:
+    """Start a local Ray or join ``ray_address``; whether this call started it (and should shut it down).
+
+    An unreachable address or a cluster that is not there is a :class:`ConfigError` on
+    ``ray_address`` (one line, exit 2), never a hang.
+    """
+    ray = _ray()
+    if ray.is_initialized():
+        return False
+    address = settings.ray_address
+    quiet = {"include_dashboard": False, "logging_level": logging.ERROR, "log_to_driver": False}
+    if not address:
+        ray.init(num_cpus=settings.ray_cpus or actors + 1, **quiet)
+        return True
+    if address != "auto":
+        host, _, port = address.removeprefix("ray://").rpartition(":")
+        try:
+            socket.create_connection((host, int(port)), timeout=5).close()
+        except OSError as error:
+            raise ConfigError(
+                "ray_address",
+                f"no Ray cluster answers at {address} ({reason(error)}); start one with `ray start --head` "
+                f"or leave --ray-address empty for a local Ray",
+            ) from None
+    try:
+        ray.init(address=address, **quiet)
+    except (ConnectionError, RuntimeError, ValueError) as error:
+        why = "no running Ray cluster was found" if address == "auto" else reason(error)
+        raise ConfigError(
+            "ray_address",
+            f"cannot join the Ray cluster at {address!r}: {why}; start one with `ray start --head` or leave it empty for a local Ray",
+        ) from None
+    return False
+
+
+class _Fetch:
+    """``fetch()`` of a published object: pulls it from Ray's object store when a role needs it."""
+
+    def __init__(self, ref: Any) -> None:
+        self.ref = ref
+
+    def __call__(self) -> Any:
+        return _ray().get(self.ref)
+
+
+class RayPool:
+    """Role objects as Ray actors (one process each).
+
+    Args:
+        role: the role's class (its name is the actor's name).
+        args: constructor arguments of each actor.
+        num_cpus: CPUs each actor reserves in Ray's scheduler.
+        max_restarts: Ray restarts of an actor whose process died (-1: unlimited).
+    """
+
+    def __init__(self, role: type, args: Sequence[tuple], num_cpus: float, max_restarts: int) -> None:
+        ray = _ray()
+        self.ray = ray
+        remote = ray.remote(role).options(num_cpus=num_cpus, max_restarts=max_restarts, max_task_retries=0)
+        self.handles = [remote.remote(*a) for a in args]
+        self.size = len(self.handles)
+
+    def submit(self, index: int, method: str, *args: Any) -> Any:
+        return getattr(self.handles[index], method).remote(*args)
+
+    def ready(self, handles: Sequence[Any], timeout: float) -> list[Any]:
+        handles = list(handles)
+        if not handles:
+            return []
+        first, rest = self.ray.wait(handles, num_returns=1, timeout=timeout)
+        if not first or not rest:
+            return first
+        more, _ = self.ray.wait(rest, num_returns=len(rest), timeout=0)
+        return first + more
+
+    def result(self, handle: Any) -> Any:
+        try:
+            return self.ray.get(handle)
+        except self.ray.exceptions.RayActorError as error:
+            raise RoleDied(reason(error)) from None
+
+    def publish(self, value: Any) -> Callable[[], Any]:
+        return _Fetch(self.ray.put(value))
+
+    def call_all(self, method: str, timeout: float) -> list[Any]:
+        refs = [getattr(h, method).remote() for h in self.handles]
+        done, _ = self.ray.wait(refs, num_returns=len(refs), timeout=timeout)
+        out = []
+        for ref in done:
+            try:
+                out.append(self.ray.get(ref))
+            except self.ray.exceptions.RayError:
+                continue  # a role that died on the way out: nothing of it to keep
+        return out
+
+    def close(self) -> None:
+        for handle in self.handles:
+            self.ray.kill(handle)

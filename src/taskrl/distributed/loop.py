@@ -1,0 +1,304 @@
+"""The distributed off-policy loop: the trainer's side of collectors -> replay -> (Bellman updaters) -> trainer.
+
+The trainer process keeps the replay, so a collector or updater that dies loses at most the work it
+had in hand, never a stored episode. Each turn of the loop
+
+1. sends idle collectors out for ``collector_steps`` steps of their env copies, when the limiter
+   allows (:class:`~taskrl.distributed.limiter.UpdateToDataLimiter`);
+2. stores the episodes of every collect call that came back;
+3. learns: with Bellman updaters, keeps up to ``queue_size`` sampled batches being labelled or
+   waiting, and regresses on labelled ones (``agent.regress(batch, y)``, QT-Opt's trainer); without,
+   makes the agent's own update (``agent.update(batch)``: SAC, TD3, DQN, the Ape-X layout);
+4. publishes acting and target weights every ``publish_interval`` updates, tagged with the update
+   count (a role pulls them when the tag is newer than its own);
+5. runs the bookkeeping (evaluation, metric rows with per-role figures, checkpoints).
+
+Roles are called through a :class:`~taskrl.distributed.pools.Pool`: Ray actors, or the same role
+objects in this process.
+"""
+
+from __future__ import annotations
+
+import collections
+import dataclasses
+from collections.abc import Callable
+from typing import Any
+
+import torch
+
+from taskrl.distributed.limiter import UpdateToDataLimiter
+from taskrl.distributed.pools import Pool, RoleDied
+from taskrl.distributed.roles import Collected, Labelled
+from taskrl.distributed.settings import DistributedConfig
+from taskrl.replay.batch import Batch
+from taskrl.replay.episodes import EpisodeReplay
+from taskrl.training.bookkeeping import Bookkeeping, LoopState
+
+__all__ = ["DistributedLoop", "RoleMeters"]
+
+#: updates the trainer makes in a row before it looks at the collectors again
+UPDATE_BURST = 32
+#: seconds the trainer waits for any role when it has nothing to do
+IDLE_WAIT = 0.05
+#: seconds a finishing run waits for the collect calls in flight and the collectors' running episodes
+FINISH_WAIT = 60.0
+
+
+def _cpu(tree: Any) -> Any:
+    if isinstance(tree, torch.Tensor):
+        return tree.detach().cpu()
+    if isinstance(tree, dict):
+        return {k: _cpu(v) for k, v in tree.items()}
+    return tree
+
+
+@dataclasses.dataclass
+class RoleMeters:
+    """Per-role figures since the last metrics row (and restart counts since the run started)."""
+
+    collectors: int
+    updaters: int
+    collector_restarts: int = 0
+    updater_restarts: int = 0
+
+    def __post_init__(self) -> None:
+        self.reset()
+
+    def reset(self) -> None:
+        self.steps = [0] * self.collectors
+        self.collect_seconds = [0.0] * self.collectors
+        self.targets = [0] * self.updaters
+        self.label_seconds = [0.0] * self.updaters
+        self.queue_depth = self.queue_samples = 0
+        self.lag = self.lag_samples = 0
+
+    def row(self, elapsed: float) -> dict[str, float]:
+        """The row's per-role columns (see docs/distributed.md), then a fresh start."""
+        out: dict[str, float] = {"collector/env_steps_per_s": sum(self.steps) / elapsed}
+        for i, (n, s) in enumerate(zip(self.steps, self.collect_seconds)):
+            out[f"collector{i}/env_steps_per_s"] = n / s if s > 0 else 0.0
+        if self.updaters:
+            out["updater/targets_per_s"] = sum(self.targets) / elapsed
+            for j, (n, s) in enumerate(zip(self.targets, self.label_seconds)):
+                out[f"updater{j}/targets_per_s"] = n / s if s > 0 else 0.0
+            out["queue_depth"] = self.queue_depth / max(self.queue_samples, 1)
+        out["weight_lag"] = self.lag / max(self.lag_samples, 1)
+        out["collector_restarts"] = self.collector_restarts
+        if self.updaters:
+            out["updater_restarts"] = self.updater_restarts
+        self.reset()
+        return out
+
+
+class DistributedLoop:
+    """Runs the trainer against collectors (and Bellman updaters) until ``total_steps``.
+
+    Args:
+        agent: the trainer's agent (``update``; with updaters also ``regress`` and ``bellman_parts``).
+        replay: the trainer's episode storage (collected episodes arrive whole).
+        sample_batch: ``() -> Batch``: a sampled and relabelled batch of the run's batch size.
+        collectors: the Collector pool.
+        updaters: the BellmanUpdater pool, or None (the trainer computes its own targets).
+        settings: the ``cluster`` section.
+        total_steps: env steps to collect.
+        limiter: the update-to-data limiter.
+        envs_per_collector: env copies of each collector.
+        books: the run's bookkeeping.
+    """
+
+    def __init__(
+        self,
+        agent: Any,
+        replay: EpisodeReplay,
+        sample_batch: Callable[[], Batch],
+        collectors: Pool,
+        updaters: Pool | None,
+        settings: DistributedConfig,
+        total_steps: int,
+        limiter: UpdateToDataLimiter,
+        envs_per_collector: int,
+        books: Bookkeeping,
+    ) -> None:
+        self.agent, self.replay, self.sample_batch = agent, replay, sample_batch
+        self.collectors, self.updaters, self.settings = collectors, updaters, settings
+        self.total_steps, self.limiter, self.books = total_steps, limiter, books
+        self.call_steps = envs_per_collector * settings.collector_steps
+        self.meters = RoleMeters(collectors.size, updaters.size if updaters else 0)
+        self.epochs = [0] * collectors.size
+        self.collect_calls: dict[Any, int] = {}
+        self.idle = collections.deque(range(collectors.size))  # first back, first sent again
+        self.dead_collectors: set[int] = set()
+        self.label_calls: dict[Any, int] = {}
+        self.labelled: collections.deque[Labelled] = collections.deque()
+        self.live_updaters = list(range(updaters.size)) if updaters else []
+        self.updater_deaths = [0] * (updaters.size if updaters else 0)
+        self._next_updater = 0
+        self.version = -1
+        self.acting_fetch = self.target_fetch = None
+
+    # ---------------------------------------------------------------- weights
+    def publish(self) -> None:
+        """Acting weights (and, with updaters, target weights) tagged with the update count."""
+        agent = self.agent
+        self.version = agent.updates
+        self.acting_fetch = self.collectors.publish(_cpu(agent.state_dict(agent.acting)))
+        if self.live_updaters:
+            self.target_fetch = self.updaters.publish(_cpu(agent.state_dict(agent.bellman_parts)))
+
+    # ---------------------------------------------------------------- collection
+    def in_flight_steps(self) -> int:
+        return len(self.collect_calls) * self.call_steps
+
+    def row_due(self, state: LoopState) -> bool:
+        """A metrics row (or the end) is due: it waits for the updates owed so far, with collectors held."""
+        return state.env_steps >= min(state.next_eval, self.total_steps)
+
+    def dispatch(self, state: LoopState) -> None:
+        if self.limiter.enabled and self.row_due(state):
+            return
+        while self.idle:
+            ahead = state.env_steps + self.in_flight_steps()
+            if ahead >= self.total_steps or not self.limiter.may_collect(state.updates, ahead + self.call_steps):
+                return
+            i = self.idle.popleft()
+            handle = self.collectors.submit(
+                i, "collect", self.settings.collector_steps, self.version, self.acting_fetch, state.env_steps, self.epochs[i]
+            )
+            self.collect_calls[handle] = i
+
+    def harvest(self, handles: list[Any]) -> int:
+        """Store what came back; returns how many calls returned data."""
+        stored = 0
+        for handle in handles:
+            i = self.collect_calls.pop(handle)
+            try:
+                got: Collected = self.collectors.result(handle)
+            except RoleDied:
+                self.collector_died(i)
+                continue
+            self.idle.append(i)
+            self.store(got)
+            self.meters.steps[i] += got.steps
+            self.meters.collect_seconds[i] += got.seconds
+            self.meters.lag += self.agent.updates - got.version
+            self.meters.lag_samples += 1
+            stored += 1
+        return stored
+
+    def store(self, got: Collected) -> None:
+        self.replay.add_episodes(got.tables, got.lengths)
+        self.books.add_steps(got.steps)
+        self.books.add_episodes(torch.tensor(got.ended), torch.tensor(got.succeeded))
+
+    def collector_died(self, i: int) -> None:
+        self.meters.collector_restarts += 1
+        self.epochs[i] += 1
+        limit = self.settings.max_restarts
+        if limit != -1 and self.epochs[i] > limit:
+            self.dead_collectors.add(i)
+            if len(self.dead_collectors) == self.collectors.size:
+                raise RuntimeError(
+                    f"every collector died and none has a restart left (max_restarts={limit}); "
+                    f"the last checkpoint stays: continue with --resume"
+                )
+        else:
+            self.idle.append(i)  # Ray restarts it; the next call waits for the new process
+
+    # ---------------------------------------------------------------- learning
+    def refill(self) -> None:
+        """Keep ``queue_size`` batches labelled or being labelled (no more: back-pressure)."""
+        while self.live_updaters and len(self.labelled) + len(self.label_calls) < self.settings.queue_size:
+            j = self.live_updaters[self._next_updater % len(self.live_updaters)]
+            self._next_updater += 1
+            batch = self.sample_batch().to("cpu")
+            self.label_calls[self.updaters.submit(j, "label", batch, self.version, self.target_fetch)] = j
+
+    def take_labels(self, timeout: float) -> None:
+        for handle in self.updaters.ready(list(self.label_calls), timeout):
+            j = self.label_calls.pop(handle)
+            try:
+                got: Labelled = self.updaters.result(handle)
+            except RoleDied:
+                self.updater_died(j)
+                continue
+            self.labelled.append(got)
+            self.meters.targets[j] += len(got.batch)
+            self.meters.label_seconds[j] += got.seconds
+
+    def updater_died(self, j: int) -> None:
+        self.meters.updater_restarts += 1
+        self.updater_deaths[j] += 1
+        limit = self.settings.max_restarts
+        if limit != -1 and self.updater_deaths[j] > limit and j in self.live_updaters:
+            self.live_updaters.remove(j)  # none left: the trainer computes its own targets
+
+    def learn(self, state: LoopState) -> int:
+        """Up to :data:`UPDATE_BURST` updates while the limiter allows and batches are at hand."""
+        made = 0
+        device = self.agent.device
+        while made < UPDATE_BURST and self.replay.num_episodes > 0 and self.limiter.may_update(state.updates, state.env_steps):
+            if self.live_updaters:
+                self.refill()
+                if not self.labelled:
+                    self.take_labels(0.0)
+                if not self.labelled:
+                    break
+                self.meters.queue_depth += len(self.labelled)
+                self.meters.queue_samples += 1
+                got = self.labelled.popleft()
+                metrics = self.agent.regress(got.batch.to(device), got.target.to(device))
+            else:
+                metrics = self.agent.update(self.sample_batch())
+            self.books.add_update(metrics)
+            made += 1
+            if self.agent.updates - self.version >= self.settings.publish_interval:
+                self.publish()
+        if self.live_updaters and self.replay.num_episodes > 0:
+            self.refill()
+        return made
+
+    # ---------------------------------------------------------------- the loop
+    def wait(self) -> None:
+        """Nothing to do: wait for the first role call to come back (or a short while)."""
+        if self.collect_calls:
+            self.harvest(self.collectors.ready(list(self.collect_calls), IDLE_WAIT))
+        elif self.label_calls:
+            self.take_labels(IDLE_WAIT)
+
+    def finish(self) -> None:
+        """Keep every transition collected: the calls in flight, then each collector's running episodes."""
+        while self.collect_calls:
+            ready = self.collectors.ready(list(self.collect_calls), FINISH_WAIT)
+            if not ready:
+                break
+            self.harvest(ready)
+        for got in self.collectors.call_all("flush", FINISH_WAIT):
+            self.store(got)
+
+    def run(self, env_seed: int = 0) -> LoopState:
+        """Train until ``total_steps`` env steps (and the updates they are owed) or an early stop."""
+        books, state = self.books, self.books.state
+        books.on_finish = self.finish
+        books.row_metrics = self.row_metrics
+        self.publish()
+        while True:
+            self.dispatch(state)
+            if self.collect_calls:
+                self.harvest(self.collectors.ready(list(self.collect_calls), 0.0))
+            made = self.learn(state)
+            if made == 0 and (state.env_steps < self.total_steps or self.limiter.may_update(state.updates, state.env_steps)):
+                self.dispatch(state)
+                self.wait()
+            if self.row_due(state) and self.limiter.enabled and self.limiter.may_update(state.updates, state.env_steps):
+                continue  # a metrics row (and the end) comes once the updates owed so far are made
+            if books.after_step(self.agent.exploration(state.env_steps)):
+                break
+        return books.close()
+
+    def row_metrics(self, elapsed: float) -> dict[str, float]:
+        state = self.books.state
+        return {
+            **self.meters.row(elapsed),
+            "updates_per_env_step": self.limiter.ratio_made(state.updates, state.env_steps),
+            "stored_episodes": self.replay.episodes_added,
+        }

@@ -1,0 +1,80 @@
+"""A group of role objects the trainer calls asynchronously: :class:`LocalPool` runs them in this
+process (each call at once), :class:`~taskrl.distributed.actors.RayPool` as Ray actors. The loop
+speaks only this interface, so it reads the same either way and is tested without Ray."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Any, Protocol
+
+__all__ = ["LocalPool", "Pool", "RoleDied"]
+
+
+class RoleDied(RuntimeError):
+    """The process of a role died during a call (it restarts if restarts are left)."""
+
+
+class Pool(Protocol):
+    """Roles ``0 .. size - 1`` of one kind."""
+
+    size: int
+
+    def submit(self, index: int, method: str, *args: Any) -> Any:
+        """Start ``role[index].method(*args)``; a handle to its result."""
+
+    def ready(self, handles: Sequence[Any], timeout: float) -> list[Any]:
+        """Those of ``handles`` whose calls have finished, waiting up to ``timeout`` s for at least one."""
+
+    def result(self, handle: Any) -> Any:
+        """The call's return value; :class:`RoleDied` if its process died."""
+
+    def publish(self, value: Any) -> Callable[[], Any]:
+        """``fetch() -> value`` for roles to pull a published object (weights) when they need it."""
+
+    def call_all(self, method: str, timeout: float) -> list[Any]:
+        """``method()`` of every live role, waiting up to ``timeout`` s; the results that came back."""
+
+    def close(self) -> None:
+        """Stop the roles."""
+
+
+class _Done:
+    def __init__(self, value: Any = None, error: BaseException | None = None) -> None:
+        self.value, self.error = value, error
+
+
+class LocalPool:
+    """Role objects in this process; ``submit`` runs the call before returning.
+
+    Args:
+        roles: the role objects (e.g. :class:`~taskrl.distributed.roles.Collector`).
+    """
+
+    def __init__(self, roles: Sequence[Any]) -> None:
+        self.roles, self.size = list(roles), len(roles)
+
+    def submit(self, index: int, method: str, *args: Any) -> _Done:
+        try:
+            return _Done(getattr(self.roles[index], method)(*args))
+        except RoleDied as error:
+            return _Done(error=error)
+
+    def ready(self, handles: Sequence[Any], timeout: float) -> list[Any]:
+        return list(handles)
+
+    def result(self, handle: _Done) -> Any:
+        if handle.error is not None:
+            raise handle.error
+        return handle.value
+
+    def publish(self, value: Any) -> Callable[[], Any]:
+        return lambda: value
+
+    def call_all(self, method: str, timeout: float) -> list[Any]:
+        return [getattr(role, method)() for role in self.roles]
+
+    def close(self) -> None:
+        for role in self.roles:
+            close = getattr(role, "close", None)
+            if close is not None:
+                close()

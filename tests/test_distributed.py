@@ -1,0 +1,281 @@
+"""Distributed off-policy training: roles, limiter, queue, replay, faults, offline-then-online.
+
+The first tests run the roles in this process (a LocalPool: no Ray); the last ones start a local Ray
+with 2 CPUs, train PointReach with collectors and a Bellman updater, and SIGKILL role processes.
+"""
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+import torch
+
+import taskrl
+from taskrl.config import ConfigError, with_overrides
+from taskrl.distributed.limiter import UpdateToDataLimiter
+from taskrl.distributed.loop import DistributedLoop
+from taskrl.distributed.pools import LocalPool
+from taskrl.distributed.roles import BellmanUpdater, Collector
+from taskrl.logger import read_metrics
+from taskrl.presets import preset_config
+from taskrl.replay import EpisodeRecorder, EpisodeReplay, RecentMixSampler
+from taskrl.run import build, collector_env, role_agent
+from taskrl.training.bookkeeping import Bookkeeping, LoopState
+from taskrl.training.offpolicy import batch_sampler
+
+# ---------------------------------------------------------------------- pieces, in one process
+
+
+def test_the_limiter_holds_updates_to_the_ratio_both_ways():
+    limiter = UpdateToDataLimiter(ratio=0.25, learning_starts=100, lead_steps=40)
+    assert not limiter.may_update(0, 99)  # before learning starts
+    assert limiter.may_update(0, 104) and not limiter.may_update(1, 104)  # 0.25 * 4 = 1 owed
+    assert limiter.may_collect(0, 140)  # 10 owed: within the lead of 0.25 * 40
+    assert not limiter.may_collect(0, 141)  # a slow trainer holds the collectors back
+    unlimited = UpdateToDataLimiter(ratio=0.25, learning_starts=100, lead_steps=40, enabled=False)
+    assert unlimited.may_update(10**6, 101) and unlimited.may_collect(0, 10**9)
+    offline = UpdateToDataLimiter(ratio=0.25, learning_starts=0, offline_updates=50)
+    assert offline.may_update(49, 0) and not offline.may_collect(49, 10)  # offline updates first
+    assert offline.may_collect(50, 0)
+
+
+def _config(**overrides):
+    base = dict(
+        total_steps=3_000,
+        eval_interval=1_000,
+        eval_episodes=20,
+        threads=1,
+        seed=0,
+        learning_starts=500,
+        checkpoint_interval=10**6,
+    )
+    return with_overrides(preset_config("pointreach-qtopt-her"), {**base, **overrides})
+
+
+def test_a_collectors_episodes_equal_those_an_in_process_replay_stores():
+    config = _config(num_envs=4)
+    env = collector_env(config, None, 4, seed=3)
+    agent = role_agent(config, env)
+    space, action_space = env.single_observation_space, env.single_action_space
+    recorder = EpisodeRecorder(space, action_space, env.horizon, 4)
+    direct = EpisodeReplay(space, action_space, 10_000, env.horizon, 4)
+    via = EpisodeReplay(space, action_space, 10_000, env.horizon, 4)
+    obs = env.reset(seed=3)
+    recorder.start(obs), direct.start(obs)
+    g = torch.Generator().manual_seed(0)
+    for _ in range(120):
+        action = agent.act(obs, explore=True, generator=g)
+        obs, reward, terminated, truncated, info = env.step(action)
+        for r in (recorder, direct):
+            r.add(action, reward, terminated, truncated, info["final_obs"], obs)
+    via.add_episodes(*recorder.drain())
+    assert via.num_episodes == direct.num_episodes == via.episodes_added > 0
+    for key in direct.storage:
+        assert torch.equal(via.storage[key], direct.storage[key]), key
+    assert recorder.drain()[1].numel() == 0  # drained once
+
+
+def test_recent_mix_draws_its_share_from_the_newest_episodes():
+    config = _config(num_envs=2)
+    env = collector_env(config, None, 2, seed=0)
+    replay = EpisodeReplay(env.single_observation_space, env.single_action_space, 50 * 40, env.horizon, 2)
+    obs = env.reset(seed=0)
+    replay.start(obs)
+    for _ in range(env.horizon * 10):  # 20 episodes
+        action = torch.rand(2, 2) * 2 - 1
+        obs, reward, terminated, truncated, info = env.step(action)
+        replay.add(action, reward, terminated, truncated, info["final_obs"], obs)
+    newest = set(replay.recent_slots(4).tolist())
+    sampler = RecentMixSampler(replay, recent_fraction=0.25, recent_episodes=4)
+    batch = sampler(400, torch.Generator().manual_seed(0))
+    assert set(batch.episode[:100].tolist()) <= newest  # the window's share comes first
+    assert len(set(batch.episode[100:].tolist()) - newest) > 5  # the rest from all stored episodes
+
+
+def _local_loop(tmp_path, config, updaters: int):
+    """A DistributedLoop whose roles are plain objects in this process, with its bookkeeping."""
+    parts = build(config)
+    each = config.cluster.envs_each(config.num_envs)
+    collectors = LocalPool(
+        [
+            Collector(lambda seed: collector_env(config, None, each, seed), lambda env: role_agent(config, env), 10 + i)
+            for i in range(2)
+        ]
+    )
+    pool = LocalPool([BellmanUpdater(lambda: role_agent(config), 20 + j) for j in range(updaters)]) if updaters else None
+    limiter = UpdateToDataLimiter(
+        config.updates_per_step, config.learning_starts, lead_steps=2 * each * config.cluster.collector_steps
+    )
+    rows = []
+    books = Bookkeeping(
+        LoopState(),
+        lambda: {"success_rate": 0.0},
+        rows.append,
+        lambda state: None,
+        config.total_steps,
+        config.eval_interval,
+        config.checkpoint_interval,
+        0.0,
+        parts.device,
+    )
+    sample = batch_sampler(parts.replay, parts.relabel, config.batch_size, parts.generator, parts.sampler)
+    loop = DistributedLoop(
+        parts.agent, parts.replay, sample, collectors, pool, config.cluster, config.total_steps, limiter, each, books
+    )
+    return loop, rows, parts
+
+
+def test_the_loop_keeps_the_update_to_data_ratio_and_a_bounded_queue(tmp_path):
+    config = _config(collectors=2, bellman_updaters=2, queue_size=3)
+    loop, rows, parts = _local_loop(tmp_path, config, updaters=2)
+    most = []
+    refill = loop.refill
+
+    def watched_refill():
+        refill()
+        most.append(len(loop.labelled) + len(loop.label_calls))
+
+    loop.refill = watched_refill
+    state = loop.run()
+    assert state.env_steps >= config.total_steps
+    assert max(most) <= config.cluster.queue_size  # back-pressure: never more batches out than the queue holds
+    for row in rows:
+        if row["env_steps"] > config.learning_starts:
+            assert row["updates_per_env_step"] == pytest.approx(config.updates_per_step, rel=0.05), row
+    assert rows[-1]["updater/targets_per_s"] > 0 and rows[-1]["stored_episodes"] <= parts.replay.episodes_added
+    assert parts.replay.num_transitions == state.env_steps  # every collected step is stored (flushed at the end)
+    parts.close()
+
+
+def test_distribution_settings_are_checked():
+    with pytest.raises(ConfigError) as err:
+        taskrl.train("pointreach-sac-her", distributed=True, bellman_updaters=1)
+    assert err.value.field == "bellman_updaters" and "qtopt" in err.value.message
+    with pytest.raises(ConfigError) as err:
+        taskrl.train("pointreach-sac-her", algo="ppo", distributed=True)
+    assert err.value.field == "distributed"
+    with pytest.raises(ConfigError) as err:
+        taskrl.train("pointreach-qtopt-her", offline_updates=10)
+    assert err.value.field == "offline_updates"
+    with pytest.raises(ConfigError) as err:
+        taskrl.train("pointreach-qtopt-her", distributed=True, ray_address="not an address")
+    assert err.value.field == "ray_address"
+
+
+def test_an_unreachable_cluster_is_one_line_and_exit_2(tmp_path):
+    out = tmp_path / "run"
+    for address in ("127.0.0.1:9", "auto"):
+        done = subprocess.run(
+            [sys.executable, "-m", "taskrl.cli", "train", "pointreach-qtopt-her", "--distributed", "--ray-address", address]
+            + ["--out", str(out)],
+            capture_output=True,
+            text=True,
+            timeout=120,
+            env={**os.environ, "RAY_ADDRESS": ""},
+        )
+        assert done.returncode == 2, done.stderr
+        assert done.stderr.count("\n") == 1 and "--ray-address" in done.stderr
+        assert not out.exists()  # nothing left behind
+
+
+def test_offline_data_from_another_run_then_online(tmp_path):
+    # a run that only acts at random (no update: learning never starts) leaves its replay ...
+    random = dict(random_action_prob=1.0, random_action_prob_end=1.0)
+    source = taskrl.train(
+        "pointreach-qtopt-her",
+        out=tmp_path / "explore",
+        total_steps=8_000,
+        learning_starts=10**6,
+        threads=1,
+        tensorboard=False,
+        **random,
+    )
+    assert source.metrics["success_rate"] < 0.1
+    # ... which another run learns from before it collects: offline updates, then a short online phase
+    short = dict(total_steps=800, learning_starts=0, eval_interval=10**6, threads=1, tensorboard=False, seed=0)
+    common = dict(offline_data=str(tmp_path / "explore"), **short)
+    run = taskrl.train("pointreach-qtopt-her", out=tmp_path / "offline", offline_updates=2_500, **common)
+    assert run.metrics["updates"] >= 2_500 + 0.25 * 800 - 1
+    assert run.metrics["success_rate"] >= 0.9  # random data alone, learned offline
+    online_only = taskrl.train("pointreach-qtopt-her", out=tmp_path / "online", **common)
+    assert online_only.metrics["success_rate"] < 0.5  # the same data and budget, without the offline updates
+
+
+# ---------------------------------------------------------------------- on Ray (2 CPUs)
+
+
+def _role_pids(name: str) -> list[int]:
+    """Processes whose title is ``ray::<name>`` (what Ray names an actor's process)."""
+    pids = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                if (entry / "cmdline").read_bytes().split(b"\0")[0].decode(errors="replace").startswith(f"ray::{name}"):
+                    pids.append(int(entry.name))
+            except OSError:
+                continue
+    return pids
+
+
+def test_distributed_qtopt_reaches_the_in_process_success_on_pointreach(tmp_path):
+    # the settings and goal of tests/test_learning.py's in-process run, on 2 collectors and 1 updater
+    common = dict(stop_at_success=0.95, total_steps=40_000, seed=0, threads=1, tensorboard=False, save_replay=False)
+    spread = taskrl.train(
+        "pointreach-qtopt-her", out=tmp_path / "ray", distributed=True, collectors=2, bellman_updaters=1, **common
+    )
+    assert spread.metrics["success_rate"] >= 0.95
+    rows = read_metrics(tmp_path / "ray" / "metrics.csv")
+    for row in rows[1:]:
+        assert row["updates_per_env_step"] == pytest.approx(0.25, rel=0.05)  # the limiter, across processes
+    last = rows[-1]
+    assert last["collector0/env_steps_per_s"] > 0 and last["collector1/env_steps_per_s"] > 0
+    assert last["updater0/targets_per_s"] > 0 and last["queue_depth"] <= 8
+
+
+def test_killed_collector_and_updater_restart_and_the_run_finishes(tmp_path):
+    out = tmp_path / "faults"
+    killed: dict[str, int] = {}
+
+    def kill_roles():
+        deadline = time.monotonic() + 300
+        metrics = out / "metrics.csv"
+        while time.monotonic() < deadline and not (metrics.exists() and len(read_metrics(metrics)) >= 2):
+            time.sleep(0.2)  # mid-run: after the second metrics row
+        for name in ("Collector", "BellmanUpdater"):
+            pids = _role_pids(name)
+            if pids:
+                os.kill(pids[0], signal.SIGKILL)
+                killed[name] = pids[0]
+            time.sleep(1.0)
+
+    killer = threading.Thread(target=kill_roles, daemon=True)
+    killer.start()
+    run = taskrl.train(
+        "pointreach-qtopt-her",
+        out=out,
+        distributed=True,
+        collectors=2,
+        bellman_updaters=1,
+        stop_at_success=0.95,
+        total_steps=40_000,
+        eval_interval=2_000,
+        seed=1,
+        threads=1,
+        tensorboard=False,
+    )
+    killer.join(timeout=5)
+    assert set(killed) == {"Collector", "BellmanUpdater"}, killed
+    rows = read_metrics(out / "metrics.csv")
+    assert rows[-1]["collector_restarts"] >= 1 and rows[-1]["updater_restarts"] >= 1
+    stored = [row["stored_episodes"] for row in rows]
+    assert stored == sorted(stored) and stored[-1] > stored[0]  # no stored episode is ever lost
+    assert run.metrics["success_rate"] >= 0.95
+    # the trainer resumes from its checkpoint (replay included) with more steps
+    resumed = taskrl.train(resume=out, total_steps=run.metrics["env_steps"] + 1_000, stop_at_success=0.0, tensorboard=False)
+    assert resumed.metrics["env_steps"] >= run.metrics["env_steps"] + 1_000
+    assert read_metrics(out / "metrics.csv")[-1]["stored_episodes"] >= stored[-1]
