@@ -42,7 +42,7 @@ from taskrl.conditioning.networks import make_conditioning
 from taskrl.config import TrainConfig, check_device, check_fit, validate, with_overrides
 from taskrl.console import ConsoleReporter, final_table, per_task_table
 from taskrl.distributed.limiter import UpdateToDataLimiter
-from taskrl.distributed.loop import DistributedLoop
+from taskrl.distributed.loop import CALLS_PER_COLLECTOR, DistributedLoop
 from taskrl.distributed.roles import BellmanUpdater, Collector
 from taskrl.envs.base import BatchedEnv
 from taskrl.envs.registry import ENV_FAMILIES, env_family, family_for_source
@@ -486,7 +486,7 @@ def _distributed_loop(parts: RunParts, books: Bookkeeping) -> DistributedLoop:
         c.updates_per_step,
         c.learning_starts,
         c.offline_updates,
-        lead_steps=cluster.collectors * each * cluster.collector_steps,
+        lead_steps=CALLS_PER_COLLECTOR * cluster.collectors * each * cluster.collector_steps,
         enabled=cluster.limit_updates,
     )
     sample_batch = batch_sampler(parts.replay, parts.relabel, c.batch_size, parts.generator, parts.sampler)

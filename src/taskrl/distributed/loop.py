@@ -38,6 +38,8 @@ __all__ = ["DistributedLoop", "RoleMeters"]
 
 #: updates the trainer makes in a row before it looks at the collectors again
 UPDATE_BURST = 32
+#: collect calls queued on each collector: its next call waits in the actor, not for the trainer
+CALLS_PER_COLLECTOR = 2
 #: seconds the trainer waits for any role when it has nothing to do
 IDLE_WAIT = 0.05
 #: seconds a finishing run waits for the collect calls in flight and the collectors' running episodes
@@ -125,8 +127,9 @@ class DistributedLoop:
         self.call_steps = envs_per_collector * settings.collector_steps
         self.meters = RoleMeters(collectors.size, updaters.size if updaters else 0)
         self.epochs = [0] * collectors.size
-        self.collect_calls: dict[Any, int] = {}
-        self.idle = collections.deque(range(collectors.size))  # first back, first sent again
+        self.collect_calls: dict[Any, tuple[int, int]] = {}  # handle -> (collector, its epoch when sent)
+        # a free call slot of each collector; first back, first sent again
+        self.idle = collections.deque(i for _ in range(CALLS_PER_COLLECTOR) for i in range(collectors.size))
         self.dead_collectors: set[int] = set()
         self.label_calls: dict[Any, int] = {}
         self.labelled: collections.deque[Labelled] = collections.deque()
@@ -164,17 +167,17 @@ class DistributedLoop:
             handle = self.collectors.submit(
                 i, "collect", self.settings.collector_steps, self.version, self.acting_fetch, state.env_steps, self.epochs[i]
             )
-            self.collect_calls[handle] = i
+            self.collect_calls[handle] = (i, self.epochs[i])
 
     def harvest(self, handles: list[Any]) -> int:
         """Store what came back; returns how many calls returned data."""
         stored = 0
         for handle in handles:
-            i = self.collect_calls.pop(handle)
+            i, epoch = self.collect_calls.pop(handle)
             try:
                 got: Collected = self.collectors.result(handle)
             except RoleDied:
-                self.collector_died(i)
+                self.collector_died(i, epoch)
                 continue
             self.idle.append(i)
             self.store(got)
@@ -190,11 +193,14 @@ class DistributedLoop:
         self.books.add_steps(got.steps)
         self.books.add_episodes(torch.tensor(got.ended), torch.tensor(got.succeeded))
 
-    def collector_died(self, i: int) -> None:
-        self.meters.collector_restarts += 1
-        self.epochs[i] += 1
+    def collector_died(self, i: int, epoch: int) -> None:
+        if epoch == self.epochs[i]:  # the first of its calls to fail: one death, one restart
+            self.meters.collector_restarts += 1
+            self.epochs[i] += 1
         limit = self.settings.max_restarts
         if limit != -1 and self.epochs[i] > limit:
+            if i in self.dead_collectors:
+                return
             self.dead_collectors.add(i)
             if len(self.dead_collectors) == self.collectors.size:
                 raise RuntimeError(
