@@ -5,6 +5,7 @@ and time to 90% against the in-process run.
 .venv/bin/python benchmarks/distributed.py collectors --counts 1 2 4 8 16 --write
 .venv/bin/python benchmarks/distributed.py updaters --counts 1 2 4 8 --write
 .venv/bin/python benchmarks/distributed.py fetchpush --steps 50000 --write
+.venv/bin/python benchmarks/distributed.py costs --write
 
 Every run is a ``taskrl.train`` call in this process (the trainer); roles are Ray actors of a local
 Ray. Raw rows go to ``benchmarks/results/distributed_<part>.json``.
@@ -247,8 +248,85 @@ def fetchpush(args: argparse.Namespace, folder: Path) -> str:
     return "\n".join(lines)
 
 
-PARTS = {"fetchreach": fetchreach, "collectors": collectors, "updaters": updaters, "fetchpush": fetchpush}
+# ---------------------------------------------------------------------- per-role costs, and a projection
+def costs(args: argparse.Namespace, folder: Path) -> str:
+    """Milliseconds of each role's unit of work on one core (FetchReach-v4, the QT-Opt + HER preset), and
+    the env steps/s that C collector cores and U updater cores would give a trainer on one core."""
+    import torch
+
+    from taskrl.config import with_overrides
+    from taskrl.presets import preset_config
+    from taskrl.run import build
+
+    torch.set_num_threads(1)
+    config = with_overrides(preset_config("fetchreach-qtopt-her"), {"num_envs": 1, "threads": 1})
+    parts = build(config)
+    env, agent, replay = parts.env, parts.agent, parts.replay
+    g = torch.Generator().manual_seed(0)
+    obs = env.reset(seed=0)
+    replay.start(obs)
+
+    def timed(fn, n: int) -> float:
+        fn()
+        start = time.perf_counter()
+        for _ in range(n):
+            fn()
+        return (time.perf_counter() - start) / n * 1e3
+
+    def collect_step():
+        nonlocal obs
+        action = agent.act(obs, explore=True, generator=g)
+        next_obs, reward, terminated, truncated, info = env.step(action)
+        replay.add(action, reward, terminated, truncated, info["final_obs"], next_obs)
+        obs = next_obs
+
+    step_ms = timed(collect_step, 2_000)  # also fills the replay
+    from taskrl.training.offpolicy import batch_sampler
+
+    sample = batch_sampler(replay, parts.relabel, config.batch_size, parts.generator, parts.sampler)
+    batch = sample()
+    sample_ms = timed(sample, 200)
+    target_ms = timed(lambda: agent.bellman_target(batch, g), 50)
+    target = agent.bellman_target(batch, g)
+    regress_ms = timed(lambda: agent.regress(batch, target), 200)
+    parts.close()
+    ratio = config.updates_per_step
+    entry = {
+        "collect_step_ms": step_ms,
+        "sample_relabel_ms": sample_ms,
+        "bellman_target_ms": target_ms,
+        "regress_ms": regress_ms,
+        "batch_size": config.batch_size,
+        "updates_per_step": ratio,
+    }
+    _save("costs", entry)
+    trainer_updates = 1e3 / (sample_ms + regress_ms)  # the trainer samples for the updaters and regresses
+    lines = [
+        f"One core, one torch thread, FetchReach-v4 with the `fetchreach-qtopt-her` preset ((128, 128) Q-network, CEM 64 + 64 "
+        f"samples, batch {config.batch_size}, {ratio} updates per env step): a collector's env step with its CEM action "
+        f"{step_ms:.2f} ms; the trainer's sample + hindsight relabel {sample_ms:.2f} ms and regression {regress_ms:.2f} ms "
+        f"per update; a Bellman updater's CEM target for a batch {target_ms:.1f} ms.",
+        "",
+        "Projected env steps/s at this update-to-data ratio, with the trainer on one core, C cores of collectors and U "
+        "cores of updaters (the smallest of C / step, U / (ratio x target) and trainer / ratio; transfer costs left out):",
+        "",
+        "| collector cores C | updater cores U | env steps/s | limited by |",
+        "|---|---|---|---|",
+    ]
+    for c, u in ((1, 1), (2, 1), (2, 2), (4, 4), (8, 8), (8, 16), (16, 16), (32, 32)):
+        bounds = {
+            "collectors": c * 1e3 / step_ms,
+            "updaters": u * 1e3 / (ratio * target_ms),
+            "trainer": trainer_updates / ratio,
+        }
+        which = min(bounds, key=bounds.get)
+        lines.append(f"| {c} | {u} | {bounds[which]:,.0f} | {which} |")
+    return "\n".join(lines)
+
+
+PARTS = {"costs": costs, "fetchreach": fetchreach, "collectors": collectors, "updaters": updaters, "fetchpush": fetchpush}
 TITLES = {
+    "costs": "Distributed QT-Opt: per-role costs on FetchReach-v4 and what N machines would give",
     "fetchreach": "Distributed QT-Opt + HER on FetchReach-v4: per-role throughput and time to 90%",
     "collectors": "Distributed collection: scaling with sleep-bound collectors (a 50 Hz robot stand-in)",
     "updaters": "Distributed Bellman updaters: scaling with a sleep-bound stand-in",

@@ -15,7 +15,7 @@ from taskrl.distributed.actors import RayPool, start_ray
 from taskrl.distributed.limiter import UpdateToDataLimiter
 from taskrl.distributed.loop import IDLE_WAIT, DistributedLoop
 from taskrl.distributed.pools import LocalPool
-from taskrl.distributed.roles import BellmanUpdater, Labelled
+from taskrl.distributed.roles import BellmanUpdater, Labelled, pull_weights
 from taskrl.presets import preset_config
 from taskrl.run import build, preload_replay, role_agent
 from taskrl.training.bookkeeping import Bookkeeping, LoopState
@@ -31,9 +31,7 @@ class SleepyUpdater(BellmanUpdater):
 
     def label(self, batch, version, fetch) -> Labelled:
         started = time.perf_counter()
-        if version > self.version:
-            self.agent.load_parts(fetch())
-            self.version = version
+        pull_weights(self, version, fetch)
         time.sleep(self.seconds)
         return Labelled(batch, batch.reward.clone(), time.perf_counter() - started, self.version)
 

@@ -24,7 +24,7 @@ from taskrl.distributed.roles import BellmanUpdater, Collector
 from taskrl.logger import read_metrics
 from taskrl.presets import preset_config
 from taskrl.replay import EpisodeRecorder, EpisodeReplay, RecentMixSampler
-from taskrl.run import build, collector_env, role_agent
+from taskrl.run import build, collector_env, make_evaluator, role_agent
 from taskrl.training.bookkeeping import Bookkeeping, LoopState
 from taskrl.training.offpolicy import batch_sampler
 
@@ -97,9 +97,11 @@ def test_recent_mix_draws_its_share_from_the_newest_episodes():
     assert len(set(batch.episode[100:].tolist()) - newest) > 5  # the rest from all stored episodes
 
 
-def _local_loop(tmp_path, config, updaters: int):
-    """A DistributedLoop whose roles are plain objects in this process, with its bookkeeping."""
+def _local_loop(tmp_path, config, updaters: int, evaluated: bool = False):
+    """A DistributedLoop whose roles are plain objects in this process, with its bookkeeping (evaluating
+    the trainer's agent, or a stand-in evaluation)."""
     parts = build(config)
+    evaluate = make_evaluator(config, parts.eval_env, parts.agent, seed=123)[0] if evaluated else lambda: {"success_rate": 0.0}
     each = config.cluster.envs_each(config.num_envs)
     collectors = LocalPool(
         [
@@ -114,13 +116,13 @@ def _local_loop(tmp_path, config, updaters: int):
     rows = []
     books = Bookkeeping(
         LoopState(),
-        lambda: {"success_rate": 0.0},
+        evaluate,
         rows.append,
         lambda state: None,
         config.total_steps,
         config.eval_interval,
         config.checkpoint_interval,
-        0.0,
+        config.stop_at_success,
         parts.device,
     )
     sample = batch_sampler(parts.replay, parts.relabel, config.batch_size, parts.generator, parts.sampler)
@@ -150,6 +152,17 @@ def test_the_loop_keeps_the_update_to_data_ratio_and_a_bounded_queue(tmp_path):
     assert rows[-1]["updater/targets_per_s"] > 0 and rows[-1]["stored_episodes"] <= parts.replay.episodes_added
     assert parts.replay.num_transitions == state.env_steps  # every collected step is stored (flushed at the end)
     parts.close()
+
+
+def test_sac_learns_through_collectors_with_its_own_targets(tmp_path):
+    # the Ape-X layout: collectors feed the trainer's replay and SAC makes its whole update itself
+    config = _config(total_steps=30_000, eval_interval=3_000, stop_at_success=0.9)
+    config = with_overrides(config, {"algo": "sac", "collectors": 2, "bellman_updaters": 0})
+    loop, rows, parts = _local_loop(tmp_path, config, updaters=0, evaluated=True)
+    state = loop.run()
+    assert rows[-1]["success_rate"] >= 0.9, [r["success_rate"] for r in rows]
+    assert state.env_steps < config.total_steps  # stopped at success
+    assert rows[-1]["weight_lag"] < config.cluster.publish_interval + 32
 
 
 def test_distribution_settings_are_checked():
@@ -279,3 +292,21 @@ def test_killed_collector_and_updater_restart_and_the_run_finishes(tmp_path):
     resumed = taskrl.train(resume=out, total_steps=run.metrics["env_steps"] + 1_000, stop_at_success=0.0, tensorboard=False)
     assert resumed.metrics["env_steps"] >= run.metrics["env_steps"] + 1_000
     assert read_metrics(out / "metrics.csv")[-1]["stored_episodes"] >= stored[-1]
+
+
+def test_dqn_learns_through_ray_collectors_with_its_own_targets(tmp_path):
+    # the Ape-X layout on Ray: DQN (epsilon-greedy in each collector) on 8-bit flipping, as in one process
+    run = taskrl.train(
+        "bitflip-her",
+        out=tmp_path / "dqn",
+        n_bits=8,
+        total_steps=12_000,
+        eval_interval=2_000,
+        stop_at_success=0.9,
+        seed=0,
+        tensorboard=False,
+        distributed=True,
+        collectors=2,
+    )
+    assert run.metrics["success_rate"] >= 0.9
+    assert run.metrics["collector0/env_steps_per_s"] > 0 and run.metrics["collector1/env_steps_per_s"] > 0

@@ -260,7 +260,7 @@ def build(config: TrainConfig, source: Any = None) -> RunParts:
         generator.manual_seed(config.seed + 1)
         parts = RunParts(config, family, device, env, eval_env, agent, generator, source=source)
         if algorithm(config.algo).loop == "off_policy":
-            capacity = min(config.buffer_size, config.total_steps + 2 * env.num_envs * env.horizon)
+            capacity = min(config.buffer_size, replay_needs(config, env))
             check_replay_memory(
                 EpisodeReplay.bytes_needed(
                     env.single_observation_space, env.single_action_space, capacity, env.horizon, env.num_envs
@@ -292,6 +292,19 @@ def build(config: TrainConfig, source: Any = None) -> RunParts:
         if eval_env is not None:
             eval_env.close()
         raise
+
+
+def replay_needs(config: TrainConfig, env: BatchedEnv) -> int:
+    """Transitions a run can store: its env steps and the episodes running at its end (with
+    ``--offline-data``, also the other run's: everything up to ``buffer_size``)."""
+    if config.offline_data:
+        return config.buffer_size
+    running = 2 * env.num_envs * env.horizon
+    cluster = config.cluster
+    if cluster.distributed:  # collect calls in flight may pass total_steps, and each collector's running episodes
+        each = cluster.envs_each(config.num_envs)
+        running = cluster.collectors * each * (CALLS_PER_COLLECTOR * cluster.collector_steps + 2 * env.horizon)
+    return config.total_steps + running
 
 
 def _dataset_sampler(config: TrainConfig, env: Any, agent: Any, device: torch.device) -> Any:

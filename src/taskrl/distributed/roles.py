@@ -20,9 +20,16 @@ import torch
 from taskrl.replay.batch import Batch
 from taskrl.replay.episodes import EpisodeRecorder
 
-__all__ = ["BellmanUpdater", "Collected", "Collector", "Labelled"]
+__all__ = ["BellmanUpdater", "Collected", "Collector", "Labelled", "pull_weights"]
 
 Fetch = Callable[[], dict[str, Any]]
+
+
+def pull_weights(role: Any, version: int, fetch: Fetch) -> None:
+    """Load ``fetch()`` into ``role.agent`` when ``version`` is newer than the role's ``version``."""
+    if version > role.version:
+        role.agent.load_parts(fetch())
+        role.version = version
 
 
 @dataclasses.dataclass
@@ -109,9 +116,7 @@ class Collector:
             epoch: how many times the trainer saw this collector restart (reseeds after a restart).
         """
         started = time.perf_counter()
-        if version > self.version:
-            self.agent.load_parts(fetch())
-            self.version = version
+        pull_weights(self, version, fetch)
         if self.obs is None or epoch != self.epoch:
             self._start(epoch)
         env, recorder = self.env, self.recorder
@@ -166,8 +171,6 @@ class BellmanUpdater:
         """``y`` for every transition of ``batch``, with the target weights of ``version`` (pulled by
         ``fetch()`` when newer than those held)."""
         started = time.perf_counter()
-        if version > self.version:
-            self.agent.load_parts(fetch())
-            self.version = version
+        pull_weights(self, version, fetch)
         target = self.agent.bellman_target(batch, self.generator)
         return Labelled(batch, target, time.perf_counter() - started, self.version)
