@@ -180,6 +180,13 @@ def test_distribution_settings_are_checked():
     assert err.value.field == "ray_address"
 
 
+def test_more_actors_than_the_cluster_can_place_are_refused_not_waited_for(tmp_path):
+    with pytest.raises(ConfigError) as err:
+        taskrl.train("pointreach-qtopt-her", out=tmp_path / "run", distributed=True, collectors=3, bellman_updaters=1, ray_cpus=2)
+    assert err.value.field == "actor_cpus" and "need 4 CPUs" in err.value.message
+    assert not (tmp_path / "run").exists()
+
+
 def test_an_unreachable_cluster_is_one_line_and_exit_2(tmp_path):
     out = tmp_path / "run"
     for address in ("127.0.0.1:9", "auto"):
@@ -239,7 +246,14 @@ def test_distributed_qtopt_reaches_the_in_process_success_on_pointreach(tmp_path
     # the settings and goal of tests/test_learning.py's in-process run, on 2 collectors and 1 updater
     common = dict(stop_at_success=0.95, total_steps=40_000, seed=0, threads=1, tensorboard=False, save_replay=False)
     spread = taskrl.train(
-        "pointreach-qtopt-her", out=tmp_path / "ray", distributed=True, collectors=2, bellman_updaters=1, **common
+        "pointreach-qtopt-her",
+        out=tmp_path / "ray",
+        distributed=True,
+        collectors=2,
+        bellman_updaters=1,
+        ray_cpus=2,
+        actor_cpus=0.5,
+        **common,
     )
     assert spread.metrics["success_rate"] >= 0.95
     rows = read_metrics(tmp_path / "ray" / "metrics.csv")
@@ -274,6 +288,8 @@ def test_killed_collector_and_updater_restart_and_the_run_finishes(tmp_path):
         distributed=True,
         collectors=2,
         bellman_updaters=1,
+        ray_cpus=2,
+        actor_cpus=0.5,
         stop_at_success=0.95,
         total_steps=40_000,
         eval_interval=2_000,
@@ -307,6 +323,7 @@ def test_dqn_learns_through_ray_collectors_with_its_own_targets(tmp_path):
         tensorboard=False,
         distributed=True,
         collectors=2,
+        ray_cpus=2,
     )
     assert run.metrics["success_rate"] >= 0.9
     assert run.metrics["collector0/env_steps_per_s"] > 0 and run.metrics["collector1/env_steps_per_s"] > 0

@@ -485,7 +485,7 @@ def _distributed_loop(parts: RunParts, books: Bookkeeping) -> DistributedLoop:
         )
         for i in range(cluster.collectors)
     ]
-    collectors = RayPool(Collector, collector_args, num_cpus=1, max_restarts=cluster.max_restarts)
+    collectors = RayPool(Collector, collector_args, num_cpus=cluster.actor_cpus, max_restarts=cluster.max_restarts)
     parts.on_close.append(collectors.close)
     updaters = None
     if cluster.bellman_updaters:
@@ -493,7 +493,7 @@ def _distributed_loop(parts: RunParts, books: Bookkeeping) -> DistributedLoop:
             (functools.partial(role_agent, c, None, parts.source), c.seed + 20_011 * (j + 1) + at, c.threads)
             for j in range(cluster.bellman_updaters)
         ]
-        updaters = RayPool(BellmanUpdater, updater_args, num_cpus=1, max_restarts=cluster.max_restarts)
+        updaters = RayPool(BellmanUpdater, updater_args, num_cpus=cluster.actor_cpus, max_restarts=cluster.max_restarts)
         parts.on_close.append(updaters.close)
     limiter = UpdateToDataLimiter(
         c.updates_per_step,

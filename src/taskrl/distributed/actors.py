@@ -9,13 +9,14 @@ constructor, and the trainer re-sends its work.
 from __future__ import annotations
 
 import logging
+import math
 import socket
 from collections.abc import Callable, Sequence
 from typing import Any
 
 from taskrl.distributed.pools import RoleDied
 from taskrl.distributed.settings import DistributedConfig
-from taskrl.errors import ConfigError, reason
+from taskrl.errors import ConfigError, reason, require
 
 __all__ = ["RayPool", "start_ray"]
 
@@ -36,11 +37,13 @@ def start_ray(settings: DistributedConfig, actors: int) -> bool:
     """
     ray = _ray()
     if ray.is_initialized():
+        check_capacity(settings, actors)
         return False
     address = settings.ray_address
     quiet = {"include_dashboard": False, "logging_level": logging.ERROR, "log_to_driver": False}
     if not address:
-        ray.init(num_cpus=settings.ray_cpus or actors + 1, **quiet)
+        ray.init(num_cpus=settings.ray_cpus or max(1, math.ceil(actors * settings.actor_cpus)), **quiet)
+        _checked(settings, actors)
         return True
     if address != "auto":
         host, _, port = address.removeprefix("ray://").rpartition(":")
@@ -60,7 +63,30 @@ def start_ray(settings: DistributedConfig, actors: int) -> bool:
             "ray_address",
             f"cannot join the Ray cluster at {address!r}: {why}; start one with `ray start --head` or leave it empty for a local Ray",
         ) from None
+    _checked(settings, actors)
     return False
+
+
+def check_capacity(settings: DistributedConfig, actors: int) -> None:
+    """A :class:`ConfigError` on ``actor_cpus`` when the cluster cannot place every actor (they would
+    wait for CPUs forever)."""
+    have = _ray().cluster_resources().get("CPU", 0.0)
+    need = actors * settings.actor_cpus
+    require(
+        need <= have + 1e-9,
+        "actor_cpus",
+        f"{actors} collectors and updaters x {settings.actor_cpus} CPU need {need:g} CPUs; the Ray cluster has {have:g}: "
+        f"lower --actor-cpus, raise --ray-cpus, or add nodes",
+    )
+
+
+def _checked(settings: DistributedConfig, actors: int) -> None:
+    """:func:`check_capacity` of the Ray this call started or joined (left again when it does not fit)."""
+    try:
+        check_capacity(settings, actors)
+    except ConfigError:
+        _ray().shutdown()
+        raise
 
 
 class _Fetch:

@@ -29,8 +29,10 @@ class DistributedConfig:
         limit_updates: hold trainer updates per collected env step at ``updates_per_step``, by pausing
             the trainer or the collectors (off: both run as fast as they can).
         ray_address: empty: start a local Ray; ``auto`` or ``HOST:PORT``: join a running cluster.
-        ray_cpus: logical CPUs of a local Ray (0: one per actor; roles mostly wait on envs, so more
-            roles than cores is fine).
+        ray_cpus: logical CPUs of a local Ray (0: enough for every actor's ``actor_cpus``; roles mostly
+            wait on envs, so more roles than cores is fine).
+        actor_cpus: CPUs each collector and updater reserves in Ray's scheduler (e.g. 0.5 to fit 4 roles
+            in ``ray_cpus=2``); a cluster with fewer is refused before the run starts.
         max_restarts: restarts of a collector or updater whose process died (-1: unlimited); the run
             keeps going while it is down.
     """
@@ -45,6 +47,7 @@ class DistributedConfig:
     limit_updates: bool = True
     ray_address: str = ""
     ray_cpus: int = 0
+    actor_cpus: float = 1.0
     max_restarts: int = -1
 
     def validate(self) -> None:
@@ -53,6 +56,7 @@ class DistributedConfig:
             require(getattr(self, name) >= 1, name, f"must be >= 1 (got {getattr(self, name)})")
         for name in ("envs_per_collector", "bellman_updaters", "ray_cpus"):
             require(getattr(self, name) >= 0, name, f"must be >= 0 (got {getattr(self, name)})")
+        require(self.actor_cpus > 0, "actor_cpus", f"must be > 0 (got {self.actor_cpus})")
         require(self.max_restarts >= -1, "max_restarts", f"must be >= -1 (-1 = unlimited; got {self.max_restarts})")
         address = self.ray_address
         require(
