@@ -1,7 +1,7 @@
 """Distributed training on Ray: per-role throughput, scaling with sleep-bound collectors and updaters,
 and time to 90% against the in-process run.
 
-.venv/bin/python benchmarks/distributed.py fetchreach --seeds 0 1 2 --write
+.venv/bin/python benchmarks/distributed.py fetchreach --seeds 0 1 2 --steps 12000 --write
 .venv/bin/python benchmarks/distributed.py collectors --counts 1 2 4 8 16 --write
 .venv/bin/python benchmarks/distributed.py updaters --counts 1 2 4 8 --write
 .venv/bin/python benchmarks/distributed.py fetchpush --steps 50000 --write
@@ -84,6 +84,7 @@ def fetchreach(args: argparse.Namespace, folder: Path) -> str:
                 folder / f"{name}-{seed}".replace(" ", "_").replace(",", ""),
                 seed=seed,
                 total_steps=args.steps,
+                stop_at_success=0.9,
                 eval_interval=500,
                 eval_episodes=50,
                 **cluster,
