@@ -27,6 +27,7 @@ HERE = Path(__file__).parent
 sys.path.insert(0, str(HERE))
 os.environ["PYTHONPATH"] = os.pathsep.join([str(HERE), os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep)  # role processes
 import taskrl  # noqa: E402
+import taskrl.run  # noqa: E402
 from common import append_results  # noqa: E402
 from taskrl.logger import read_metrics  # noqa: E402
 
@@ -97,6 +98,7 @@ def fetchreach(args: argparse.Namespace, folder: Path) -> str:
                 "env_steps": last["env_steps"],
                 "updates": last["updates"],
                 "final_success": last["success_rate"],
+                "learning_starts": taskrl.run.resolve_config("fetchreach-qtopt-her", None, {}).learning_starts,
                 "env_steps_to_90": steps_90,
                 "training_seconds_to_90": seconds_90,
                 "process_seconds": round(wall, 1),
@@ -131,7 +133,7 @@ def fetchreach(args: argparse.Namespace, folder: Path) -> str:
         secs90 = [r["training_seconds_to_90"] for r in runs]
         lines.append(
             f"| {name} | {len(runs)} | {med('env_steps_per_s'):.0f} | {med('updates_per_s'):.1f} | {targets} | {per_collector or '-'} "
-            f"| {med('updates_per_env_step') if 'updates_per_env_step' in runs[0] else 0.5:.3f} "
+            f"| {statistics.median(r['updates'] / (r['env_steps'] - r['learning_starts']) for r in runs):.3f} "
             f"| {', '.join(str(s) for s in to90)} | {', '.join(f'{s:.0f}' if s is not None else '-' for s in secs90)} |"
         )
     return "\n".join(lines)
@@ -302,6 +304,10 @@ def costs(args: argparse.Namespace, folder: Path) -> str:
     }
     _save("costs", entry)
     trainer_updates = 1e3 / (sample_ms + regress_ms)  # the trainer samples for the updaters and regresses
+    pipeline = None  # labelled batches/s the trainer process moved with many stand-in updaters (transfers included)
+    measured = RESULTS / "distributed_updaters.json"
+    if measured.exists():
+        pipeline = max(r["updates_per_s"] for r in json.loads(measured.read_text())["runs"])
     lines = [
         f"One core, one torch thread, FetchReach-v4 with the `fetchreach-qtopt-her` preset ((128, 128) Q-network, CEM 64 + 64 "
         f"samples, batch {config.batch_size}, {ratio} updates per env step): a collector's env step with its CEM action "
@@ -309,7 +315,9 @@ def costs(args: argparse.Namespace, folder: Path) -> str:
         f"per update; a Bellman updater's CEM target for a batch {target_ms:.1f} ms.",
         "",
         "Projected env steps/s at this update-to-data ratio, with the trainer on one core, C cores of collectors and U "
-        "cores of updaters (the smallest of C / step, U / (ratio x target) and trainer / ratio; transfer costs left out):",
+        "cores of updaters: the smallest of C / step, U / (ratio x target), trainer compute / ratio and, where measured, "
+        f"the trainer process's labelled-batch rate with many stand-in updaters ({pipeline or 0:.0f} batches/s, transfers "
+        "included; `distributed_updaters.json`) / ratio:",
         "",
         "| collector cores C | updater cores U | env steps/s | limited by |",
         "|---|---|---|---|",
@@ -318,8 +326,10 @@ def costs(args: argparse.Namespace, folder: Path) -> str:
         bounds = {
             "collectors": c * 1e3 / step_ms,
             "updaters": u * 1e3 / (ratio * target_ms),
-            "trainer": trainer_updates / ratio,
+            "trainer compute": trainer_updates / ratio,
         }
+        if pipeline:
+            bounds["trainer process (transfers)"] = pipeline / ratio
         which = min(bounds, key=bounds.get)
         lines.append(f"| {c} | {u} | {bounds[which]:,.0f} | {which} |")
     return "\n".join(lines)
