@@ -192,14 +192,19 @@ def updaters(args: argparse.Namespace, folder: Path) -> str:
     taskrl.train("pointreach-qtopt-her", out=source, total_steps=5_000, **{**QUIET, "save_replay": True})
     out = []
     for m in args.counts:
-        entry = measure_updaters(source, m, args.label_seconds, args.seconds)
+        entry = measure_updaters(source, m, args.label_seconds, args.seconds, args.batches_per_call)
         out.append(entry)
         print(json.dumps(entry), flush=True)
     base = out[0]
     for e in out:
         e["of_linear"] = e["targets_per_s"] / (base["targets_per_s"] * e["updaters"] / base["updaters"])
-    _save("updaters", {"label_seconds": args.label_seconds, "runs": out})
+    _save(
+        f"updaters_{args.batches_per_call}" if args.batches_per_call > 1 else "updaters",
+        {"label_seconds": args.label_seconds, "runs": out},
+    )
     lines = [
+        f"Batches per updater call: {args.batches_per_call}.",
+        "",
         "| updaters | targets/s | of linear (x the 1-updater rate) | of the stand-in's bound (updaters x batch / label time) "
         "| trainer updates/s | mean queue depth |",
         "|---|---|---|---|---|---|",
@@ -353,6 +358,7 @@ def main() -> None:
     parser.add_argument("--counts", type=int, nargs="+", default=[1, 2, 4, 8, 16])
     parser.add_argument("--step-seconds", type=float, default=0.02)
     parser.add_argument("--label-seconds", type=float, default=0.04)
+    parser.add_argument("--batches-per-call", type=int, default=1, help="updaters: batches labelled per call")
     parser.add_argument("--seconds", type=float, default=60.0, help="collection seconds per configuration")
     parser.add_argument("--write", action="store_true", help="append a section to benchmarks/RESULTS.md")
     args = parser.parse_args()

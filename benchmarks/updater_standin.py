@@ -36,13 +36,19 @@ class SleepyUpdater(BellmanUpdater):
         return Labelled(batch, batch.reward.clone(), time.perf_counter() - started, self.version)
 
 
-def measure_updaters(source: Path, count: int, label_seconds: float, seconds: float) -> dict:
+def measure_updaters(source: Path, count: int, label_seconds: float, seconds: float, per_call: int = 1) -> dict:
     """Targets/s and trainer updates/s of ``count`` stand-in updaters over ``seconds`` (after the first label)."""
     import ray
 
     config = with_overrides(
         preset_config("pointreach-qtopt-her"),
-        {"bellman_updaters": count, "queue_size": 2 * count, "threads": 1, "learning_starts": 0},
+        {
+            "bellman_updaters": count,
+            "queue_size": 2 * count * per_call,
+            "batches_per_call": per_call,
+            "threads": 1,
+            "learning_starts": 0,
+        },
     )
     parts = build(config)
     preload_replay(parts, source)
@@ -75,6 +81,7 @@ def measure_updaters(source: Path, count: int, label_seconds: float, seconds: fl
         meters = loop.meters
         return {
             "updaters": count,
+            "batches_per_call": per_call,
             "seconds": elapsed,
             "targets_per_s": sum(meters.targets) / elapsed,
             "updates_per_s": (books.state.updates - updates0) / elapsed,

@@ -133,14 +133,14 @@ def _local_loop(tmp_path, config, updaters: int, evaluated: bool = False):
 
 
 def test_the_loop_keeps_the_update_to_data_ratio_and_a_bounded_queue(tmp_path):
-    config = _config(collectors=2, bellman_updaters=2, queue_size=3)
+    config = _config(collectors=2, bellman_updaters=2, queue_size=5, batches_per_call=2)
     loop, rows, parts = _local_loop(tmp_path, config, updaters=2)
     most = []
     refill = loop.refill
 
     def watched_refill():
         refill()
-        most.append(len(loop.labelled) + len(loop.label_calls))
+        most.append(loop.queued())
 
     loop.refill = watched_refill
     state = loop.run()

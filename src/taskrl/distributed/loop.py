@@ -212,24 +212,31 @@ class DistributedLoop:
 
     # ---------------------------------------------------------------- learning
     def refill(self) -> None:
-        """Keep ``queue_size`` batches labelled or being labelled (no more: back-pressure)."""
-        while self.live_updaters and len(self.labelled) + len(self.label_calls) < self.settings.queue_size:
+        """Keep ``queue_size`` batches labelled or being labelled (no more: back-pressure), sent
+        ``batches_per_call`` at a time."""
+        per_call = self.settings.batches_per_call
+        while self.live_updaters and self.queued() + per_call <= self.settings.queue_size:
             j = self.live_updaters[self._next_updater % len(self.live_updaters)]
             self._next_updater += 1
-            batch = self.sample_batch().to("cpu")
-            self.label_calls[self.updaters.submit(j, "label", batch, self.version, self.target_fetch)] = j
+            batches = [self.sample_batch().to("cpu") for _ in range(per_call)]
+            self.label_calls[self.updaters.submit(j, "label_all", batches, self.version, self.target_fetch)] = j
+
+    def queued(self) -> int:
+        """Batches labelled and waiting, or being labelled."""
+        return len(self.labelled) + len(self.label_calls) * self.settings.batches_per_call
 
     def take_labels(self, timeout: float) -> None:
         for handle in self.updaters.ready(list(self.label_calls), timeout):
             j = self.label_calls.pop(handle)
             try:
-                got: Labelled = self.updaters.result(handle)
+                labelled: list[Labelled] = self.updaters.result(handle)
             except RoleDied:
                 self.updater_died(j)
                 continue
-            self.labelled.append(got)
-            self.meters.targets[j] += len(got.batch)
-            self.meters.label_seconds[j] += got.seconds
+            self.labelled.extend(labelled)
+            for got in labelled:
+                self.meters.targets[j] += len(got.batch)
+                self.meters.label_seconds[j] += got.seconds
 
     def updater_died(self, j: int) -> None:
         self.meters.updater_restarts += 1

@@ -174,3 +174,7 @@ class BellmanUpdater:
         pull_weights(self, version, fetch)
         target = self.agent.bellman_target(batch, self.generator)
         return Labelled(batch, target, time.perf_counter() - started, self.version)
+
+    def label_all(self, batches: list[Batch], version: int, fetch: Fetch) -> list[Labelled]:
+        """:meth:`label` of each batch, in one call (one transfer each way for all of them)."""
+        return [self.label(batch, version, fetch) for batch in batches]

@@ -25,6 +25,8 @@ class DistributedConfig:
             0: the trainer computes its own (the only layout for SAC, TD3 and DQN).
         queue_size: labelled batches waiting for the trainer or being labelled, at most (back-pressure:
             updaters never run further ahead than this).
+        batches_per_call: batches an updater labels per call (fewer calls: less transfer work for the
+            trainer per batch; at most ``queue_size``).
         publish_interval: trainer updates between publications of the acting and target weights.
         limit_updates: hold trainer updates per collected env step at ``updates_per_step``, by pausing
             the trainer or the collectors (off: both run as fast as they can).
@@ -43,6 +45,7 @@ class DistributedConfig:
     collector_steps: int = 25
     bellman_updaters: int = 0
     queue_size: int = 8
+    batches_per_call: int = 1
     publish_interval: int = 10
     limit_updates: bool = True
     ray_address: str = ""
@@ -52,10 +55,15 @@ class DistributedConfig:
 
     def validate(self) -> None:
         """Raise :class:`~taskrl.errors.ConfigError` naming the first bad setting."""
-        for name in ("collectors", "collector_steps", "queue_size", "publish_interval"):
+        for name in ("collectors", "collector_steps", "queue_size", "publish_interval", "batches_per_call"):
             require(getattr(self, name) >= 1, name, f"must be >= 1 (got {getattr(self, name)})")
         for name in ("envs_per_collector", "bellman_updaters", "ray_cpus"):
             require(getattr(self, name) >= 0, name, f"must be >= 0 (got {getattr(self, name)})")
+        require(
+            self.batches_per_call <= self.queue_size,
+            "batches_per_call",
+            f"must be <= queue_size={self.queue_size} (got {self.batches_per_call})",
+        )
         require(self.actor_cpus > 0, "actor_cpus", f"must be > 0 (got {self.actor_cpus})")
         require(self.max_restarts >= -1, "max_restarts", f"must be >= -1 (-1 = unlimited; got {self.max_restarts})")
         address = self.ray_address
