@@ -18,8 +18,8 @@ import torch
 import taskrl
 from taskrl.config import ConfigError, with_overrides
 from taskrl.distributed.limiter import UpdateToDataLimiter
-from taskrl.distributed.loop import DistributedLoop
-from taskrl.distributed.pools import LocalPool
+from taskrl.distributed.loop import DistributedLoop, RolesLost
+from taskrl.distributed.pools import LocalPool, RoleDied
 from taskrl.distributed.roles import BellmanUpdater, Collector
 from taskrl.logger import read_metrics
 from taskrl.presets import preset_config
@@ -151,6 +151,23 @@ def test_the_loop_keeps_the_update_to_data_ratio_and_a_bounded_queue(tmp_path):
             assert row["updates_per_env_step"] == pytest.approx(config.updates_per_step, rel=0.05), row
     assert rows[-1]["updater/targets_per_s"] > 0 and rows[-1]["stored_episodes"] <= parts.replay.episodes_added
     assert parts.replay.num_transitions == state.env_steps  # every collected step is stored (flushed at the end)
+    parts.close()
+
+
+class _DyingCollector:
+    """A collector whose process dies at every call."""
+
+    def collect(self, *args):
+        raise RoleDied("killed")
+
+
+def test_collectors_out_of_restarts_end_the_run_with_one_error(tmp_path):
+    config = _config(collectors=2, max_restarts=1)
+    loop, rows, parts = _local_loop(tmp_path, config, updaters=0)
+    loop.collectors = LocalPool([_DyingCollector(), _DyingCollector()])
+    with pytest.raises(RolesLost, match="max_restarts=1"):
+        loop.run()
+    assert loop.meters.collector_restarts == 4  # each died twice: its first life and its one restart
     parts.close()
 
 

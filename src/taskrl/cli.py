@@ -556,6 +556,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "solve": cmd_solve,
         "demos": cmd_demos,
     }
+    from taskrl.distributed.loop import RolesLost
     from taskrl.errors import ConfigError
     from taskrl.training.bookkeeping import TrainingDiverged
 
@@ -573,7 +574,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (FileNotFoundError, NotADirectoryError, IsADirectoryError, PermissionError) as e:
         print(f"taskrl {command}: error: {e}", file=sys.stderr)
         return 2
-    except TrainingDiverged as e:
+    except (TrainingDiverged, RolesLost) as e:
         print(f"taskrl {command}: error: {e}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:  # a second Ctrl-C: the last complete checkpoint stays

@@ -34,7 +34,7 @@ from taskrl.replay.batch import Batch
 from taskrl.replay.episodes import EpisodeReplay
 from taskrl.training.bookkeeping import Bookkeeping, LoopState
 
-__all__ = ["DistributedLoop", "RoleMeters"]
+__all__ = ["DistributedLoop", "RoleMeters", "RolesLost"]
 
 #: updates the trainer makes in a row before it looks at the collectors again
 UPDATE_BURST = 32
@@ -44,6 +44,10 @@ CALLS_PER_COLLECTOR = 2
 IDLE_WAIT = 0.05
 #: seconds a finishing run waits for the collect calls in flight and the collectors' running episodes
 FINISH_WAIT = 60.0
+
+
+class RolesLost(RuntimeError):
+    """Every collector died and none has a restart left; the run's last checkpoint stays."""
 
 
 def _cpu(tree: Any) -> Any:
@@ -203,7 +207,7 @@ class DistributedLoop:
                 return
             self.dead_collectors.add(i)
             if len(self.dead_collectors) == self.collectors.size:
-                raise RuntimeError(
+                raise RolesLost(
                     f"every collector died and none has a restart left (max_restarts={limit}); "
                     f"the last checkpoint stays: continue with --resume"
                 )
