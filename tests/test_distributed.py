@@ -18,7 +18,7 @@ import torch
 import taskrl
 from taskrl.config import ConfigError, with_overrides
 from taskrl.distributed.limiter import UpdateToDataLimiter
-from taskrl.distributed.loop import DistributedLoop, RolesLost
+from taskrl.distributed.loop import DistributedLoop, RoleLives, RolesLost
 from taskrl.distributed.pools import LocalPool, RoleDied
 from taskrl.distributed.roles import BellmanUpdater, Collector
 from taskrl.logger import read_metrics
@@ -152,6 +152,18 @@ def test_the_loop_keeps_the_update_to_data_ratio_and_a_bounded_queue(tmp_path):
     assert rows[-1]["updater/targets_per_s"] > 0 and rows[-1]["stored_episodes"] <= parts.replay.episodes_added
     assert parts.replay.num_transitions == state.env_steps  # every collected step is stored (flushed at the end)
     parts.close()
+
+
+def test_each_death_of_a_role_counts_once_with_or_without_a_call_in_flight():
+    lives = RoleLives(2)
+    lives.answered(0, pid=100), lives.answered(0, pid=100)
+    lives.answered(0, pid=101)  # killed while idle: only its new process shows it
+    assert lives.deaths == 1 and lives.epoch == [1, 0]
+    lives.failed(0, epoch=1), lives.failed(0, epoch=1)  # two calls of one life fail
+    lives.answered(0, pid=102)  # ... and its next process answers: the same death
+    lives.failed(1, epoch=0)
+    assert lives.deaths == 3 and lives.epoch == [2, 1]
+    assert lives.out_of_restarts(0, max_restarts=1) and not lives.out_of_restarts(1, max_restarts=1)
 
 
 class _DyingCollector:

@@ -58,6 +58,40 @@ def _cpu(tree: Any) -> Any:
     return tree
 
 
+class RoleLives:
+    """Deaths of each role of one kind, each counted once.
+
+    A role's death shows either as a failed call (the first of its life to fail) or, when it died with
+    no call in flight, as a result from a new process. ``epoch[i]`` counts role i's deaths; calls carry
+    the epoch they were sent in, so the other failed calls of the same life add nothing.
+    """
+
+    def __init__(self, size: int) -> None:
+        self.epoch = [0] * size
+        self.pid: list[int | None] = [None] * size
+        self.counted = [False] * size  # a death counted whose new process has not answered yet
+        self.deaths = 0
+
+    def failed(self, i: int, epoch: int) -> None:
+        if epoch == self.epoch[i]:
+            self._death(i)
+            self.counted[i] = True
+
+    def answered(self, i: int, pid: int) -> None:
+        if self.pid[i] is not None and pid != self.pid[i]:
+            if not self.counted[i]:
+                self._death(i)
+            self.counted[i] = False
+        self.pid[i] = pid
+
+    def _death(self, i: int) -> None:
+        self.epoch[i] += 1
+        self.deaths += 1
+
+    def out_of_restarts(self, i: int, max_restarts: int) -> bool:
+        return max_restarts != -1 and self.epoch[i] > max_restarts
+
+
 @dataclasses.dataclass
 class RoleMeters:
     """Per-role figures since the last metrics row (and restart counts since the run started)."""
@@ -130,15 +164,15 @@ class DistributedLoop:
         self.total_steps, self.limiter, self.books = total_steps, limiter, books
         self.call_steps = envs_per_collector * settings.collector_steps
         self.meters = RoleMeters(collectors.size, updaters.size if updaters else 0)
-        self.epochs = [0] * collectors.size
+        self.collector_lives = RoleLives(collectors.size)
+        self.updater_lives = RoleLives(updaters.size if updaters else 0)
         self.collect_calls: dict[Any, tuple[int, int]] = {}  # handle -> (collector, its epoch when sent)
         # a free call slot of each collector; first back, first sent again
         self.idle = collections.deque(i for _ in range(CALLS_PER_COLLECTOR) for i in range(collectors.size))
         self.dead_collectors: set[int] = set()
-        self.label_calls: dict[Any, int] = {}
+        self.label_calls: dict[Any, tuple[int, int]] = {}  # handle -> (updater, its epoch when sent)
         self.labelled: collections.deque[Labelled] = collections.deque()
         self.live_updaters = list(range(updaters.size)) if updaters else []
-        self.updater_deaths = [0] * (updaters.size if updaters else 0)
         self._next_updater = 0
         self.version = -1
         self.acting_fetch = self.target_fetch = None
@@ -168,10 +202,11 @@ class DistributedLoop:
             if ahead >= self.total_steps or not self.limiter.may_collect(state.updates, ahead + self.call_steps):
                 return
             i = self.idle.popleft()
+            epoch = self.collector_lives.epoch[i]
             handle = self.collectors.submit(
-                i, "collect", self.settings.collector_steps, self.version, self.acting_fetch, state.env_steps, self.epochs[i]
+                i, "collect", self.settings.collector_steps, self.version, self.acting_fetch, state.env_steps, epoch
             )
-            self.collect_calls[handle] = (i, self.epochs[i])
+            self.collect_calls[handle] = (i, epoch)
 
     def harvest(self, handles: list[Any]) -> int:
         """Store what came back; returns how many calls returned data."""
@@ -181,8 +216,11 @@ class DistributedLoop:
             try:
                 got: Collected = self.collectors.result(handle)
             except RoleDied:
-                self.collector_died(i, epoch)
+                self.collector_lives.failed(i, epoch)
+                self.collector_lost(i)
                 continue
+            self.collector_lives.answered(i, got.pid)
+            self.meters.collector_restarts = self.collector_lives.deaths
             self.idle.append(i)
             self.store(got)
             self.meters.steps[i] += got.steps
@@ -197,12 +235,11 @@ class DistributedLoop:
         self.books.add_steps(got.steps)
         self.books.add_episodes(torch.tensor(got.ended), torch.tensor(got.succeeded))
 
-    def collector_died(self, i: int, epoch: int) -> None:
-        if epoch == self.epochs[i]:  # the first of its calls to fail: one death, one restart
-            self.meters.collector_restarts += 1
-            self.epochs[i] += 1
+    def collector_lost(self, i: int) -> None:
+        """A call of collector i failed: send it again (Ray restarts it) unless it has no restart left."""
+        self.meters.collector_restarts = self.collector_lives.deaths
         limit = self.settings.max_restarts
-        if limit != -1 and self.epochs[i] > limit:
+        if self.collector_lives.out_of_restarts(i, limit):
             if i in self.dead_collectors:
                 return
             self.dead_collectors.add(i)
@@ -223,7 +260,8 @@ class DistributedLoop:
             j = self.live_updaters[self._next_updater % len(self.live_updaters)]
             self._next_updater += 1
             batches = [self.sample_batch().to("cpu") for _ in range(per_call)]
-            self.label_calls[self.updaters.submit(j, "label_all", batches, self.version, self.target_fetch)] = j
+            handle = self.updaters.submit(j, "label_all", batches, self.version, self.target_fetch)
+            self.label_calls[handle] = (j, self.updater_lives.epoch[j])
 
     def queued(self) -> int:
         """Batches labelled and waiting, or being labelled."""
@@ -231,22 +269,25 @@ class DistributedLoop:
 
     def take_labels(self, timeout: float) -> None:
         for handle in self.updaters.ready(list(self.label_calls), timeout):
-            j = self.label_calls.pop(handle)
+            j, epoch = self.label_calls.pop(handle)
             try:
                 labelled: list[Labelled] = self.updaters.result(handle)
             except RoleDied:
-                self.updater_died(j)
+                self.updater_lives.failed(j, epoch)
+                self.updater_lost(j)
                 continue
+            if labelled:
+                self.updater_lives.answered(j, labelled[0].pid)
+                self.meters.updater_restarts = self.updater_lives.deaths
             self.labelled.extend(labelled)
             for got in labelled:
                 self.meters.targets[j] += len(got.batch)
                 self.meters.label_seconds[j] += got.seconds
 
-    def updater_died(self, j: int) -> None:
-        self.meters.updater_restarts += 1
-        self.updater_deaths[j] += 1
-        limit = self.settings.max_restarts
-        if limit != -1 and self.updater_deaths[j] > limit and j in self.live_updaters:
+    def updater_lost(self, j: int) -> None:
+        """A call of updater j failed (its batches are dropped); stop sending to it once it has no restart left."""
+        self.meters.updater_restarts = self.updater_lives.deaths
+        if self.updater_lives.out_of_restarts(j, self.settings.max_restarts) and j in self.live_updaters:
             self.live_updaters.remove(j)  # none left: the trainer computes its own targets
 
     def learn(self, state: LoopState) -> int:

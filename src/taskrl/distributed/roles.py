@@ -42,6 +42,7 @@ class Collected:
         ended, succeeded: training episodes that finished, and how many of them succeeded.
         seconds: wall-clock of the call.
         version: the weight version it acted with.
+        pid: the collector's process (a new one after a restart).
     """
 
     tables: dict[str, torch.Tensor]
@@ -51,6 +52,7 @@ class Collected:
     succeeded: int
     seconds: float
     version: int
+    pid: int = dataclasses.field(default_factory=os.getpid)
 
 
 @dataclasses.dataclass
@@ -62,12 +64,14 @@ class Labelled:
         target: ``y`` per transition.
         seconds: wall-clock of computing the targets.
         version: the target-weight version they were computed with.
+        pid: the updater's process (a new one after a restart).
     """
 
     batch: Batch
     target: torch.Tensor
     seconds: float
     version: int
+    pid: int = dataclasses.field(default_factory=os.getpid)
 
 
 class Collector:
