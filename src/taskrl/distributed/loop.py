@@ -20,7 +20,6 @@ objects in this process.
 from __future__ import annotations
 
 import collections
-import dataclasses
 from collections.abc import Callable
 from typing import Any
 
@@ -92,17 +91,26 @@ class RoleLives:
         return max_restarts != -1 and self.epoch[i] > max_restarts
 
 
-@dataclasses.dataclass
 class RoleMeters:
-    """Per-role figures since the last metrics row (and restart counts since the run started)."""
+    """Per-role figures since the last metrics row, and restart counts since the run started (the
+    deaths its :class:`RoleLives` counted).
 
-    collectors: int
-    updaters: int
-    collector_restarts: int = 0
-    updater_restarts: int = 0
+    Args:
+        collector_lives, updater_lives: the lives of each kind of role.
+    """
 
-    def __post_init__(self) -> None:
+    def __init__(self, collector_lives: RoleLives, updater_lives: RoleLives) -> None:
+        self.collector_lives, self.updater_lives = collector_lives, updater_lives
+        self.collectors, self.updaters = len(collector_lives.epoch), len(updater_lives.epoch)
         self.reset()
+
+    @property
+    def collector_restarts(self) -> int:
+        return self.collector_lives.deaths
+
+    @property
+    def updater_restarts(self) -> int:
+        return self.updater_lives.deaths
 
     def reset(self) -> None:
         self.steps = [0] * self.collectors
@@ -163,9 +171,9 @@ class DistributedLoop:
         self.collectors, self.updaters, self.settings = collectors, updaters, settings
         self.total_steps, self.limiter, self.books = total_steps, limiter, books
         self.call_steps = envs_per_collector * settings.collector_steps
-        self.meters = RoleMeters(collectors.size, updaters.size if updaters else 0)
         self.collector_lives = RoleLives(collectors.size)
         self.updater_lives = RoleLives(updaters.size if updaters else 0)
+        self.meters = RoleMeters(self.collector_lives, self.updater_lives)
         self.collect_calls: dict[Any, tuple[int, int]] = {}  # handle -> (collector, its epoch when sent)
         # a free call slot of each collector; first back, first sent again
         self.idle = collections.deque(i for _ in range(CALLS_PER_COLLECTOR) for i in range(collectors.size))
@@ -208,9 +216,8 @@ class DistributedLoop:
             )
             self.collect_calls[handle] = (i, epoch)
 
-    def harvest(self, handles: list[Any]) -> int:
-        """Store what came back; returns how many calls returned data."""
-        stored = 0
+    def harvest(self, handles: list[Any]) -> None:
+        """Store what came back."""
         for handle in handles:
             i, epoch = self.collect_calls.pop(handle)
             try:
@@ -220,15 +227,12 @@ class DistributedLoop:
                 self.collector_lost(i)
                 continue
             self.collector_lives.answered(i, got.pid)
-            self.meters.collector_restarts = self.collector_lives.deaths
             self.idle.append(i)
             self.store(got)
             self.meters.steps[i] += got.steps
             self.meters.collect_seconds[i] += got.seconds
             self.meters.lag += self.agent.updates - got.version
             self.meters.lag_samples += 1
-            stored += 1
-        return stored
 
     def store(self, got: Collected) -> None:
         self.replay.add_episodes(got.tables, got.lengths)
@@ -237,7 +241,6 @@ class DistributedLoop:
 
     def collector_lost(self, i: int) -> None:
         """A call of collector i failed: send it again (Ray restarts it) unless it has no restart left."""
-        self.meters.collector_restarts = self.collector_lives.deaths
         limit = self.settings.max_restarts
         if self.collector_lives.out_of_restarts(i, limit):
             if i in self.dead_collectors:
@@ -278,7 +281,6 @@ class DistributedLoop:
                 continue
             if labelled:
                 self.updater_lives.answered(j, labelled[0].pid)
-                self.meters.updater_restarts = self.updater_lives.deaths
             self.labelled.extend(labelled)
             for got in labelled:
                 self.meters.targets[j] += len(got.batch)
@@ -286,7 +288,6 @@ class DistributedLoop:
 
     def updater_lost(self, j: int) -> None:
         """A call of updater j failed (its batches are dropped); stop sending to it once it has no restart left."""
-        self.meters.updater_restarts = self.updater_lives.deaths
         if self.updater_lives.out_of_restarts(j, self.settings.max_restarts) and j in self.live_updaters:
             self.live_updaters.remove(j)  # none left: the trainer computes its own targets
 
@@ -340,12 +341,11 @@ class DistributedLoop:
         books.row_metrics = self.row_metrics
         self.publish()
         while True:
-            self.dispatch(state)
             if self.collect_calls:
                 self.harvest(self.collectors.ready(list(self.collect_calls), 0.0))
+            self.dispatch(state)
             made = self.learn(state)
             if made == 0 and (state.env_steps < self.total_steps or self.limiter.may_update(state.updates, state.env_steps)):
-                self.dispatch(state)
                 self.wait()
             if self.row_due(state) and self.limiter.enabled and self.limiter.may_update(state.updates, state.env_steps):
                 continue  # a metrics row (and the end) comes once the updates owed so far are made

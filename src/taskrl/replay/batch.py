@@ -41,10 +41,8 @@ class Batch:
         device = torch.device(device)
         if self.reward.device == device:
             return self
-        return Batch(
-            **{
-                f.name: {k: v.to(device) for k, v in value.items()} if isinstance(value, dict) else value.to(device)
-                for f in dataclasses.fields(self)
-                for value in (getattr(self, f.name),)
-            }
-        )
+
+        def moved(value: torch.Tensor | Obs) -> torch.Tensor | Obs:
+            return {k: v.to(device) for k, v in value.items()} if isinstance(value, dict) else value.to(device)
+
+        return Batch(**{f.name: moved(getattr(self, f.name)) for f in dataclasses.fields(self)})

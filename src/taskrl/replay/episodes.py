@@ -21,6 +21,17 @@ def _space_dtype(space: gym.spaces.Space) -> torch.dtype:
     return torch.from_numpy(np.zeros((), dtype=space.dtype)).dtype
 
 
+def draw_transitions(
+    cumulative: torch.Tensor, lengths: torch.Tensor, n: int, generator: torch.Generator | None = None
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(row, step)`` of ``n`` transitions uniform over a run of episodes with these ``lengths`` and their
+    ``cumulative`` sums (non-empty in total)."""
+    total = cumulative[-1]
+    u = (torch.rand(n, generator=generator, device=cumulative.device) * total).long().clamp_(max=total - 1)
+    row = torch.searchsorted(cumulative, u, right=True)
+    return row, u - (cumulative[row] - lengths[row])
+
+
 class EpisodeReplay:
     """Ring buffer of complete episodes with uniform sampling over stored transitions.
 
@@ -175,13 +186,9 @@ class EpisodeReplay:
 
     def sample_indices(self, batch_size: int, generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """Uniform over stored transitions: returns ``(episode, step)`` index tensors."""
-        total = self._cumulative[-1]
-        if int(total) == 0:
+        if int(self._cumulative[-1]) == 0:
             raise RuntimeError("cannot sample from an empty replay: no episode has finished yet")
-        u = (torch.rand(batch_size, generator=generator, device=self.device) * total).long().clamp_(max=total - 1)
-        episode = torch.searchsorted(self._cumulative, u, right=True)
-        step = u - (self._cumulative[episode] - self.length[episode])
-        return episode, step
+        return draw_transitions(self._cumulative, self.length, batch_size, generator)
 
     def gather(self, episode: torch.Tensor, step: torch.Tensor) -> Batch:
         """The transitions at ``(episode, step)``."""

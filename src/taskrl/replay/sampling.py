@@ -15,7 +15,7 @@ from __future__ import annotations
 import torch
 
 from taskrl.replay.batch import Batch
-from taskrl.replay.episodes import EpisodeReplay
+from taskrl.replay.episodes import EpisodeReplay, draw_transitions
 
 __all__ = ["RecentMixSampler", "TaskBalancedSampler"]
 
@@ -90,13 +90,9 @@ class RecentMixSampler:
 
     def recent_indices(self, n: int, generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """``n`` transitions uniform over the window's transitions."""
-        r = self.replay
-        slots = r.recent_slots(self.recent_episodes)
-        cumulative = r.length[slots].cumsum(0)
-        total = cumulative[-1]
-        u = (torch.rand(n, generator=generator, device=r.device) * total).long().minimum(total - 1)
-        at = torch.searchsorted(cumulative, u, right=True)
-        step = u - (cumulative[at] - r.length[slots[at]])
+        slots = self.replay.recent_slots(self.recent_episodes)
+        lengths = self.replay.length[slots]
+        at, step = draw_transitions(lengths.cumsum(0), lengths, n, generator)
         return slots[at], step
 
     def indices(self, batch_size: int, generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
