@@ -183,6 +183,23 @@ def test_collectors_out_of_restarts_end_the_run_with_one_error(tmp_path):
     parts.close()
 
 
+class _DyingUpdater:
+    """An updater whose process dies at every call."""
+
+    def label_all(self, *args):
+        raise RoleDied("killed")
+
+
+def test_updaters_out_of_restarts_leave_the_targets_to_the_trainer(tmp_path):
+    config = _config(collectors=2, bellman_updaters=1, max_restarts=0, total_steps=1_500)
+    loop, rows, parts = _local_loop(tmp_path, config, updaters=1)
+    loop.updaters = LocalPool([_DyingUpdater()])
+    state = loop.run()
+    assert loop.live_updaters == [] and loop.meters.updater_restarts == 1
+    assert state.env_steps >= config.total_steps and state.updates >= 0.25 * (config.total_steps - 500) - 1
+    parts.close()
+
+
 def test_sac_learns_through_collectors_with_its_own_targets(tmp_path):
     # the Ape-X layout: collectors feed the trainer's replay and SAC makes its whole update itself
     config = _config(total_steps=30_000, eval_interval=3_000, stop_at_success=0.9)
