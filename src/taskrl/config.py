@@ -28,6 +28,7 @@ from taskrl.distributed.settings import DistributedConfig
 from taskrl.envs.registry import ENV_FAMILIES, env_family
 from taskrl.errors import ConfigError, one_of, reason, require
 from taskrl.rundir import atomic_write_text
+from taskrl.sharing.settings import SharingConfig
 
 __all__ = [
     "ConfigError",
@@ -92,6 +93,9 @@ class TrainConfig:
         offline_data: a run directory whose last checkpoint's replay preloads this run's replay
             (QT-Opt's offline data, then online); its env must have the same spaces.
         offline_updates: gradient updates on the preloaded data before collection starts.
+        offline: learn from stored data only, never stepping an env to collect (the env's
+            ``--dataset-quality`` datasets, or ``--offline-data``); ``total_steps``, ``eval_interval`` and
+            ``checkpoint_interval`` then count gradient updates; evaluation still runs in the env.
         max_hours: stop cleanly (evaluation, checkpoint) after this many hours of wall-clock in
             this invocation, to continue later with ``--resume``; 0 = no limit. Ctrl-C and
             SIGTERM stop the same way.
@@ -102,6 +106,7 @@ class TrainConfig:
             gymnasium ids). Resuming, evaluating and loading never import it unless you pass it again.
         conditioning: how multi-task networks are told the task (task encoder, architecture).
         cluster: where the roles run: one process, or collectors and Bellman updaters as Ray actors.
+        data_sharing: how tasks share data (multi-task envs whose tasks are reward functions).
         env_settings: the env family's section (saved under the family's section name).
         algo_settings: the algorithm's section (saved under the algorithm's name).
     """
@@ -130,11 +135,13 @@ class TrainConfig:
     recent_episodes: int = 1_000
     offline_data: str = ""
     offline_updates: int = 0
+    offline: bool = False
     max_hours: float = 0.0
     threads: int = 1
     env_module: str = ""
     conditioning: ConditioningConfig = dataclasses.field(default_factory=ConditioningConfig)
     cluster: DistributedConfig = dataclasses.field(default_factory=DistributedConfig)
+    data_sharing: SharingConfig = dataclasses.field(default_factory=SharingConfig)
     env_settings: Any = None
     algo_settings: Any = None
 
@@ -221,6 +228,8 @@ def check_roles(config: TrainConfig) -> None:
         "offline_data": bool(c.offline_data),
         "offline_updates": c.offline_updates > 0,
         "distributed": c.cluster.distributed,
+        "offline": c.offline,
+        "sharing": c.data_sharing.sharing != "none",
     }
     for name, used in replay_settings.items():
         require(
@@ -233,6 +242,23 @@ def check_roles(config: TrainConfig) -> None:
         "offline_updates",
         "updates before collection need data to learn from: --offline-data RUN_DIR",
     )
+    datasets = bool(getattr(c.env_settings, "dataset_quality", ""))
+    require(
+        not c.offline or bool(c.offline_data) or datasets,
+        "offline",
+        "learning from stored data only needs data: --offline-data RUN_DIR, or --dataset-quality TASK=QUALITY,...",
+    )
+    require(
+        not (c.offline and c.cluster.distributed),
+        "offline",
+        "an offline run steps no env: it has no collectors; drop --distributed",
+    )
+    if c.data_sharing.sharing != "none":
+        require(
+            c.sampling == "task_balanced",
+            "sampling",
+            "data sharing draws every task's rows of a batch (task-balanced): use --sampling task_balanced",
+        )
     if c.cluster.distributed and c.cluster.bellman_updaters > 0:
         splitting = [a.name for a in ALGORITHMS.values() if a.bellman_updaters]
         require(
@@ -288,6 +314,7 @@ def validate(config: TrainConfig) -> TrainConfig:
     require(c.recent_episodes >= 1, "recent_episodes", f"must be >= 1 (got {c.recent_episodes})")
     c.conditioning.validate()
     c.cluster.validate()
+    c.data_sharing.validate()
     check_roles(c)
     c.env_settings.validate()
     c.algo_settings.validate()
@@ -441,6 +468,7 @@ def to_dict(config: TrainConfig) -> dict[str, Any]:
     data = {f.name: getattr(config, f.name) for f in _run_fields()}
     data["conditioning"] = dataclasses.asdict(config.conditioning)
     data["cluster"] = dataclasses.asdict(config.cluster)
+    data["data_sharing"] = dataclasses.asdict(config.data_sharing)
     data[config.env_section] = dataclasses.asdict(config.env_settings)
     data[config.algo] = dataclasses.asdict(config.algo_settings)
     return data
@@ -522,7 +550,9 @@ def _migrate(data: dict[str, Any]) -> dict[str, Any]:
             section.update(random_action_prob=start, random_action_prob_end=end, random_action_decay_steps=steps)
         elif algo == "td3":
             section.update(noise_std=end)  # the loop's level was TD3's noise std
-    for name in [k for k in data if isinstance(data[k], dict) and k not in ("conditioning", "cluster", family.section)]:
+    for name in [
+        k for k in data if isinstance(data[k], dict) and k not in ("conditioning", "cluster", "data_sharing", family.section)
+    ]:
         if name != algo:
             data.pop(name)  # every algorithm's section was saved; only the run's own is kept
     data[algo] = section

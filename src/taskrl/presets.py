@@ -116,6 +116,63 @@ _BC_METAWORLD = {**_BC, "total_steps": 5_000, "eval_interval": 2_500, "hidden_si
 _BC_LANGUAGE = {"task_encoder": "language", "embedding_noise": 0.1}
 _BC_DEMO = {"task_encoder": "language", "task_input": "demo", "embedding_noise": 0.1}
 
+# Data sharing between tasks (docs/sharing.md): tasks that are known reward functions, one task with
+# a tenth of the others' episodes (MT-Opt's imbalance), task-balanced batches whose rows for a task
+# come half from other tasks' data by the --sharing strategy. Rewards are 0 / 1 and episodes end at
+# success, so targets are not clipped to [-1/(1-gamma), 0].
+_SHARING = {"her": "none", "sampling": "task_balanced", "clip_target": False, "share_fraction": 0.5}
+_GRID_SHARING = {
+    **_SHARING,
+    "env": "gridtasks",
+    "algo": "dqn",
+    "sharing": "all",
+    "low_data_tasks": "top-left-avoid",
+    "low_data_fraction": 0.1,
+    "num_envs": 16,
+    "total_steps": 10_000,
+    "learning_starts": 500,
+    "updates_per_step": 0.25,
+    "batch_size": 256,
+    "hidden_sizes": (128,),
+    "gamma": 0.9,
+    "epsilon_start": 1.0,
+    "epsilon_end": 0.1,
+    "epsilon_decay_steps": 5_000,
+    "eval_interval": 2_500,
+    "eval_episodes": 20,
+}
+_POINT_SHARING = {
+    **_SHARING,
+    "env": "pointtasks",
+    "algo": "sac",
+    "sharing": "all",
+    "low_data_tasks": "right-edge",
+    "low_data_fraction": 0.1,
+    "num_envs": 16,
+    "total_steps": 20_000,
+    "learning_starts": 500,
+    "updates_per_step": 0.25,
+    "batch_size": 256,
+    "hidden_sizes": (64, 64),
+    "lr": 1e-3,
+    "gamma": 0.95,
+    "eval_interval": 2_500,
+    "eval_episodes": 20,
+}
+# Offline (CDS's setting): no collection, per-task datasets of mixed quality, SAC with a CQL penalty.
+_POINT_OFFLINE = {
+    **_POINT_SHARING,
+    "offline": True,
+    "sharing": "conservative",
+    "low_data_tasks": "",
+    "dataset_quality": "top-left=expert,top-right=medium,bottom-left=random,bottom-right=random,centre=medium,right-edge=random",
+    "dataset_steps": 2_000,
+    "cql_alpha": 1.0,
+    "total_steps": 10_000,
+    "eval_interval": 2_500,
+    "checkpoint_interval": 10_000,
+}
+
 # Multi-task PPO: on-policy, so no replay, relabelling or task-balanced batches (every rollout holds
 # every copy's task in proportion to its copies: one copy per task on Meta-World).
 _PPO = {"algo": "ppo", "her": "none", "sampling": "uniform"}
@@ -302,6 +359,18 @@ PRESETS: dict[str, Preset] = {
             "total_steps": 15_000,
             "eval_interval": 5_000,
         },
+    ),
+    "grid-sharing-dqn": Preset(
+        "DQN on the grid tasks, top-left-avoid with 10x less data, every task's batch half from all tasks' data",
+        _GRID_SHARING,
+    ),
+    "point-sharing-sac": Preset(
+        "SAC on the point tasks, right-edge with 10x less data, every task's batch half from all tasks' data",
+        _POINT_SHARING,
+    ),
+    "point-sharing-offline": Preset(
+        "offline SAC + CQL on the point tasks from expert / medium / random datasets, conservative sharing (CDS)",
+        _POINT_OFFLINE,
     ),
     "bitflip-dqn": Preset(
         "plain DQN, no relabelling, on 15-bit flipping: the contrast case that fails beyond ~13 bits",

@@ -15,6 +15,8 @@ NATIVE_IDS: dict[str, tuple[str, int | None]] = {
     "taskrl/BitFlip-v0": ("taskrl.envs.gymnasium_env:BitFlipGymEnv", None),
     "taskrl/PointReach-v0": ("taskrl.envs.gymnasium_env:PointReachGymEnv", 50),
     "taskrl/MultiTaskPointReach-v0": ("taskrl.envs.multitask_point:MultiTaskPointReachGymEnv", 50),
+    "taskrl/GridTasks-v0": ("taskrl.envs.grid_tasks:GridTasksGymEnv", 30),
+    "taskrl/PointTasks-v0": ("taskrl.envs.point_tasks:PointTasksGymEnv", 40),
 }
 
 

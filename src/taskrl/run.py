@@ -46,13 +46,16 @@ from taskrl.distributed.loop import CALLS_PER_COLLECTOR, DistributedLoop
 from taskrl.distributed.roles import BellmanUpdater, Collector
 from taskrl.envs.base import BatchedEnv
 from taskrl.envs.registry import ENV_FAMILIES, env_family, family_for_source
+from taskrl.envs.reward_tasks import parse_qualities
 from taskrl.envs.spec import EnvFamily, EnvRequest, env_kind
-from taskrl.errors import ConfigError, reason
+from taskrl.errors import ConfigError, reason, require
 from taskrl.logger import RunLogger
 from taskrl.plots import plot_learning_curve
 from taskrl.presets import preset_config
 from taskrl.replay import EpisodeReplay, HindsightRelabeler, RecentMixSampler, TaskBalancedSampler
 from taskrl.rundir import RunLock, atomic_write_text, check_new_run_dir
+from taskrl.sharing import TaskSharing, collect_task_datasets
+from taskrl.sharing.strategies import task_functions
 from taskrl.training.bookkeeping import Bookkeeping, LoopState, StopRequest
 from taskrl.training.evaluation import ActingPolicy, evaluate
 from taskrl.training.offline import OfflineLoop
@@ -65,6 +68,7 @@ __all__ = ["Run", "RunParts", "RunSpaces", "build", "evaluate_run", "load", "loa
 #: Observation keys the networks read, where the env has them (the task index is read separately).
 AGENT_INPUT_KEYS = ("observation", "desired_goal")
 EVAL_SEED_OFFSET = 1_000_003
+DATASET_SEED_OFFSET = 2_000_003
 
 
 @dataclasses.dataclass
@@ -224,6 +228,8 @@ class RunParts:
     replay: EpisodeReplay | None = None
     relabel: HindsightRelabeler | None = None
     sampler: Any = None
+    #: the task-sharing sampler of a multi-task run whose env scores any task (inside ``sampler``)
+    sharing: TaskSharing | None = None
     source: Any = None
     #: called when the run ends, newest first (a distributed run's actors and its local Ray)
     on_close: list[Callable[[], Any]] = dataclasses.field(default_factory=list)
@@ -273,7 +279,9 @@ def build(config: TrainConfig, source: Any = None) -> RunParts:
             )
             parts.relabel = make_relabeler(config, env)
             if config.sampling == "task_balanced":
-                parts.sampler = TaskBalancedSampler(parts.replay, len(env.task_set))
+                parts.sampler = parts.sharing = _task_sharing(config, env, agent, parts.replay)
+                if parts.sampler is None:
+                    parts.sampler = TaskBalancedSampler(parts.replay, len(env.task_set))
             if config.recent_fraction > 0:
                 balanced = parts.sampler.indices if parts.sampler is not None else None
                 parts.sampler = RecentMixSampler(parts.replay, config.recent_fraction, config.recent_episodes, balanced)
@@ -294,17 +302,78 @@ def build(config: TrainConfig, source: Any = None) -> RunParts:
         raise
 
 
+def _task_sharing(config: TrainConfig, env: BatchedEnv, agent: Any, replay: EpisodeReplay) -> TaskSharing | None:
+    """Task-balanced batches with the run's sharing strategy, on an env that scores any task; None
+    (plain task-balanced sampling) on one that cannot, where ``--sharing`` other than none is an error."""
+    strategy = config.data_sharing.sharing
+    if not task_functions(env):
+        require(
+            strategy == "none",
+            "sharing",
+            f"needs an env whose tasks are reward functions (task_reward, task_terminated, task_success); "
+            f"{config.env!r} has none; allowed envs: gridtasks, pointtasks",
+        )
+        return None
+    q_value = getattr(agent, "q_value", None)
+    require(
+        strategy != "conservative" or q_value is not None,
+        "sharing",
+        f"conservative ranks shared data by Q-values; {config.algo} has no q_value; use dqn or sac",
+    )
+    return TaskSharing(replay, env, len(env.task_set), config.data_sharing, q_value)
+
+
+def _dataset_copies(steps: int) -> int:
+    """Env copies per task that make a dataset of ``steps`` transitions (each copy ~40 steps or more)."""
+    return max(1, min(50, steps // 40))
+
+
+def dataset_steps(config: TrainConfig, env: Any) -> int:
+    """Transitions of the env's offline datasets (``--dataset-quality``): 0 without any."""
+    settings = config.env_settings
+    if not getattr(settings, "dataset_quality", ""):
+        return 0
+    return len(env.task_set) * (settings.dataset_steps + _dataset_copies(settings.dataset_steps))
+
+
+def preload_datasets(parts: RunParts) -> int:
+    """Store the env family's per-task datasets of the qualities ``--dataset-quality`` names; transitions stored."""
+    config, env = parts.config, parts.env
+    settings = config.env_settings
+    qualities = parse_qualities(settings.dataset_quality, env.task_set.names)
+    request = env_request(config, parts.device, parts.source, evaluation=True, seed=config.seed + DATASET_SEED_OFFSET)
+    # the family's evaluation env: fixed tasks per copy, _dataset_copies of each
+    maker = env_family(config.env).make(
+        settings, dataclasses.replace(request, eval_episodes=_dataset_copies(settings.dataset_steps))
+    )
+    try:
+        require(
+            callable(getattr(maker, "expert_action", None)) and getattr(maker, "slot_tasks", None) is not None,
+            "dataset_quality",
+            f"{config.env!r} has no scripted expert to make datasets with; allowed envs: gridtasks, pointtasks",
+        )
+        tables, lengths = collect_task_datasets(maker, qualities, settings.dataset_steps, config.seed)
+    finally:
+        maker.close()
+    parts.replay.add_episodes(tables, lengths)
+    return int(lengths.sum())
+
+
 def replay_needs(config: TrainConfig, env: BatchedEnv) -> int:
     """Transitions a run can store: its env steps and the episodes running at its end (with
     ``--offline-data``, also the other run's: everything up to ``buffer_size``)."""
     if config.offline_data:
         return config.buffer_size
-    running = 2 * env.num_envs * env.horizon
+    stored = dataset_steps(config, env) + 2 * env.num_envs * env.horizon
+    if config.offline:
+        return stored
     cluster = config.cluster
     if cluster.distributed:  # collect calls in flight may pass total_steps, and each collector's running episodes
         each = cluster.envs_each(config.num_envs)
-        running = cluster.collectors * each * (CALLS_PER_COLLECTOR * cluster.collector_steps + 2 * env.horizon)
-    return config.total_steps + running
+        stored = dataset_steps(config, env) + cluster.collectors * each * (
+            CALLS_PER_COLLECTOR * cluster.collector_steps + 2 * env.horizon
+        )
+    return config.total_steps + stored
 
 
 def _dataset_sampler(config: TrainConfig, env: Any, agent: Any, device: torch.device) -> Any:
@@ -354,7 +423,7 @@ def _first_evaluation(config: TrainConfig) -> int:
 
 def progress_axis(config: TrainConfig) -> str:
     """What a run's ``total_steps`` counts: ``env_steps``, or ``updates`` for an offline algorithm."""
-    return "updates" if algorithm(config.algo).loop == "offline" else "env_steps"
+    return "updates" if algorithm(config.algo).loop == "offline" or config.offline else "env_steps"
 
 
 def available_memory(device: torch.device) -> int | None:
@@ -512,6 +581,13 @@ def _on_policy_loop(parts: RunParts, books: Bookkeeping) -> OnPolicyLoop:
     return OnPolicyLoop(parts.env, parts.agent, parts.config.total_steps, books, parts.generator)
 
 
+def _stored_data_loop(parts: RunParts, books: Bookkeeping) -> OfflineLoop:
+    """``--offline``: an off-policy agent's updates on stored data (datasets, another run's replay) only."""
+    c = parts.config
+    sample_batch = batch_sampler(parts.replay, parts.relabel, c.batch_size, parts.generator, parts.sampler)
+    return OfflineLoop(parts.agent, lambda size, generator: sample_batch(), c.total_steps, c.batch_size, books, parts.generator)
+
+
 def _offline_loop(parts: RunParts, books: Bookkeeping) -> OfflineLoop:
     return OfflineLoop(
         parts.agent, parts.sampler.sample, parts.config.total_steps, parts.config.batch_size, books, parts.generator
@@ -604,7 +680,7 @@ def resolve_config(
 def budget_warnings(config: TrainConfig) -> list[str]:
     """Budgets that make a run do less than its settings suggest (said before training, not refused)."""
     c, out = config, []
-    if algorithm(c.algo).loop == "off_policy":
+    if algorithm(c.algo).loop == "off_policy" and not c.offline:  # an offline run's total_steps are updates
         if c.learning_starts >= c.total_steps:
             out.append(
                 f"learning_starts={c.learning_starts:,} >= total_steps={c.total_steps:,}: the run collects "
@@ -683,6 +759,8 @@ def train(
         try:
             if resume is None and config.offline_data:
                 preload_replay(parts, config.offline_data)
+            if resume is None and dataset_steps(config, parts.env):
+                preload_datasets(parts)
             state = (
                 LoopState(next_checkpoint=0, next_eval=_first_evaluation(config))
                 if resume is None
@@ -729,8 +807,14 @@ def train(
             )
             books.heartbeat = reporter.heartbeat
             books.on_train_log, books.train_log_interval = logger.log_training, config.tensorboard_interval
-            make_loop = _distributed_loop if config.cluster.distributed else LOOPS[algorithm(config.algo).loop]
+            if config.cluster.distributed:
+                make_loop = _distributed_loop
+            else:
+                make_loop = _stored_data_loop if config.offline else LOOPS[algorithm(config.algo).loop]
             loop = make_loop(parts, books)
+            if parts.sharing is not None:  # how much of each task's rows came from which task
+                sharing, names = parts.sharing, list(parts.env.task_set.names)
+                books.row_metrics.append(lambda elapsed: sharing.metrics(names))
             try:
                 with stop.on_signals():
                     state = loop.run(env_seed=config.seed + state.env_steps)

@@ -17,6 +17,14 @@ Losses, for a batch (s, a, r, s', terminated) and alpha = exp(log_alpha):
     J_pi       = alpha log pi(a~|s) - min_i Q_i(s, a~),  a~ ~ pi(.|s) (reparameterised)
     J_alpha    = -log_alpha (log pi(a~|s) + target_entropy)
 
+Conservative Q-learning (Kumar et al., 2020; CQL(H)), for learning from a fixed dataset: with
+``cql_alpha > 0`` the critic loss adds, per critic,
+
+    cql_alpha * E_s [ log (1/2N) sum_k exp(Q_i(s, a_k) - log mu(a_k)) - Q_i(s, a_data) ]
+
+over N uniform actions (mu = 2^-A) and N actions of the current policy (mu = pi(a|s)): an importance-
+sampled logsumexp over all actions, so Q-values of actions the data did not take are pushed down.
+
 Q_target_i follow Q_i by Polyak averaging. ``terminated`` stops bootstrapping; time-limit
 truncation still bootstraps. With rewards in {-1, 0}, targets may be clipped to [-1/(1-gamma), 0].
 
@@ -77,6 +85,8 @@ class SACConfig:
         normalize_inputs: standardise observation inputs with running mean/std (clipped to +-5).
         log_std_min, log_std_max: range of the policy's log standard deviation.
         per_task_alpha: multi-task runs: one learned temperature per task (else one shared).
+        cql_alpha: weight of the conservative (CQL) penalty on the critics; 0 disables it.
+        cql_samples: CQL: uniform and policy actions per state (N of each) in its logsumexp.
     """
 
     lr: float = 3e-4
@@ -92,11 +102,15 @@ class SACConfig:
     log_std_min: float = -5.0
     log_std_max: float = 2.0
     per_task_alpha: bool = True
+    cql_alpha: float = 0.0
+    cql_samples: int = 10
 
     def validate(self) -> None:
         """Raise :class:`~taskrl.errors.ConfigError` naming the first bad setting."""
         check_learning_settings(self)
         require(self.init_alpha > 0, "init_alpha", f"must be > 0 (got {self.init_alpha})")
+        require(self.cql_alpha >= 0, "cql_alpha", f"must be >= 0 (got {self.cql_alpha})")
+        require(self.cql_samples >= 1, "cql_samples", f"must be >= 1 (got {self.cql_samples})")
         require(
             self.log_std_min < self.log_std_max,
             "log_std_min",
@@ -287,6 +301,11 @@ class SACAgent(Agent):
         # critics: J_Q = sum_i 1/2 (Q_i(s, a) - y)^2
         q1, q2 = (q(x, action, context, task) for q in self.critics)
         critic_loss = 0.5 * (F.mse_loss(q1, target) + F.mse_loss(q2, target))
+        extra = {}
+        if cfg.cql_alpha > 0:
+            gap = self.conservative_gap(x, context, task, (q1, q2), generator)
+            critic_loss = critic_loss + cfg.cql_alpha * gap
+            extra["cql_gap"] = gap.detach()
         gradient_step(self.critic_optimizer, critic_loss, self._critic_params, self.config.max_grad_norm)
 
         # actor: J_pi = alpha log pi(a~|s) - min_i Q_i(s, a~); the critics (and the context) are constants here
@@ -314,7 +333,42 @@ class SACAgent(Agent):
             "alpha": self.alpha.mean(),
             "entropy": -log_prob.mean(),
             "q_mean": q1.detach().mean(),
+            **extra,
         }
+
+    def conservative_gap(
+        self,
+        x: torch.Tensor,
+        context: torch.Tensor | None,
+        task: torch.Tensor | None,
+        q_data: tuple[torch.Tensor, ...],
+        generator: torch.Generator | None = None,
+    ) -> torch.Tensor:
+        """CQL(H): sum_i E_s[log (1/2N) sum_k exp(Q_i(s, a_k) - log mu(a_k)) - Q_i(s, a_data)]."""
+        n, rows = self.config.cql_samples, x.shape[0]
+
+        def repeat(t: torch.Tensor | None) -> torch.Tensor | None:
+            return None if t is None else t.repeat_interleave(n, 0)
+
+        xr, cr, tr = repeat(x), repeat(context), repeat(task)
+        uniform = torch.rand((rows * n, self.action_dim), generator=generator, device=x.device) * 2 - 1
+        with torch.no_grad():
+            policy_action, policy_log_prob = self.actor.sample(xr, generator, None if cr is None else cr.detach(), tr)
+        log_uniform = -self.action_dim * _LOG_2  # density of the uniform on [-1, 1]^A
+        gap = x.new_zeros(())
+        for critic, q_taken in zip(self.critics, q_data):
+            q_uniform = critic(xr, uniform, cr, tr).view(rows, n) - log_uniform
+            q_policy = critic(xr, policy_action, cr, tr).view(rows, n) - policy_log_prob.view(rows, n)
+            log_mean_exp = torch.logsumexp(torch.cat([q_uniform, q_policy], 1), 1) - math.log(2 * n)
+            gap = gap + (log_mean_exp - q_taken).mean()
+        return gap
+
+    @torch.no_grad()
+    def q_value(self, obs: Obs, action: torch.Tensor) -> torch.Tensor:
+        """``min_i Q_i(s, a)`` of each row (no gradient): what conservative data sharing ranks rows by."""
+        x, unit = self.inputs(obs), self.box.to_unit(action)
+        context, task = self.task_inputs(obs)
+        return torch.minimum(*(q(x, unit, context, task) for q in self.critics))
 
     def _set_critic_grad(self, enabled: bool) -> None:
         for p in self._critic_params:

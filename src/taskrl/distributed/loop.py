@@ -338,7 +338,7 @@ class DistributedLoop:
         """Train until ``total_steps`` env steps (and the updates they are owed) or an early stop."""
         books, state = self.books, self.books.state
         books.on_finish = self.finish
-        books.row_metrics = self.row_metrics
+        books.row_metrics.append(self.row_metrics)
         self.publish()
         while True:
             if self.collect_calls:

@@ -71,10 +71,13 @@ class NativeEnv(BatchedEnv):
         self._reset_where(torch.ones(self.num_envs, dtype=torch.bool, device=self.device))
         return self._obs()
 
-    def _end_step(self, reward: torch.Tensor, success: torch.Tensor) -> StepResult:
-        """Termination on success (if enabled), truncation at ``horizon``, same-step reset of the
-        copies that ended, and their final observation in ``info["final_obs"]``."""
+    def _end_step(self, reward: torch.Tensor, success: torch.Tensor, failed: torch.Tensor | None = None) -> StepResult:
+        """Termination on success (if enabled) or on ``failed`` (a hazard touched), truncation at
+        ``horizon``, same-step reset of the copies that ended, and their final observation in
+        ``info["final_obs"]``."""
         terminated = success if self.terminate_on_success else torch.zeros_like(success)
+        if failed is not None:
+            terminated = terminated | failed
         truncated = (self.t >= self.horizon) & ~terminated
         final_obs = self._obs()
         self._reset_where(terminated | truncated)

@@ -9,7 +9,17 @@ from __future__ import annotations
 
 from typing import Any
 
-from taskrl.envs import bitflip, fetch, gymnasium_family, metaworld_tasks, multitask_point, point_reach, task_sets
+from taskrl.envs import (
+    bitflip,
+    fetch,
+    grid_tasks,
+    gymnasium_family,
+    metaworld_tasks,
+    multitask_point,
+    point_reach,
+    point_tasks,
+    task_sets,
+)
 from taskrl.envs.spec import EnvFamily
 from taskrl.errors import ConfigError
 from taskrl.registry import Registry
@@ -21,6 +31,8 @@ BUILT_IN: tuple[EnvFamily, ...] = (
     point_reach.FAMILY,
     *fetch.FAMILIES,
     multitask_point.FAMILY,
+    grid_tasks.FAMILY,
+    point_tasks.FAMILY,
     *metaworld_tasks.FAMILIES,
     gymnasium_family.FAMILY,
     task_sets.FAMILY,

@@ -34,6 +34,9 @@ class HindsightRelabeler:
             termination of relabelled transitions is recomputed for the new goal (needed when
             success ends an episode), otherwise the stored flag is kept.
         achieved_key, desired_key: observation keys of the achieved and desired goals.
+        task_key: on envs whose tasks are reward functions of the goal (``r_j(achieved, goal)``), the
+            observation key of the task index: the reward functions then get ``info={task_key: task}``,
+            so hindsight goals compose with data sharing's task relabelling (which comes first).
     """
 
     def __init__(
@@ -44,6 +47,7 @@ class HindsightRelabeler:
         terminated_fn: GoalFn | None = None,
         achieved_key: str = "achieved_goal",
         desired_key: str = "desired_goal",
+        task_key: str | None = None,
     ) -> None:
         if strategy not in STRATEGIES:
             raise ValueError(f"her strategy must be one of {', '.join(STRATEGIES)}; got {strategy!r}")
@@ -56,6 +60,7 @@ class HindsightRelabeler:
         self.relabel_fraction = k / (k + 1)
         self.achieved_key = achieved_key
         self.desired_key = desired_key
+        self.task_key = task_key
 
     def goal_indices(
         self, batch: Batch, replay: EpisodeReplay, generator: torch.Generator | None
@@ -87,10 +92,11 @@ class HindsightRelabeler:
         goal = torch.where(relabel.view(-1, *[1] * (old_goal.dim() - 1)), achieved, old_goal)
 
         next_achieved = batch.next_obs[self.achieved_key]
-        reward = torch.where(relabel, self.reward_fn(next_achieved, goal, None).to(batch.reward.dtype), batch.reward)
+        info = None if self.task_key is None else {self.task_key: batch.next_obs[self.task_key]}
+        reward = torch.where(relabel, self.reward_fn(next_achieved, goal, info).to(batch.reward.dtype), batch.reward)
         terminated = batch.terminated
         if self.terminated_fn is not None:
-            terminated = torch.where(relabel, self.terminated_fn(next_achieved, goal, None), terminated)
+            terminated = torch.where(relabel, self.terminated_fn(next_achieved, goal, info), terminated)
         return batch.replace(
             obs={**batch.obs, self.desired_key: goal},
             next_obs={**batch.next_obs, self.desired_key: goal},

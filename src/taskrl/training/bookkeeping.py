@@ -186,8 +186,9 @@ class Bookkeeping:
         #: (TensorBoard's training curves between evaluations)
         self.on_train_log: Callable[[int, dict[str, float]], Any] | None = None
         self.train_log_interval = 0
-        #: ``(seconds of the row) -> columns`` added to every metrics row (a distributed loop's per-role figures)
-        self.row_metrics: Callable[[float], dict[str, Any]] | None = None
+        #: ``(seconds of the row) -> columns`` added to every metrics row (a distributed loop's per-role
+        #: figures, data sharing's per-task shares)
+        self.row_metrics: list[Callable[[float], dict[str, Any]]] = []
         self._train_base: dict[str, torch.Tensor] = {}
         self._train_calls = 0
         self._next_train_log = self.progress()
@@ -244,7 +245,7 @@ class Bookkeeping:
                 "train_success": (self.episodes_success / self.episodes_done.clamp(min=1)).item(),
                 **{name: (total / max(self.row_calls, 1)).item() for name, total in self.metric_sums.items()},
                 **(extra or {}),
-                **(self.row_metrics(elapsed) if self.row_metrics is not None else {}),
+                **{name: value for columns in self.row_metrics for name, value in columns(elapsed).items()},
                 "env_steps_per_s": self.row_steps / elapsed,
                 "updates_per_s": self.row_updates / elapsed,
             }

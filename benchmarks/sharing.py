@@ -1,0 +1,168 @@
+"""Data sharing between tasks: every strategy over seeds, online (MT-Opt's imbalance) and offline (CDS's
+mixed-quality datasets), with per-task success, curves and 95% confidence intervals.
+
+.venv/bin/python benchmarks/sharing.py online --preset grid-sharing-dqn --seeds 0 1 2 3 4 --write
+.venv/bin/python benchmarks/sharing.py online --preset point-sharing-sac --seeds 0 1 2 --write
+.venv/bin/python benchmarks/sharing.py offline --preset point-sharing-offline --seeds 0 1 2 --write
+
+Each run is the preset with ``--sharing S`` (and the overrides given with ``--set KEY=VALUE``); the
+figures are the final greedy evaluation (``eval_episodes`` per task) and the evaluation curve of
+``metrics.csv``. Raw per-seed data go to ``benchmarks/results/sharing_<preset>.json``, the curves
+to ``benchmarks/figures/sharing_<preset>.png``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import statistics
+import tempfile
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+from common import append_results
+
+HERE = Path(__file__).parent
+ONLINE = ("none", "all", "random", "success", "hipi", "conservative", "zero-reward")
+OFFLINE = ("none", "all", "conservative", "zero-reward")
+# two-sided 95% Student t quantiles by degrees of freedom
+T95 = {1: 12.706, 2: 4.303, 3: 3.182, 4: 2.776, 5: 2.571, 6: 2.447, 7: 2.365, 8: 2.306, 9: 2.262}
+
+
+def interval(values: list[float]) -> tuple[float, float]:
+    """Mean and half-width of the 95% t-interval over seeds."""
+    mean = statistics.fmean(values)
+    if len(values) < 2:
+        return mean, math.nan
+    return mean, T95.get(len(values) - 1, 1.96) * statistics.stdev(values) / math.sqrt(len(values))
+
+
+def one_run(job: tuple[str, str, int, dict]) -> dict:
+    import torch
+
+    import taskrl
+
+    preset, strategy, seed, overrides = job
+    torch.set_num_threads(1)
+    with tempfile.TemporaryDirectory() as tmp:
+        run = taskrl.train(
+            preset, out=Path(tmp) / "run", seed=seed, sharing=strategy, tensorboard=False, save_replay=False, **overrides
+        )
+        rows = list(csv.DictReader(open(run.run_dir / "metrics.csv")))
+    tasks = [k.split("/", 1)[1] for k in rows[-1] if k.startswith("success/")]
+    axis = "updates" if run.config.offline else "env_steps"
+    curve = [{"at": int(float(r[axis])), **{t: float(r[f"success/{t}"]) for t in tasks}} for r in rows]
+    shared = {t: float(rows[-1].get(f"shared/{t}") or 0.0) for t in tasks}
+    low = [t for t in getattr(run.config.env_settings, "low_data_tasks", "").split(",") if t]
+    return {
+        "preset": preset,
+        "strategy": strategy,
+        "seed": seed,
+        "axis": axis,
+        "low_data_tasks": low,
+        "final": {t: curve[-1][t] for t in tasks},
+        "mean_success": run.metrics["success_rate"],
+        "shared_at_end": shared,
+        "wall_seconds": run.metrics["wall_seconds"],
+        "curve": curve,
+    }
+
+
+def plot(results: list[dict], strategies: list[str], focus: list[str], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(focus), figsize=(5 * len(focus), 3.6), squeeze=False)
+    for ax, task in zip(axes[0], focus):
+        for strategy in strategies:
+            runs = [r for r in results if r["strategy"] == strategy]
+            at = [p["at"] for p in runs[0]["curve"]]
+            values = [
+                [(p[task] if task != "mean" else statistics.fmean(v for k, v in p.items() if k != "at")) for p in r["curve"]]
+                for r in runs
+            ]
+            mean = [statistics.fmean(col) for col in zip(*values)]
+            low = [min(col) for col in zip(*values)]
+            high = [max(col) for col in zip(*values)]
+            (line,) = ax.plot(at, mean, label=strategy)
+            ax.fill_between(at, low, high, alpha=0.15, color=line.get_color())
+        ax.set_title(f"{task} (mean over seeds; band: min-max)")
+        ax.set_xlabel(results[0]["axis"].replace("_", " "))
+        ax.set_ylabel("success")
+        ax.set_ylim(-0.02, 1.02)
+    axes[0][-1].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def table(results: list[dict], strategies: list[str], columns: list[str]) -> str:
+    head = "| strategy | " + " | ".join(columns) + " | per seed (" + columns[0] + ") |"
+    lines = [head, "|---" * (len(columns) + 2) + "|"]
+    for strategy in strategies:
+        runs = sorted((r for r in results if r["strategy"] == strategy), key=lambda r: r["seed"])
+        cells = []
+        for column in columns:
+            values = [r["mean_success"] if column == "all tasks" else r["final"][column] for r in runs]
+            mean, half = interval(values)
+            cells.append(f"{mean:.2f} ± {half:.2f}")
+        first = [r["mean_success"] if columns[0] == "all tasks" else r["final"][columns[0]] for r in runs]
+        lines.append(f"| {strategy} | " + " | ".join(cells) + " | " + ", ".join(f"{v:.2f}" for v in first) + " |")
+    return "\n".join(lines)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("setting", choices=("online", "offline"))
+    parser.add_argument("--preset", default=None)
+    parser.add_argument("--strategies", nargs="+", default=None)
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    parser.add_argument("--jobs", type=int, default=2, help="runs at once (one torch thread each)")
+    parser.add_argument("--set", nargs="*", default=[], help="overrides KEY=VALUE (numbers parsed)")
+    parser.add_argument("--write", action="store_true")
+    args = parser.parse_args()
+    preset = args.preset or ("grid-sharing-dqn" if args.setting == "online" else "point-sharing-offline")
+    strategies = args.strategies or list(ONLINE if args.setting == "online" else OFFLINE)
+    overrides = {}
+    for item in args.set:
+        key, _, value = item.partition("=")
+        try:
+            overrides[key] = json.loads(value)
+        except json.JSONDecodeError:
+            overrides[key] = value
+    jobs = [(preset, s, seed, overrides) for s in strategies for seed in args.seeds]
+    with ProcessPoolExecutor(args.jobs) as pool:
+        results = []
+        for result in pool.map(one_run, jobs):
+            print(json.dumps({k: v for k, v in result.items() if k != "curve"}), flush=True)
+            results.append(result)
+    tasks = list(results[0]["final"])
+    low = results[0]["low_data_tasks"]
+    if args.setting == "online":
+        columns = [*low, "all tasks"]
+    else:
+        columns = [*tasks, "all tasks"]
+    text = table(results, strategies, columns)
+    print(text)
+    if args.write:
+        name = preset + ("" if not overrides else "_" + "_".join(f"{k}-{v}" for k, v in overrides.items()))
+        (HERE / "results").mkdir(exist_ok=True)
+        (HERE / "figures").mkdir(exist_ok=True)
+        (HERE / "results" / f"sharing_{name}.json").write_text(json.dumps(results, indent=1) + "\n")
+        figure = HERE / "figures" / f"sharing_{name}.png"
+        plot(results, strategies, [*(low or tasks[:2]), "mean"], figure)
+        axis = results[0]["axis"].replace("_", " ")
+        append_results(
+            f"Data sharing, {args.setting}: {preset}{' ' + str(overrides) if overrides else ''}",
+            f"Final greedy success after the preset's budget ({results[0]['curve'][-1]['at']:,} {axis}), "
+            f"mean ± 95% t-interval half-width over seeds {args.seeds}; one torch thread per run, {args.jobs} runs at once. "
+            f"Curves: `benchmarks/figures/{figure.name}`; raw per-seed data and curves: "
+            f"`benchmarks/results/sharing_{name}.json`.\n\n" + text,
+        )
+
+
+if __name__ == "__main__":
+    main()

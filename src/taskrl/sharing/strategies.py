@@ -1,0 +1,236 @@
+"""Cross-task data sharing: each task's rows of a batch drawn from its own data and, by a strategy,
+from other tasks' data relabelled with its reward.
+
+For a batch of B rows and T tasks, task j gets ``n = ceil(B / T)`` rows (cut back to B as the
+task-balanced sampler does): ``n - m`` from the episodes collected for j, ``m = round(share_fraction * n)``
+from episodes collected for other tasks i != j, and every row is then scored under j::
+
+    s_task, s'_task <- j,   r <- r_j(s, a, s'),   terminated <- success_j(s') or failure_j(s')
+
+(``zero-reward`` instead keeps ``r = 0`` and no termination on the shared rows: UDS labels data of
+unknown reward with the lowest reward.) A transition is drawn from a set of episodes uniformly over
+its transitions: episode e with weight ``len(e) * w_j(e)``, then a step uniformly. The strategies
+differ only in the weight ``w_j(e)`` of another task's episode e:
+
+    all, zero-reward   w_j(e) = 1
+    random             w_j(e) = 1 if task(e) is one of k tasks drawn for j in this batch, else 0
+    success            w_j(e) = 1 if some s' of e passes success_j (MT-Opt's task impersonation), else 0
+    hipi               w_j(e) = q(j | e) = softmax_j(R_j(e) / T - log Z_j),  log Z_j = logsumexp_e' R_j(e') / T
+                       (the inverse-RL posterior of HIPI, with its partition term, R_j the return under r_j)
+    conservative       w_j(e) = 1, then a shared row is kept only if Q_j(s, a) >= P_k{Q_j(s~, a~)}, the
+                       k-th percentile over the batch's own rows of j (CDS); a row not kept is
+                       replaced by one of j's own
+
+A task with no data of its own gets all its rows from others; a strategy that finds nothing to share
+for j (no episode passes success_j yet) gives j its own data only; a task with neither (early in a
+run, or ``none`` and no data yet) lends its rows to data of any task, left as it is. ``none`` is task-balanced sampling
+of own data. How much of each task's rows came from which task is counted (:meth:`TaskSharing.metrics`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import Any
+
+import torch
+
+from taskrl.replay.batch import Batch
+from taskrl.replay.episodes import EpisodeReplay
+from taskrl.sharing.settings import SharingConfig
+from taskrl.types import Obs
+
+__all__ = ["EpisodeScores", "TaskSharing", "task_functions"]
+
+QValue = Callable[[Obs, torch.Tensor], torch.Tensor]
+SCORE_CHUNK = 2048  # episodes scored at once
+
+
+def task_functions(env: Any) -> bool:
+    """Whether ``env`` scores transitions under any task (``task_reward``, ``task_terminated``, ``task_success``)."""
+    return all(callable(getattr(env, name, None)) for name in ("task_reward", "task_terminated", "task_success"))
+
+
+class EpisodeScores:
+    """Per stored episode and task: whether some ``s'`` passes the task's success test, and the return
+    under its reward. Scored once per episode, when it is first seen (a ring slot rewritten is new).
+
+    Args:
+        replay: the episode storage.
+        env: the env whose ``task_reward`` and ``task_success`` score them.
+        num_tasks: T.
+    """
+
+    def __init__(self, replay: EpisodeReplay, env: Any, num_tasks: int) -> None:
+        self.replay, self.env, self.num_tasks = replay, env, num_tasks
+        self.success = torch.zeros(replay.max_episodes, num_tasks, dtype=torch.bool, device=replay.device)
+        self.returns = torch.zeros(replay.max_episodes, num_tasks, device=replay.device)
+        self.seen = 0
+
+    def refresh(self) -> None:
+        r = self.replay
+        new = min(r.episodes_added - self.seen, r.num_episodes)
+        self.seen = r.episodes_added
+        if new <= 0:
+            return
+        slots = r.recent_slots(new)
+        for chunk in slots.split(SCORE_CHUNK):
+            self._score(chunk)
+
+    def _score(self, slots: torch.Tensor) -> None:
+        r, h = self.replay, self.replay.horizon
+        n = slots.numel()
+        steps = torch.arange(h, device=r.device)
+        valid = steps < r.length[slots, None]  # [n, h]
+        obs = {k: r.storage[f"obs/{k}"][slots, :h].flatten(0, 1) for k in r.obs_keys}
+        next_obs = {k: r.storage[f"obs/{k}"][slots, 1:].flatten(0, 1) for k in r.obs_keys}
+        action = r.storage["action"][slots].flatten(0, 1)
+        for j in range(self.num_tasks):
+            task = torch.full((n * h,), j, dtype=torch.long, device=r.device)
+            success = self.env.task_success(next_obs, task).view(n, h) & valid
+            reward = self.env.task_reward(obs, action, next_obs, task).view(n, h) * valid
+            self.success[slots, j] = success.any(1)
+            self.returns[slots, j] = reward.sum(1)
+
+
+class TaskSharing:
+    """``sampler(batch_size, generator) -> Batch``: rows for every task from its own and shared data.
+
+    Args:
+        replay: the episode storage (observations carry ``task_key``).
+        env: scores rows under any task: ``task_reward(obs, action, next_obs, task)``,
+            ``task_terminated(next_obs, task)``, ``task_success(next_obs, task)``.
+        num_tasks: T.
+        settings: the strategy and its knobs (:class:`~taskrl.sharing.settings.SharingConfig`).
+        q_value: ``conservative``: ``q_value(obs, action) -> [B]``, the agent's Q of each row under the
+            row's task (no gradient).
+        task_key: the observation key of the task index.
+    """
+
+    def __init__(
+        self,
+        replay: EpisodeReplay,
+        env: Any,
+        num_tasks: int,
+        settings: SharingConfig,
+        q_value: QValue | None = None,
+        task_key: str = "task",
+    ) -> None:
+        if not task_functions(env):
+            raise ValueError(
+                "data sharing needs an env whose tasks are reward functions: task_reward, task_terminated, task_success"
+            )
+        if settings.sharing == "conservative" and q_value is None:
+            raise ValueError("conservative sharing compares Q-values of the agent: pass q_value")
+        self.replay, self.env, self.num_tasks, self.settings = replay, env, int(num_tasks), settings
+        self.q_value, self.task_key = q_value, task_key
+        self.tasks = torch.arange(self.num_tasks, device=replay.device)
+        self.scores = EpisodeScores(replay, env, self.num_tasks) if settings.sharing in ("success", "hipi") else None
+        self.counts = torch.zeros(self.num_tasks, self.num_tasks, device=replay.device)  # [target, source] rows
+
+    # ------------------------------------------------------------------ weights
+    def shared_weights(self, source: torch.Tensor, generator: torch.Generator | None) -> torch.Tensor:
+        """``w_j(e)`` of every task j and stored episode e of another task, ``[T, E]`` (0 on own episodes)."""
+        strategy, T = self.settings.sharing, self.num_tasks
+        other = (source[None] != self.tasks[:, None]).float()  # [T, E]
+        if strategy == "random":
+            k = min(self.settings.share_tasks, T - 1)
+            draw = torch.rand((T, T), generator=generator, device=source.device)
+            draw[self.tasks, self.tasks] = 2.0  # never its own task
+            chosen = torch.zeros(T, T, device=source.device).scatter_(1, draw.argsort(1)[:, :k], 1.0)
+            return other * chosen[:, source]
+        if strategy == "success":
+            self.scores.refresh()
+            return other * self.scores.success.t().float()
+        if strategy == "hipi":
+            self.scores.refresh()
+            stored = self.replay.length > 0
+            logits = self.scores.returns / self.settings.hipi_temperature  # [E, T]
+            log_z = torch.logsumexp(logits.masked_fill(~stored[:, None], -math.inf), 0)  # [T]
+            posterior = torch.softmax(logits - log_z, 1)  # q(j | e)
+            return other * posterior.t()
+        return other  # all, zero-reward, conservative (filtered by Q once drawn)
+
+    # ------------------------------------------------------------------ drawing
+    def _draw(self, weights: torch.Tensor, n: int, generator: torch.Generator | None) -> tuple[torch.Tensor, torch.Tensor]:
+        """``[T, n]`` episodes (by weight) and steps (uniform within each episode)."""
+        episode = torch.multinomial(weights, n, replacement=True, generator=generator)
+        length = self.replay.length[episode]
+        step = (torch.rand(episode.shape, generator=generator, device=episode.device) * length).long().minimum(length - 1)
+        return episode, step
+
+    def relabel(self, batch: Batch, task: torch.Tensor, zero_reward: torch.Tensor | None = None) -> Batch:
+        """``batch`` as data of ``task[row]``: task index, reward ``r_j``, termination under j; rows in
+        ``zero_reward`` get reward 0 and no termination."""
+        obs = {**batch.obs, self.task_key: task.to(batch.obs[self.task_key].dtype)}
+        next_obs = {**batch.next_obs, self.task_key: obs[self.task_key]}
+        reward = self.env.task_reward(obs, batch.action, next_obs, task).to(batch.reward.dtype)
+        terminated = self.env.task_terminated(next_obs, task)
+        if zero_reward is not None:
+            reward = reward.masked_fill(zero_reward, 0.0)
+            terminated = terminated & ~zero_reward
+        return batch.replace(
+            obs=obs, next_obs=next_obs, reward=reward, terminated=terminated, truncated=batch.truncated & ~terminated
+        )
+
+    def __call__(self, batch_size: int, generator: torch.Generator | None = None) -> Batch:
+        r, T, s = self.replay, self.num_tasks, self.settings
+        if r.num_episodes == 0:
+            raise RuntimeError("cannot sample from an empty replay: no episode has finished yet")
+        per = -(-batch_size // T)
+        length = r.length.float()
+        source = r.storage[f"obs/{self.task_key}"][:, 0].long()  # [E]
+        own = length * (source[None] == self.tasks[:, None])  # [T, E]
+        shared = length * self.shared_weights(source, generator) if s.sharing != "none" else torch.zeros_like(own)
+        has_own, has_shared = own.sum(1) > 0, shared.sum(1) > 0
+        n_shared = torch.where(has_shared, torch.where(has_own, round(s.share_fraction * per), per), 0)  # [T]
+        # a task with neither its own data nor any to share: rows from all data, with their own tasks
+        # (as task-balanced sampling does)
+        own_episode, own_step = self._draw(torch.where(has_own[:, None], own, length[None]), per, generator)
+        shared_episode, shared_step = self._draw(torch.where(has_shared[:, None], shared, length[None]), per, generator)
+        column = torch.arange(per, device=r.device)
+        from_shared = column[None] < n_shared[:, None]  # [T, per]
+        if s.sharing == "conservative":
+            from_shared = from_shared & self._conservative(own_episode, own_step, shared_episode, shared_step, has_own)
+        episode = torch.where(from_shared, shared_episode, own_episode)
+        step = torch.where(from_shared, shared_step, own_step)
+        # exactly batch_size rows: cut in step-major order (the remainder falls on the lowest tasks)
+        flat = torch.arange(T * per, device=r.device).view(T, per).t().reshape(-1)[:batch_size].sort().values
+        episode, step, from_shared = episode.reshape(-1)[flat], step.reshape(-1)[flat], from_shared.reshape(-1)[flat]
+        target = self.tasks.repeat_interleave(per)[flat]
+        # a task with neither its own data nor any to share lends its rows to the data drawn, as they are
+        lent = ~(has_own | has_shared)[target]
+        target = torch.where(lent, source[episode], target)
+        self.counts.index_put_((target, source[episode]), torch.ones_like(target, dtype=torch.float), accumulate=True)
+        zero = from_shared if s.sharing == "zero-reward" else None
+        return self.relabel(r.gather(episode, step), target, zero)
+
+    def _q(self, episode: torch.Tensor, step: torch.Tensor) -> torch.Tensor:
+        """``[T, n]`` Q-values of the rows at ``(episode, step)`` ``[T, n]``, row t scored under task t."""
+        task = self.tasks[:, None].expand_as(episode).reshape(-1)
+        batch = self.relabel(self.replay.gather(episode.reshape(-1), step.reshape(-1)), task)
+        with torch.no_grad():
+            return self.q_value(batch.obs, batch.action).view(episode.shape)
+
+    def _conservative(self, own_episode, own_step, shared_episode, shared_step, has_own) -> torch.Tensor:
+        """``[T, n]``: whether each shared candidate's Q under its task reaches the task's percentile of its own
+        rows (always, for a task with no data of its own to compare with)."""
+        threshold = torch.quantile(self._q(own_episode, own_step), self.settings.conservative_percentile / 100.0, dim=1)
+        threshold = threshold.masked_fill(~has_own, -math.inf)
+        return self._q(shared_episode, shared_step) >= threshold[:, None]
+
+    # ------------------------------------------------------------------ statistics
+    def metrics(self, names: list[str]) -> dict[str, float]:
+        """Since the last call: ``shared/<task>``, the share of the task's rows from other tasks' data,
+        and ``from/<task>``, the share of all rows whose data was collected for the task."""
+        counts = self.counts.to("cpu", copy=True)
+        self.counts.zero_()
+        total = counts.sum()
+        if float(total) == 0:
+            return {}
+        rows = counts.sum(1).clamp(min=1)
+        own = counts.diagonal()
+        out = {"shared_fraction": float(1 - own.sum() / total)}
+        out.update({f"shared/{n}": float(1 - own[j] / rows[j]) for j, n in enumerate(names)})
+        out.update({f"from/{n}": float(counts[:, j].sum() / total) for j, n in enumerate(names)})
+        return out

@@ -1,0 +1,382 @@
+"""Data sharing between tasks: task reward functions, the strategies, datasets, CQL, the offline loop."""
+
+from __future__ import annotations
+
+import csv
+import math
+
+import pytest
+import torch
+
+import taskrl
+from taskrl.agents.dqn import DQNAgent, DQNConfig
+from taskrl.agents.sac import SACAgent, SACConfig
+from taskrl.config import TrainConfig, validate, with_overrides
+from taskrl.envs.grid_tasks import GRID_TASKS, GridTasks
+from taskrl.envs.point_tasks import POINT_TASKS, PointTasks
+from taskrl.errors import ConfigError
+from taskrl.replay import EpisodeReplay, HindsightRelabeler
+from taskrl.replay.batch import Batch
+from taskrl.sharing import SharingConfig, TaskSharing, collect_task_datasets
+from taskrl.sharing.datasets import random_actions
+
+ENVS = [GridTasks, PointTasks]
+
+
+def filled_replay(env_cls, steps: int = 300, seed: int = 0, weights=None, num_envs: int = 12):
+    """A replay of random-action episodes of ``env_cls`` and the env that made them."""
+    env = env_cls(num_envs=num_envs, seed=seed, task_weights=weights)
+    replay = EpisodeReplay(env.single_observation_space, env.single_action_space, env.horizon * 2_000, env.horizon, num_envs)
+    generator = torch.Generator().manual_seed(seed)
+    obs = env.reset(seed=seed)
+    replay.start(obs)
+    for _ in range(steps):
+        action = random_actions(env.single_action_space, num_envs, generator, env.device)
+        next_obs, reward, terminated, truncated, info = env.step(action)
+        replay.add(action, reward, terminated, truncated, info["final_obs"], next_obs)
+        obs = next_obs
+    return env, replay
+
+
+@pytest.mark.parametrize("env_cls", ENVS)
+def test_reward_under_another_task_equals_the_env_reward_for_that_task(env_cls):
+    """r_j(s, a, s') scored from a transition collected under task i equals what the env gives when
+    the same state and action are stepped with task j."""
+    env = env_cls(num_envs=64, seed=1)
+    obs = env.reset(seed=1)
+    generator = torch.Generator().manual_seed(1)
+    checked = 0
+    for _ in range(40):
+        action = random_actions(env.single_action_space, 64, generator, env.device)
+        position, task = env.position.clone(), env.task.clone()
+        next_obs, reward, terminated, _, info = env.step(action)
+        for j in range(env.num_tasks):
+            twin = env_cls(num_envs=64, seed=2)
+            twin.reset(seed=2)
+            twin.position, twin.task = position.clone(), torch.full_like(task, j)
+            _, twin_reward, twin_terminated, _, _ = twin.step(action)
+            task_j = torch.full_like(task, j)
+            assert torch.equal(env.task_reward(obs, action, info["final_obs"], task_j), twin_reward)
+            assert torch.equal(env.task_terminated(info["final_obs"], task_j), twin_terminated)
+            checked += int(twin_reward.sum())
+        assert torch.equal(env.task_reward(obs, action, info["final_obs"], task), reward)  # its own task too
+        obs = next_obs
+    assert checked > 0  # some transitions do solve some task
+
+
+def test_hazard_ends_the_avoid_task_unsolved():
+    env = GridTasks(num_envs=1, task_sampling="fixed", seed=0)
+    env.reset(seed=0)
+    avoid = [t.name for t in GRID_TASKS].index("top-left-avoid")
+    env.task[:] = avoid
+    env.position[:] = torch.tensor([[4.0, 3.0]])
+    _, reward, terminated, truncated, info = env.step(torch.tensor([3]))  # left, onto the middle column
+    assert bool(terminated[0]) and not bool(info["is_success"][0]) and float(reward[0]) == 0.0
+
+
+@pytest.mark.parametrize("env_cls", ENVS)
+def test_low_data_tasks_get_their_share_of_episodes(env_cls):
+    weights = [1.0] * 5 + [0.1]
+    env = env_cls(num_envs=4_000, seed=0, task_weights=weights)
+    env.reset(seed=0)
+    share = torch.bincount(env.task, minlength=6).float() / 4_000
+    assert share[5].item() == pytest.approx(0.1 / 5.1, abs=0.006)
+    assert share[:5].min().item() > 0.17
+
+
+@pytest.mark.parametrize("fraction", [0.25, 0.5, 1.0])
+def test_sharing_fractions_match_the_configuration(fraction):
+    env, replay = filled_replay(GridTasks)
+    sharing = TaskSharing(replay, env, env.num_tasks, SharingConfig(sharing="all", share_fraction=fraction))
+    generator = torch.Generator().manual_seed(0)
+    batch = sharing(240, generator)  # 40 rows of each task
+    per = 40
+    source = replay.storage["obs/task"][batch.episode, 0]
+    for j in range(env.num_tasks):
+        rows = batch.obs["task"] == j
+        assert int(rows.sum()) == per
+        assert int((source[rows] != j).sum()) == round(fraction * per)
+    metrics = sharing.metrics(env.task_set.names)
+    assert metrics["shared_fraction"] == pytest.approx(round(fraction * per) / per)
+    assert sum(metrics[f"from/{n}"] for n in env.task_set.names) == pytest.approx(1.0)
+
+
+def test_none_shares_nothing_and_every_row_is_its_own_tasks():
+    env, replay = filled_replay(GridTasks)
+    sharing = TaskSharing(replay, env, env.num_tasks, SharingConfig(sharing="none"))
+    batch = sharing(256, torch.Generator().manual_seed(0))
+    assert torch.equal(replay.storage["obs/task"][batch.episode, 0], batch.obs["task"])
+    assert torch.equal(batch.reward, replay.storage["reward"][batch.episode, batch.step])
+    assert sharing.metrics(env.task_set.names)["shared_fraction"] == 0.0
+
+
+@pytest.mark.parametrize("strategy", ["all", "random", "success", "hipi", "conservative", "zero-reward"])
+def test_shared_rows_are_scored_under_their_new_task(strategy):
+    env, replay = filled_replay(PointTasks)
+    q = lambda obs, action: -(action.float() - 0.5).square().sum(-1)  # noqa: E731
+    sharing = TaskSharing(replay, env, env.num_tasks, SharingConfig(sharing=strategy), q_value=q)
+    batch = sharing(300, torch.Generator().manual_seed(3))
+    expected = env.task_reward(batch.obs, batch.action, batch.next_obs, batch.obs["task"])
+    source = replay.storage["obs/task"][batch.episode, 0]
+    shared = source != batch.obs["task"]
+    assert bool(shared.any())
+    assert torch.equal(batch.next_obs["task"], batch.obs["task"])
+    if strategy == "zero-reward":
+        assert torch.all(batch.reward[shared] == 0) and not bool(batch.terminated[shared].any())
+        assert torch.equal(batch.reward[~shared], expected[~shared])
+    else:
+        assert torch.equal(batch.reward, expected)
+        assert torch.equal(batch.terminated, env.task_terminated(batch.next_obs, batch.obs["task"]))
+
+
+def test_success_shares_exactly_the_episodes_that_pass_the_success_test():
+    env, replay = filled_replay(GridTasks, steps=400)
+    sharing = TaskSharing(replay, env, env.num_tasks, SharingConfig(sharing="success", share_fraction=1.0))
+    source = replay.storage["obs/task"][:, 0].long()
+    weights = sharing.shared_weights(source, None)
+    # brute force: episode e of task i != j passes j's test at some stored step
+    for e in range(replay.num_episodes):
+        n = int(replay.length[e])
+        next_obs = {k: replay.storage[f"obs/{k}"][e, 1 : n + 1] for k in replay.obs_keys}
+        for j in range(env.num_tasks):
+            passes = bool(env.task_success(next_obs, torch.full((n,), j)).any())
+            assert bool(weights[j, e] > 0) == (passes and int(source[e]) != j)
+    # and the shared rows of a batch come from such episodes only
+    batch = sharing(600, torch.Generator().manual_seed(0))
+    shared = source[batch.episode] != batch.obs["task"]
+    assert bool(shared.any())
+    assert torch.all(weights[batch.obs["task"][shared], batch.episode[shared]] > 0)
+
+
+def test_random_draws_from_k_other_tasks_per_batch():
+    env, replay = filled_replay(GridTasks)
+    sharing = TaskSharing(replay, env, env.num_tasks, SharingConfig(sharing="random", share_tasks=2, share_fraction=1.0))
+    batch = sharing(600, torch.Generator().manual_seed(0))
+    source = replay.storage["obs/task"][batch.episode, 0]
+    for j in range(env.num_tasks):
+        sources = set(source[batch.obs["task"] == j].tolist())
+        assert j not in sources and 1 <= len(sources) <= 2
+
+
+def test_hipi_weights_are_the_posterior_with_its_partition_term():
+    env, replay = filled_replay(PointTasks, steps=400)
+    sharing = TaskSharing(replay, env, env.num_tasks, SharingConfig(sharing="hipi", hipi_temperature=0.5))
+    source = replay.storage["obs/task"][:, 0].long()
+    weights = sharing.shared_weights(source, None)
+    returns = sharing.scores.returns[: replay.num_episodes] / 0.5  # R_j(e) / T
+    log_z = torch.logsumexp(returns, 0)
+    posterior = torch.softmax(returns - log_z, 1)
+    other = source[: replay.num_episodes, None] != torch.arange(env.num_tasks)
+    assert torch.allclose(weights[:, : replay.num_episodes].t(), posterior * other, atol=1e-6)
+    assert bool((returns > 0).any())  # some episodes score under some task
+
+
+def test_conservative_shares_less_than_all():
+    env, replay = filled_replay(PointTasks)
+    q = lambda obs, action: obs["observation"][:, 0] * (obs["task"].float() - 2.5)  # noqa: E731
+    generator = torch.Generator().manual_seed(0)
+    counted = {}
+    for strategy in ("all", "conservative"):
+        sharing = TaskSharing(replay, env, env.num_tasks, SharingConfig(sharing=strategy), q_value=q)
+        for _ in range(10):
+            sharing(240, generator)
+        counted[strategy] = sharing.metrics(env.task_set.names)["shared_fraction"]
+    assert counted["all"] == pytest.approx(0.5)
+    assert 0.05 < counted["conservative"] < counted["all"] - 0.1
+
+
+def test_conservative_keeps_shared_rows_above_the_own_percentile():
+    env, replay = filled_replay(PointTasks)
+    q = lambda obs, action: obs["observation"][:, 1]  # noqa: E731  # Q = height
+    sharing = TaskSharing(
+        replay, env, env.num_tasks, SharingConfig(sharing="conservative", conservative_percentile=90), q_value=q
+    )
+    batch = sharing(600, torch.Generator().manual_seed(1))
+    source = replay.storage["obs/task"][batch.episode, 0]
+    shared = source != batch.obs["task"]
+    own_heights = batch.obs["observation"][~shared, 1]
+    assert bool(shared.any())
+    assert batch.obs["observation"][shared, 1].min() > torch.quantile(own_heights, 0.5)
+
+
+def test_sharing_composes_with_hindsight_goals():
+    """Task relabelling first, then hindsight goals: every reward is r_task(achieved', goal')."""
+    import gymnasium as gym
+
+    space = gym.spaces.Dict(
+        {
+            "observation": gym.spaces.Box(-1, 1, (2,)),
+            "achieved_goal": gym.spaces.Box(-1, 1, (2,)),
+            "desired_goal": gym.spaces.Box(-1, 1, (2,)),
+            "task": gym.spaces.Discrete(2),
+        }
+    )
+    radius = torch.tensor([0.1, 0.5])  # task 0: reach the goal closely, task 1: roughly
+
+    def reward(achieved, goal, info):
+        return ((achieved - goal).norm(dim=-1) <= radius[info["task"].long()]).float() - 1
+
+    class Tasks:
+        def task_success(self, next_obs, task):
+            return reward(next_obs["achieved_goal"], next_obs["desired_goal"], {"task": task}) == 0
+
+        def task_reward(self, obs, action, next_obs, task):
+            return self.task_success(next_obs, task).float() - 1
+
+        def task_terminated(self, next_obs, task):
+            return torch.zeros_like(task, dtype=torch.bool)
+
+    replay = EpisodeReplay(space, gym.spaces.Box(-1, 1, (2,)), 10 * 200, 10, 8)
+    generator = torch.Generator().manual_seed(0)
+    for e in range(40):
+        walk = torch.rand(8, 11, 2, generator=generator) * 2 - 1
+        tables = {
+            "obs/observation": walk,
+            "obs/achieved_goal": walk,
+            "obs/desired_goal": torch.rand(8, 1, 2, generator=generator).expand(8, 11, 2) * 2 - 1,
+            "obs/task": torch.full((8, 11), e % 2),
+            "action": torch.zeros(8, 10, 2),
+            "reward": torch.zeros(8, 10),
+            "terminated": torch.zeros(8, 10, dtype=torch.bool),
+            "truncated": torch.zeros(8, 10, dtype=torch.bool),
+        }
+        tables["truncated"][:, -1] = True
+        replay.add_episodes(tables, torch.full((8,), 10))
+    sharing = TaskSharing(replay, Tasks(), 2, SharingConfig(sharing="all"))
+    her = HindsightRelabeler(reward, "future", 4, task_key="task")
+    batch = her(sharing(512, generator), replay, generator)
+    source = replay.storage["obs/task"][batch.episode, 0]
+    stored_goal = replay.storage["obs/desired_goal"][batch.episode, batch.step]
+    assert bool((source != batch.obs["task"]).any())  # task relabelled
+    assert bool((batch.obs["desired_goal"] != stored_goal).any(-1).any())  # goals relabelled
+    expected = reward(batch.next_obs["achieved_goal"], batch.obs["desired_goal"], {"task": batch.obs["task"]})
+    assert torch.equal(batch.reward, expected)
+    assert bool((batch.reward == 0).any())
+
+
+@pytest.mark.parametrize("env_cls", ENVS)
+def test_datasets_have_their_quality_and_size(env_cls):
+    names = [t.name for t in (GRID_TASKS if env_cls is GridTasks else POINT_TASKS)]
+    qualities = dict.fromkeys(names, "random")
+    qualities[names[0]], qualities[names[1]] = "expert", "medium"
+    env = env_cls(num_envs=10 * len(names), task_sampling="fixed", seed=0)
+    tables, lengths = collect_task_datasets(env, qualities, 400, seed=0)
+    task = tables["obs/task"][:, 0]
+    solved = tables["reward"].sum(1) > 0
+    for j in range(len(names)):
+        assert int(lengths[task == j].sum()) == 400  # the same transitions per task
+    rate = [float(solved[task == j].float().mean()) for j in range(3)]
+    assert rate[0] > 0.9 and rate[0] > rate[1] > rate[2]  # expert > medium > random
+
+
+def test_cql_penalty_lowers_q_of_actions_the_data_never_took():
+    """DQN: data with action 0 only; Q(s, a != 0) - Q(s, 0) ends lower with the penalty."""
+    torch.manual_seed(0)
+    obs = {"observation": torch.randn(256, 4)}
+    batch = Batch(
+        obs=obs,
+        action=torch.zeros(256, dtype=torch.long),
+        reward=torch.zeros(256),
+        next_obs={"observation": torch.randn(256, 4)},
+        terminated=torch.zeros(256, dtype=torch.bool),
+        truncated=torch.zeros(256, dtype=torch.bool),
+        episode=torch.zeros(256, dtype=torch.long),
+        step=torch.zeros(256, dtype=torch.long),
+    )
+    gaps = {}
+    for alpha in (0.0, 1.0):
+        torch.manual_seed(0)
+        agent = DQNAgent(("observation",), 4, 3, DQNConfig(cql_alpha=alpha, clip_target=False, normalize_inputs=False))
+        for _ in range(200):
+            metrics = agent.update(batch)
+        with torch.no_grad():
+            q = agent.q_values(obs)
+        gaps[alpha] = float((q[:, 1:].mean(1) - q[:, 0]).mean())
+    assert "cql_gap" in metrics
+    assert gaps[1.0] < gaps[0.0] - 0.5
+
+
+def test_cql_penalty_lowers_sac_q_away_from_the_data():
+    torch.manual_seed(0)
+    obs = {"observation": torch.randn(256, 3)}
+    data_action = torch.full((256, 2), 0.5)
+    batch = Batch(
+        obs=obs,
+        action=data_action,
+        reward=torch.zeros(256),
+        next_obs={"observation": torch.randn(256, 3)},
+        terminated=torch.ones(256, dtype=torch.bool),
+        truncated=torch.zeros(256, dtype=torch.bool),
+        episode=torch.zeros(256, dtype=torch.long),
+        step=torch.zeros(256, dtype=torch.long),
+    )
+    box = (torch.full((2,), -1.0), torch.ones(2))
+    away = -data_action  # the opposite corner of the box
+    gaps = {}
+    for alpha in (0.0, 1.0):
+        torch.manual_seed(0)
+        agent = SACAgent(("observation",), 3, box, SACConfig(cql_alpha=alpha, hidden_sizes=(32, 32), lr=1e-3))
+        for _ in range(150):
+            agent.update(batch, torch.Generator().manual_seed(0))
+        gaps[alpha] = float((agent.q_value(obs, away) - agent.q_value(obs, data_action)).mean())
+    assert gaps[1.0] < gaps[0.0] - 0.5
+
+
+def test_bad_sharing_settings_are_one_line_errors():
+    base = with_overrides(TrainConfig(), {"env": "gridtasks", "her": "none", "sampling": "task_balanced"})
+    cases = {
+        "sharing": {"sharing": "everything"},
+        "share_fraction": {"sharing": "all", "share_fraction": 1.5},
+        "low_data_tasks": {"low_data_tasks": "nowhere"},
+        "dataset_quality": {"dataset_quality": "top-left=superb"},
+        "offline": {"offline": True},
+    }
+    for field, overrides in cases.items():
+        with pytest.raises(ConfigError) as error:
+            validate(with_overrides(base, overrides))
+        assert error.value.field == field
+    with pytest.raises(ConfigError) as error:
+        validate(with_overrides(base, {"sharing": "all", "sampling": "uniform"}))
+    assert error.value.field == "sampling"
+    with pytest.raises(ConfigError) as error:  # an env whose tasks are not reward functions
+        taskrl.train("pointreach-mt-sac-onehot", out=None, sharing="all", total_steps=100, tensorboard=False)
+    assert error.value.field == "sharing"
+
+
+def test_sharing_solves_a_low_data_task_that_none_does_not(tmp_path):
+    """The grid preset at a small budget: sharing all tasks' data solves the task with a tenth of the
+    episodes; its own data alone does not, at the same budget and seed."""
+    success = {}
+    for strategy in ("none", "all"):
+        run = taskrl.train(
+            "grid-sharing-dqn", out=tmp_path / strategy, sharing=strategy, total_steps=8_000, seed=0, tensorboard=False
+        )
+        rows = list(csv.DictReader(open(run.run_dir / "metrics.csv")))
+        success[strategy] = float(rows[-1]["success/top-left-avoid"])
+        shared = float(rows[-1]["shared/top-left-avoid"])
+        assert shared == (0.0 if strategy == "none" else pytest.approx(0.5, abs=0.03))  # 22 of 42-43 rows
+    assert success["all"] >= 0.8
+    assert success["none"] <= 0.4
+
+
+def test_offline_run_learns_from_datasets_without_stepping_an_env(tmp_path):
+    run = taskrl.train(
+        "point-sharing-offline",
+        out=tmp_path / "offline",
+        total_steps=400,
+        eval_interval=200,
+        dataset_steps=400,
+        cql_samples=2,
+        eval_episodes=4,
+        tensorboard=False,
+    )
+    rows = list(csv.DictReader(open(run.run_dir / "metrics.csv")))
+    assert [int(r["updates"]) for r in rows] == [1, 200, 400]  # the untrained policy's evaluation first
+    assert all(int(r["env_steps"]) == 0 for r in rows)
+    assert run.metrics["updates"] == 400
+    assert (run.run_dir / "checkpoints").exists()
+    assert math.isfinite(float(rows[-1]["cql_gap"]))
+    assert 0.0 < float(rows[-1]["shared_fraction"]) <= 0.5  # conservative shares some, not all
+    # and resumes
+    more = taskrl.train(resume=run.run_dir, total_steps=600, tensorboard=False)
+    assert more.metrics["updates"] == 600
