@@ -58,13 +58,15 @@ def test_act_takes_one_observation_a_numpy_batch_or_tensors(algo, kind):
 
 @pytest.mark.parametrize("algo", [name for name, spec in ALGORITHMS.items() if spec.multitask])
 def test_multitask_agents_act_on_gymnasium_observations_with_a_task(algo):
-    agent, _ = built(algo, "pointreach-mt", {})
-    single = gym.make("taskrl/MultiTaskPointReach-v0")
+    discrete = "discrete" in ALGORITHMS[algo].actions
+    env, env_id = ("gridtasks", "taskrl/GridTasks-v0") if discrete else ("pointreach-mt", "taskrl/MultiTaskPointReach-v0")
+    agent, _ = built(algo, env, {})
+    single = gym.make(env_id)
     obs, _ = single.reset(seed=0, options={"task": "top-left"})
     assert np.ndim(obs["task"]) == 0 and single.action_space.contains(agent.act(obs))
-    vec = gym.make_vec("taskrl/MultiTaskPointReach-v0", num_envs=3)
+    vec = gym.make_vec(env_id, num_envs=3)
     obs, _ = vec.reset(seed=0)
-    assert agent.act(obs).shape == (3, 2)
+    assert agent.act(obs).shape == ((3,) if discrete else (3, 2))
     vec.close()
 
 
@@ -111,4 +113,4 @@ def test_import_taskrl_alone_registers_every_native_id_and_gymnasiums_checker_pa
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
-    assert int(out.stdout.strip()) == 3
+    assert int(out.stdout.strip()) == 5  # BitFlip, PointReach, MultiTaskPointReach, GridTasks, PointTasks

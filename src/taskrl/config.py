@@ -356,7 +356,7 @@ def leaf_fields(env: str = "bitflip", algo: str = "dqn") -> list[Leaf]:
 def field_help(env: str = "bitflip", algo: str = "dqn") -> dict[str, str]:
     """``{setting: description}`` for the CLI, from the dataclasses' docstrings."""
     docs = field_docs(TrainConfig)
-    classes = [ConditioningConfig, DistributedConfig, env_family(env).settings]
+    classes = [ConditioningConfig, DistributedConfig, SharingConfig, env_family(env).settings]
     stack = [algorithm(algo).config]
     while stack:  # the algorithm's section and the sections nested in it (QT-Opt's cem)
         cls = stack.pop()

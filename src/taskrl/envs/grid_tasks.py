@@ -24,8 +24,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-from taskrl.envs.gymnasium_env import SingleCopyEnv
-from taskrl.envs.reward_tasks import RegionTask, RewardTaskEnv, RewardTaskSettings, task_weights
+from taskrl.envs.reward_tasks import RegionTask, RewardTaskEnv, RewardTaskGymEnv, RewardTaskSettings, task_weights
 from taskrl.envs.spec import EnvFamily, EnvRequest
 from taskrl.types import Obs
 
@@ -119,12 +118,11 @@ class GridTasks(RewardTaskEnv):
         return position / (SIZE - 1) * 2 - 1
 
 
-class GridTasksGymEnv(SingleCopyEnv):
-    """Gymnasium view of one copy of :class:`GridTasks` (``taskrl/GridTasks-v0``); a task drawn at every reset."""
+class GridTasksGymEnv(RewardTaskGymEnv):
+    """Gymnasium view of one copy of :class:`GridTasks` (``taskrl/GridTasks-v0``); ``options={"task": name}`` fixes the task."""
 
     def __init__(self, render_mode: str | None = None) -> None:
-        self._wrap(GridTasks(num_envs=1, horizon=2**62, seed=0), render_mode)
-        self.task_set = self._env.task_set
+        self._wrap_tasks(GridTasks(num_envs=1, horizon=2**62, seed=0), render_mode)
 
 
 def make_grid_tasks(settings: RewardTaskSettings, request: EnvRequest) -> GridTasks:

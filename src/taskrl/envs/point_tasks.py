@@ -21,8 +21,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-from taskrl.envs.gymnasium_env import SingleCopyEnv
-from taskrl.envs.reward_tasks import RegionTask, RewardTaskEnv, RewardTaskSettings, task_weights
+from taskrl.envs.reward_tasks import RegionTask, RewardTaskEnv, RewardTaskGymEnv, RewardTaskSettings, task_weights
 from taskrl.envs.spec import EnvFamily, EnvRequest
 from taskrl.types import Obs
 
@@ -101,12 +100,11 @@ class PointTasks(RewardTaskEnv):
         return ((box[:, 0] + box[:, 1]) / 2 - position).div(MAX_SPEED).clamp(-1.0, 1.0)
 
 
-class PointTasksGymEnv(SingleCopyEnv):
-    """Gymnasium view of one copy of :class:`PointTasks` (``taskrl/PointTasks-v0``); a task drawn at every reset."""
+class PointTasksGymEnv(RewardTaskGymEnv):
+    """Gymnasium view of one copy of :class:`PointTasks` (``taskrl/PointTasks-v0``); ``options={"task": name}`` fixes the task."""
 
     def __init__(self, render_mode: str | None = None) -> None:
-        self._wrap(PointTasks(num_envs=1, horizon=2**62, seed=0), render_mode)
-        self.task_set = self._env.task_set
+        self._wrap_tasks(PointTasks(num_envs=1, horizon=2**62, seed=0), render_mode)
 
 
 def make_point_tasks(settings: RewardTaskSettings, request: EnvRequest) -> PointTasks:

@@ -19,12 +19,13 @@ class SharingConfig:
     Attributes:
         sharing: where each task's rows come from, besides its own data: ``none`` (own data only),
             ``all`` (any other task's data), ``random`` (the data of ``share_tasks`` other tasks drawn
-            anew for every batch), ``success`` (other tasks' episodes that pass this task's success
-            test: MT-Opt), ``hipi`` (other tasks' episodes weighted by the inverse-RL posterior of this
-            task), ``conservative`` (other tasks' transitions whose Q-value under this task is at least
-            the ``conservative_percentile``-th percentile of its own rows' Q-values: CDS) or ``zero-reward`` (any
-            other task's data with reward 0: UDS). Needs an env whose tasks are reward functions
-            (``gridtasks``, ``pointtasks``, or one with ``task_reward`` and ``task_terminated``).
+            anew for every batch), ``success`` (MT-Opt: other tasks' episodes that pass this task's
+            success test), ``hipi`` (other tasks' episodes weighted by the inverse-RL posterior of
+            this task), ``conservative`` (CDS: other tasks' transitions whose Q-value under this task
+            reaches the ``conservative_percentile``-th percentile of its own rows' Q-values) or
+            ``zero-reward`` (UDS: any other task's data with reward 0). Needs an env whose tasks are
+            reward functions (``gridtasks``, ``pointtasks``, or one with ``task_reward``,
+            ``task_terminated`` and ``task_success``).
         share_fraction: the share of each task's rows drawn from other tasks' data (all of them
             for a task with no data of its own; none when the strategy finds no data to share).
         share_tasks: ``random``: how many other tasks each task draws from.
