@@ -149,9 +149,10 @@ _POINT_SHARING = {
     "low_data_tasks": "right-edge",
     "low_data_fraction": 0.1,
     "num_envs": 16,
-    "total_steps": 20_000,
+    "total_steps": 15_000,
     "learning_starts": 500,
-    "updates_per_step": 0.25,
+    "updates_per_step": 0.5,
+    "init_alpha": 0.1,  # a reward of 1 once per episode: an entropy bonus starting at 1.0 drowns it
     "batch_size": 256,
     "hidden_sizes": (64, 64),
     "lr": 1e-3,
@@ -168,6 +169,7 @@ _POINT_OFFLINE = {
     "dataset_quality": "top-left=expert,top-right=medium,bottom-left=random,bottom-right=random,centre=medium,right-edge=random",
     "dataset_steps": 2_000,
     "cql_alpha": 1.0,
+    "init_alpha": 1.0,  # SAC's default: the penalty, not the entropy bonus, keeps the policy near the data
     "total_steps": 10_000,
     "eval_interval": 2_500,
     "checkpoint_interval": 10_000,
