@@ -4,6 +4,8 @@ mixed-quality datasets), with per-task success, curves and 95% confidence interv
 .venv/bin/python benchmarks/sharing.py online --preset grid-sharing-dqn --seeds 0 1 2 3 4 --write
 .venv/bin/python benchmarks/sharing.py online --preset point-sharing-sac --seeds 0 1 2 --write
 .venv/bin/python benchmarks/sharing.py offline --preset point-sharing-offline --seeds 0 1 2 --write
+.venv/bin/python benchmarks/sharing.py offline --seeds 0 1 2 --name corners-expert --write \
+    --set dataset_quality=top-left=expert,top-right=expert,bottom-left=expert,bottom-right=expert,centre=random,right-edge=random
 
 Each run is the preset with ``--sharing S`` (and the overrides given with ``--set KEY=VALUE``); the
 figures are the final greedy evaluation (``eval_episodes`` per task) and the evaluation curve of
@@ -122,6 +124,7 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--jobs", type=int, default=2, help="runs at once (one torch thread each)")
     parser.add_argument("--set", nargs="*", default=[], help="overrides KEY=VALUE (numbers parsed)")
+    parser.add_argument("--name", default="", help="suffix of the result files (default: the overrides)")
     parser.add_argument("--write", action="store_true")
     args = parser.parse_args()
     preset = args.preset or ("grid-sharing-dqn" if args.setting == "online" else "point-sharing-offline")
@@ -148,7 +151,8 @@ def main() -> None:
     text = table(results, strategies, columns)
     print(text)
     if args.write:
-        name = preset + ("" if not overrides else "_" + "_".join(f"{k}-{v}" for k, v in overrides.items()))
+        suffix = args.name or "_".join(f"{k}-{v}" for k, v in overrides.items())
+        name = preset + (f"_{suffix}" if suffix else "")
         (HERE / "results").mkdir(exist_ok=True)
         (HERE / "figures").mkdir(exist_ok=True)
         (HERE / "results" / f"sharing_{name}.json").write_text(json.dumps(results, indent=1) + "\n")
