@@ -101,24 +101,33 @@ def plot(results: list[dict], strategies: list[str], focus: list[str], path: Pat
     fig.savefig(path, dpi=110)
 
 
-def table(results: list[dict], strategies: list[str], columns: list[str]) -> str:
+def at_point(run: dict, at: int | None) -> dict[str, float]:
+    """Per-task success at the evaluation nearest ``at`` (the final one when None), with ``all tasks``."""
+    point = run["curve"][-1] if at is None else min(run["curve"], key=lambda p: abs(p["at"] - at))
+    tasks = {k: v for k, v in point.items() if k != "at"}
+    return {**tasks, "all tasks": statistics.fmean(tasks.values())}
+
+
+def table(results: list[dict], strategies: list[str], columns: list[str], at: int | None = None) -> str:
     head = "| strategy | " + " | ".join(columns) + " | per seed (" + columns[0] + ") |"
     lines = [head, "|---" * (len(columns) + 2) + "|"]
     for strategy in strategies:
         runs = sorted((r for r in results if r["strategy"] == strategy), key=lambda r: r["seed"])
         cells = []
         for column in columns:
-            values = [r["mean_success"] if column == "all tasks" else r["final"][column] for r in runs]
+            values = [at_point(r, at)[column] for r in runs]
             mean, half = interval(values)
             cells.append(f"{mean:.2f} ± {half:.2f}")
-        first = [r["mean_success"] if columns[0] == "all tasks" else r["final"][columns[0]] for r in runs]
+        first = [at_point(r, at)[columns[0]] for r in runs]
         lines.append(f"| {strategy} | " + " | ".join(cells) + " | " + ", ".join(f"{v:.2f}" for v in first) + " |")
     return "\n".join(lines)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("setting", choices=("online", "offline"))
+    parser.add_argument("setting", choices=("online", "offline", "table"), help="table: re-read --results at --at")
+    parser.add_argument("--results", type=Path, help="table: a results JSON of an earlier run")
+    parser.add_argument("--at", type=int, default=None, help="table: the evaluation nearest this step or update")
     parser.add_argument("--preset", default=None)
     parser.add_argument("--strategies", nargs="+", default=None)
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
@@ -127,6 +136,12 @@ def main() -> None:
     parser.add_argument("--name", default="", help="suffix of the result files (default: the overrides)")
     parser.add_argument("--write", action="store_true")
     args = parser.parse_args()
+    if args.setting == "table":
+        results = json.loads(args.results.read_text())
+        strategies = list(dict.fromkeys(r["strategy"] for r in results))
+        low = results[0]["low_data_tasks"]
+        print(table(results, strategies, [*(low or list(results[0]["final"])), "all tasks"], args.at))
+        return
     preset = args.preset or ("grid-sharing-dqn" if args.setting == "online" else "point-sharing-offline")
     strategies = args.strategies or list(ONLINE if args.setting == "online" else OFFLINE)
     overrides = {}
