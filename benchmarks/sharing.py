@@ -4,6 +4,7 @@ mixed-quality datasets), with per-task success, curves and 95% confidence interv
 .venv/bin/python benchmarks/sharing.py online --preset grid-sharing-dqn --seeds 0 1 2 3 4 --write
 .venv/bin/python benchmarks/sharing.py online --preset point-sharing-sac --seeds 0 1 2 --write
 .venv/bin/python benchmarks/sharing.py offline --preset point-sharing-offline --seeds 0 1 2 --write
+.venv/bin/python benchmarks/sharing.py costs --write
 .venv/bin/python benchmarks/sharing.py offline --seeds 0 1 2 --name corners-expert --write \
     --set dataset_quality=top-left=expert,top-right=expert,bottom-left=expert,bottom-right=expert,centre=random,right-edge=random
 
@@ -123,9 +124,62 @@ def table(results: list[dict], strategies: list[str], columns: list[str], at: in
     return "\n".join(lines)
 
 
+def sampler_costs(transitions: int, batch_size: int, calls: int) -> str:
+    """ms per batch of each strategy's sampler against plain task-balanced sampling and a DQN update,
+    on a replay of random grid episodes."""
+    import time
+
+    import torch
+
+    from taskrl.agents.dqn import DQNAgent, DQNConfig
+    from taskrl.envs.grid_tasks import GridTasks
+    from taskrl.replay import EpisodeReplay, TaskBalancedSampler
+    from taskrl.sharing import SharingConfig, TaskSharing
+    from taskrl.sharing.datasets import random_actions
+
+    torch.set_num_threads(1)
+    env = GridTasks(num_envs=64, seed=0)
+    replay = EpisodeReplay(env.single_observation_space, env.single_action_space, transitions * 2, env.horizon, 64)
+    generator = torch.Generator().manual_seed(0)
+    obs = env.reset(seed=0)
+    replay.start(obs)
+    for _ in range(transitions // 64):
+        action = random_actions(env.single_action_space, 64, generator, env.device)
+        next_obs, reward, terminated, truncated, info = env.step(action)
+        replay.add(action, reward, terminated, truncated, info["final_obs"], next_obs)
+        obs = next_obs
+    agent = DQNAgent(("observation",), 49, 5, DQNConfig(hidden_sizes=(128,)))
+
+    def timed(fn) -> float:
+        for _ in range(10):
+            fn()
+        start = time.perf_counter()
+        for _ in range(calls):
+            fn()
+        return (time.perf_counter() - start) / calls * 1e3
+
+    balanced = TaskBalancedSampler(replay, env.num_tasks)
+    rows = [f"| task-balanced (no sharing) | {timed(lambda: balanced(batch_size, generator)):.2f} |"]
+    for strategy in ONLINE:
+        sharing = TaskSharing(
+            replay, env, env.num_tasks, SharingConfig(sharing=strategy), q_value=lambda o, a: o["observation"][:, 0]
+        )
+        rows.append(f"| {strategy} | {timed(lambda sample=sharing: sample(batch_size, generator)):.2f} |")
+    batch = balanced(batch_size, generator)
+    rows.append(f"| (a DQN update, 49-128-5, for scale) | {timed(lambda: agent.update(batch)):.2f} |")
+    head = (
+        f"{replay.num_transitions:,} stored transitions in {replay.num_episodes:,} episodes, batch {batch_size}, "
+        f"mean over {calls} calls; `conservative` with a stand-in Q (a column of the observation), "
+        "so its cost excludes the agent's forward passes.\n\n| sampler | ms per batch |\n|---|---|"
+    )
+    return head + "\n" + "\n".join(rows)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("setting", choices=("online", "offline", "table"), help="table: re-read --results at --at")
+    parser.add_argument(
+        "setting", choices=("online", "offline", "table", "costs"), help="table: re-read --results at --at; costs: ms per batch"
+    )
     parser.add_argument("--results", type=Path, help="table: a results JSON of an earlier run")
     parser.add_argument("--at", type=int, default=None, help="table: the evaluation nearest this step or update")
     parser.add_argument("--preset", default=None)
@@ -136,6 +190,12 @@ def main() -> None:
     parser.add_argument("--name", default="", help="suffix of the result files (default: the overrides)")
     parser.add_argument("--write", action="store_true")
     args = parser.parse_args()
+    if args.setting == "costs":
+        text = sampler_costs(100_000, 256, 200)
+        print(text)
+        if args.write:
+            append_results("Data sharing: sampler cost per batch", text)
+        return
     if args.setting == "table":
         results = json.loads(args.results.read_text())
         strategies = list(dict.fromkeys(r["strategy"] for r in results))

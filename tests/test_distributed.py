@@ -211,6 +211,22 @@ def test_sac_learns_through_collectors_with_its_own_targets(tmp_path):
     assert rows[-1]["weight_lag"] < config.cluster.publish_interval + 32
 
 
+def test_data_sharing_runs_through_collectors(tmp_path):
+    """The trainer samples with the run's TaskSharing: the grid's low-data task is learnt from the
+    other tasks' data that collectors send, and the shares are logged."""
+    config = with_overrides(
+        preset_config("grid-sharing-dqn"),
+        {"distributed": True, "collectors": 2, "bellman_updaters": 0, "total_steps": 8_000, "threads": 1, "seed": 0},
+    )
+    loop, rows, parts = _local_loop(tmp_path, config, updaters=0, evaluated=True)
+    names = list(parts.env.task_set.names)
+    loop.books.row_metrics.append(lambda elapsed: parts.sharing.metrics(names))
+    loop.run()
+    assert parts.sharing is not None and parts.sampler is parts.sharing
+    assert rows[-1]["shared/top-left-avoid"] == pytest.approx(0.5, abs=0.03)
+    assert rows[-1]["success/top-left-avoid"] >= 0.7, [r["success/top-left-avoid"] for r in rows]
+
+
 def test_distribution_settings_are_checked():
     with pytest.raises(ConfigError) as err:
         taskrl.train("pointreach-sac-her", distributed=True, bellman_updaters=1)
