@@ -269,20 +269,26 @@ def test_datasets_have_their_quality_and_size(env_cls):
     assert rate[0] > 0.9 and rate[0] > rate[1] > rate[2]  # expert > medium > random
 
 
-def test_cql_penalty_lowers_q_of_actions_the_data_never_took():
-    """DQN: data with action 0 only; Q(s, a != 0) - Q(s, 0) ends lower with the penalty."""
+def dataset_batch(obs_dim: int, action: torch.Tensor, terminated: bool) -> tuple[dict, Batch]:
+    """A fixed batch of 256 random states, all with the given data ``action`` and reward 0."""
     torch.manual_seed(0)
-    obs = {"observation": torch.randn(256, 4)}
+    obs = {"observation": torch.randn(256, obs_dim)}
     batch = Batch(
         obs=obs,
-        action=torch.zeros(256, dtype=torch.long),
+        action=action,
         reward=torch.zeros(256),
-        next_obs={"observation": torch.randn(256, 4)},
-        terminated=torch.zeros(256, dtype=torch.bool),
+        next_obs={"observation": torch.randn(256, obs_dim)},
+        terminated=torch.full((256,), terminated),
         truncated=torch.zeros(256, dtype=torch.bool),
         episode=torch.zeros(256, dtype=torch.long),
         step=torch.zeros(256, dtype=torch.long),
     )
+    return obs, batch
+
+
+def test_cql_penalty_lowers_q_of_actions_the_data_never_took():
+    """DQN: data with action 0 only; Q(s, a != 0) - Q(s, 0) ends lower with the penalty."""
+    obs, batch = dataset_batch(4, torch.zeros(256, dtype=torch.long), terminated=False)
     gaps = {}
     for alpha in (0.0, 1.0):
         torch.manual_seed(0)
@@ -297,19 +303,8 @@ def test_cql_penalty_lowers_q_of_actions_the_data_never_took():
 
 
 def test_cql_penalty_lowers_sac_q_away_from_the_data():
-    torch.manual_seed(0)
-    obs = {"observation": torch.randn(256, 3)}
     data_action = torch.full((256, 2), 0.5)
-    batch = Batch(
-        obs=obs,
-        action=data_action,
-        reward=torch.zeros(256),
-        next_obs={"observation": torch.randn(256, 3)},
-        terminated=torch.ones(256, dtype=torch.bool),
-        truncated=torch.zeros(256, dtype=torch.bool),
-        episode=torch.zeros(256, dtype=torch.long),
-        step=torch.zeros(256, dtype=torch.long),
-    )
+    obs, batch = dataset_batch(3, data_action, terminated=True)
     box = (torch.full((2,), -1.0), torch.ones(2))
     away = -data_action  # the opposite corner of the box
     gaps = {}

@@ -24,8 +24,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-from taskrl.envs.reward_tasks import RegionTask, RewardTaskEnv, RewardTaskGymEnv, RewardTaskSettings, task_weights
-from taskrl.envs.spec import EnvFamily, EnvRequest
+from taskrl.envs.reward_tasks import RegionTask, RewardTaskEnv, RewardTaskGymEnv, reward_task_family
 from taskrl.types import Obs
 
 SIZE = 7
@@ -125,22 +124,11 @@ class GridTasksGymEnv(RewardTaskGymEnv):
         self._wrap_tasks(GridTasks(num_envs=1, horizon=2**62, seed=0), render_mode)
 
 
-def make_grid_tasks(settings: RewardTaskSettings, request: EnvRequest) -> GridTasks:
-    if request.evaluation:  # every task eval_episodes times, copy i on task i % T
-        return GridTasks(len(GRID_TASKS) * request.eval_episodes, request.device, task_sampling="fixed", seed=request.seed)
-    weights = task_weights([t.name for t in GRID_TASKS], settings.low_data_tasks, settings.low_data_fraction)
-    return GridTasks(request.num_envs, request.device, task_weights=weights, seed=request.seed)
-
-
-FAMILY = EnvFamily(
-    name="gridtasks",
-    description="a 7x7 grid world with 6 reward-function tasks (corners, centre, one with a hazard), discrete, native torch",
-    section="gridtasks",
-    settings=RewardTaskSettings,
-    make=make_grid_tasks,
-    check=lambda settings, run: settings.check_tasks([t.name for t in GRID_TASKS]),
-    kind="multitask",
-    actions="discrete",
-    per_task_success="any",  # episodes end at success
-    video_env=lambda s: gym.make("taskrl/GridTasks-v0", render_mode="rgb_array"),
+FAMILY = reward_task_family(
+    "gridtasks",
+    "a 7x7 grid world with 6 reward-function tasks (corners, centre, one with a hazard), discrete, native torch",
+    GridTasks,
+    GRID_TASKS,
+    "taskrl/GridTasks-v0",
+    "discrete",
 )

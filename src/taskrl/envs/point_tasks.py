@@ -21,8 +21,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-from taskrl.envs.reward_tasks import RegionTask, RewardTaskEnv, RewardTaskGymEnv, RewardTaskSettings, task_weights
-from taskrl.envs.spec import EnvFamily, EnvRequest
+from taskrl.envs.reward_tasks import RegionTask, RewardTaskEnv, RewardTaskGymEnv, reward_task_family
 from taskrl.types import Obs
 
 HALF = 0.15
@@ -107,22 +106,11 @@ class PointTasksGymEnv(RewardTaskGymEnv):
         self._wrap_tasks(PointTasks(num_envs=1, horizon=2**62, seed=0), render_mode)
 
 
-def make_point_tasks(settings: RewardTaskSettings, request: EnvRequest) -> PointTasks:
-    if request.evaluation:  # every task eval_episodes times, copy i on task i % T
-        return PointTasks(len(POINT_TASKS) * request.eval_episodes, request.device, task_sampling="fixed", seed=request.seed)
-    weights = task_weights([t.name for t in POINT_TASKS], settings.low_data_tasks, settings.low_data_fraction)
-    return PointTasks(request.num_envs, request.device, task_weights=weights, seed=request.seed)
-
-
-FAMILY = EnvFamily(
-    name="pointtasks",
-    description="point navigation with 6 reward-function tasks (corners, centre, right edge), continuous, native torch",
-    section="pointtasks",
-    settings=RewardTaskSettings,
-    make=make_point_tasks,
-    check=lambda settings, run: settings.check_tasks([t.name for t in POINT_TASKS]),
-    kind="multitask",
-    actions="box",
-    per_task_success="any",  # episodes end at success
-    video_env=lambda s: gym.make("taskrl/PointTasks-v0", render_mode="rgb_array"),
+FAMILY = reward_task_family(
+    "pointtasks",
+    "point navigation with 6 reward-function tasks (corners, centre, right edge), continuous, native torch",
+    PointTasks,
+    POINT_TASKS,
+    "taskrl/PointTasks-v0",
+    "box",
 )

@@ -26,11 +26,13 @@ import dataclasses
 from collections.abc import Sequence
 from typing import Any, Literal
 
+import gymnasium as gym
 import numpy as np
 import torch
 
 from taskrl.envs.base import NativeEnv, Obs, StepResult
 from taskrl.envs.gymnasium_env import SingleCopyEnv
+from taskrl.envs.spec import EnvFamily, EnvRequest
 from taskrl.errors import ConfigError, require
 from taskrl.tasks import TaskSet
 
@@ -38,6 +40,7 @@ __all__ = [
     "RegionTask",
     "RewardTaskEnv",
     "RewardTaskGymEnv",
+    "reward_task_family",
     "RewardTaskSettings",
     "QUALITIES",
     "parse_qualities",
@@ -220,6 +223,33 @@ class RewardTaskGymEnv(SingleCopyEnv):
             self._env.task[0] = index
             obs = self._to_numpy(self._env._obs())
         return obs, info
+
+
+def reward_task_family(
+    name: str, description: str, env_class: type[RewardTaskEnv], tasks: Sequence[RegionTask], gym_id: str, actions: str
+) -> EnvFamily:
+    """The env family of ``env_class`` with ``tasks``: training copies with the section's task weights,
+    evaluation copies with fixed tasks (copy i on task i % T, ``eval_episodes`` of each)."""
+    names = [t.name for t in tasks]
+
+    def make(settings: RewardTaskSettings, request: EnvRequest) -> RewardTaskEnv:
+        if request.evaluation:
+            return env_class(len(tasks) * request.eval_episodes, request.device, task_sampling="fixed", seed=request.seed)
+        weights = task_weights(names, settings.low_data_tasks, settings.low_data_fraction)
+        return env_class(request.num_envs, request.device, task_weights=weights, seed=request.seed)
+
+    return EnvFamily(
+        name=name,
+        description=description,
+        section=name,
+        settings=RewardTaskSettings,
+        make=make,
+        check=lambda settings, run: settings.check_tasks(names),
+        kind="multitask",
+        actions=actions,
+        per_task_success="any",  # episodes end at success
+        video_env=lambda settings: gym.make(gym_id, render_mode="rgb_array"),
+    )
 
 
 def split_names(text: str) -> list[str]:
