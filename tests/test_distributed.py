@@ -216,12 +216,15 @@ def test_data_sharing_runs_through_collectors(tmp_path):
     other tasks' data that collectors send, and the shares are logged."""
     config = with_overrides(
         preset_config("grid-sharing-dqn"),
-        {"distributed": True, "collectors": 2, "bellman_updaters": 0, "total_steps": 8_000, "threads": 1, "seed": 0},
-    )
+        {"collectors": 2, "bellman_updaters": 0, "total_steps": 8_000, "threads": 1, "seed": 0},
+    )  # not --distributed: that would start a local Ray; the roles here are plain objects
     loop, rows, parts = _local_loop(tmp_path, config, updaters=0, evaluated=True)
     names = list(parts.env.task_set.names)
     loop.books.row_metrics.append(lambda elapsed: parts.sharing.metrics(names))
-    loop.run()
+    try:
+        loop.run()
+    finally:
+        parts.close()
     assert parts.sharing is not None and parts.sampler is parts.sharing
     assert rows[-1]["shared/top-left-avoid"] == pytest.approx(0.5, abs=0.03)
     assert rows[-1]["success/top-left-avoid"] >= 0.7, [r["success/top-left-avoid"] for r in rows]
