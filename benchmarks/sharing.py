@@ -46,6 +46,7 @@ def one_run(job: tuple[str, str, int, dict]) -> dict:
     import torch
 
     import taskrl
+    from taskrl.envs.reward_tasks import split_names
 
     preset, strategy, seed, overrides = job
     torch.set_num_threads(1)
@@ -58,7 +59,7 @@ def one_run(job: tuple[str, str, int, dict]) -> dict:
     axis = "updates" if run.config.offline else "env_steps"
     curve = [{"at": int(float(r[axis])), **{t: float(r[f"success/{t}"]) for t in tasks}} for r in rows]
     shared = {t: float(rows[-1].get(f"shared/{t}") or 0.0) for t in tasks}
-    low = [t for t in getattr(run.config.env_settings, "low_data_tasks", "").split(",") if t]
+    low = split_names(getattr(run.config.env_settings, "low_data_tasks", ""))
     return {
         "preset": preset,
         "strategy": strategy,

@@ -24,7 +24,8 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-from taskrl.envs.reward_tasks import RegionTask, RewardTaskEnv, RewardTaskGymEnv, reward_task_family
+from taskrl.envs.gymnasium_env import TaskChoiceEnv
+from taskrl.envs.reward_tasks import RegionTask, RewardTaskEnv, reward_task_family
 from taskrl.types import Obs
 
 SIZE = 7
@@ -117,7 +118,7 @@ class GridTasks(RewardTaskEnv):
         return position / (SIZE - 1) * 2 - 1
 
 
-class GridTasksGymEnv(RewardTaskGymEnv):
+class GridTasksGymEnv(TaskChoiceEnv):
     """Gymnasium view of one copy of :class:`GridTasks` (``taskrl/GridTasks-v0``); ``options={"task": name}`` fixes the task."""
 
     def __init__(self, render_mode: str | None = None) -> None:

@@ -17,7 +17,7 @@ from taskrl.envs.bitflip import BitFlip
 from taskrl.envs.point_reach import PointReach, RewardType
 from taskrl.registration import register_gymnasium_envs
 
-__all__ = ["BitFlipGymEnv", "PointReachGymEnv", "SingleCopyEnv", "register_gymnasium_envs"]
+__all__ = ["BitFlipGymEnv", "PointReachGymEnv", "SingleCopyEnv", "TaskChoiceEnv", "register_gymnasium_envs"]
 
 
 class SingleCopyEnv(gym.Env):
@@ -58,6 +58,35 @@ class SingleCopyEnv(gym.Env):
         obs, reward, terminated, truncated, info = self._env.step(self._action(action))
         final = self._to_numpy(info["final_obs"])
         return final, float(reward[0]), bool(terminated[0]), bool(truncated[0]), {"is_success": bool(info["is_success"][0])}
+
+
+class TaskChoiceEnv(SingleCopyEnv):
+    """One copy of a native multi-task environment (observations ``observation`` and ``task``): the task
+    is drawn at every reset, or fixed by ``options={"task": i}`` (an index or a task name).
+
+    Subclasses pass the copy to :meth:`_wrap_tasks`; it must have a ``task_set`` and a ``task`` tensor.
+    """
+
+    def _wrap_tasks(self, env: Any, render_mode: str | None = None) -> None:
+        self._wrap(env, render_mode)
+        self.task_set = env.task_set
+
+    @staticmethod
+    def _to_numpy(obs: dict[str, torch.Tensor]) -> dict[str, Any]:
+        return {"observation": obs["observation"][0].cpu().numpy().copy(), "task": np.int64(obs["task"][0].item())}
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        obs, info = super().reset(seed=seed)
+        task = (options or {}).get("task")
+        if task is not None:
+            index = self.task_set.index(task) if isinstance(task, str) else int(task)
+            if not 0 <= index < len(self.task_set):
+                raise ValueError(
+                    f"options['task'] must be in 0..{len(self.task_set) - 1} or one of {self.task_set.names}; got {task!r}"
+                )
+            self._env.task[0] = index
+            obs = self._to_numpy(self._env._obs())
+        return obs, info
 
 
 class BitFlipGymEnv(SingleCopyEnv):

@@ -37,7 +37,7 @@ import numpy as np
 import torch
 
 from taskrl.envs.base import NativeEnv, Obs, StepResult
-from taskrl.envs.gymnasium_env import SingleCopyEnv
+from taskrl.envs.gymnasium_env import TaskChoiceEnv
 from taskrl.envs.point_reach import PointReachSettings, RewardType, _check_positive, check_point_env_args
 from taskrl.envs.spec import EnvFamily, EnvRequest
 from taskrl.tasks import TaskSet
@@ -196,7 +196,7 @@ class MultiTaskPointReach(NativeEnv):
         return self.distance_to_region(observation, task) <= self.radius
 
 
-class MultiTaskPointReachGymEnv(SingleCopyEnv):
+class MultiTaskPointReachGymEnv(TaskChoiceEnv):
     """Gymnasium view of one copy of :class:`MultiTaskPointReach` (``taskrl/MultiTaskPointReach-v0``).
 
     The task is drawn uniformly at every reset, or fixed by ``options={"task": i}`` (an index or a
@@ -213,7 +213,7 @@ class MultiTaskPointReachGymEnv(SingleCopyEnv):
         regions: Sequence[tuple[str, str, Sequence[float]]] = DEFAULT_REGIONS,
         render_mode: str | None = None,
     ) -> None:
-        self._wrap(
+        self._wrap_tasks(
             MultiTaskPointReach(
                 num_envs=1,
                 regions=regions,
@@ -226,24 +226,6 @@ class MultiTaskPointReachGymEnv(SingleCopyEnv):
             ),
             render_mode,
         )
-        self.task_set = self._env.task_set
-
-    @staticmethod
-    def _to_numpy(obs: Obs) -> dict[str, Any]:
-        return {"observation": obs["observation"][0].numpy().copy(), "task": np.int64(obs["task"][0].item())}
-
-    def reset(self, *, seed: int | None = None, options: dict | None = None):
-        obs, info = super().reset(seed=seed)
-        task = (options or {}).get("task")
-        if task is not None:
-            index = self.task_set.index(task) if isinstance(task, str) else int(task)
-            if not 0 <= index < len(self.task_set):
-                raise ValueError(
-                    f"options['task'] must be in 0..{len(self.task_set) - 1} or one of {self.task_set.names}; got {task!r}"
-                )
-            self._env.task[0] = index
-            obs = self._to_numpy(self._env._obs())
-        return obs, info
 
 
 def _make_multitask_point(settings: PointReachSettings, request: EnvRequest) -> MultiTaskPointReach:

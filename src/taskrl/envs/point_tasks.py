@@ -21,7 +21,8 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-from taskrl.envs.reward_tasks import RegionTask, RewardTaskEnv, RewardTaskGymEnv, reward_task_family
+from taskrl.envs.gymnasium_env import TaskChoiceEnv
+from taskrl.envs.reward_tasks import RegionTask, RewardTaskEnv, reward_task_family
 from taskrl.types import Obs
 
 HALF = 0.15
@@ -99,7 +100,7 @@ class PointTasks(RewardTaskEnv):
         return ((box[:, 0] + box[:, 1]) / 2 - position).div(MAX_SPEED).clamp(-1.0, 1.0)
 
 
-class PointTasksGymEnv(RewardTaskGymEnv):
+class PointTasksGymEnv(TaskChoiceEnv):
     """Gymnasium view of one copy of :class:`PointTasks` (``taskrl/PointTasks-v0``); ``options={"task": name}`` fixes the task."""
 
     def __init__(self, render_mode: str | None = None) -> None:

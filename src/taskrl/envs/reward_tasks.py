@@ -31,7 +31,6 @@ import numpy as np
 import torch
 
 from taskrl.envs.base import NativeEnv, Obs, StepResult
-from taskrl.envs.gymnasium_env import SingleCopyEnv
 from taskrl.envs.spec import EnvFamily, EnvRequest
 from taskrl.errors import ConfigError, require
 from taskrl.tasks import TaskSet
@@ -39,7 +38,6 @@ from taskrl.tasks import TaskSet
 __all__ = [
     "RegionTask",
     "RewardTaskEnv",
-    "RewardTaskGymEnv",
     "reward_task_family",
     "RewardTaskSettings",
     "QUALITIES",
@@ -198,31 +196,6 @@ class RewardTaskEnv(NativeEnv):
     def _unit(self, position: torch.Tensor) -> torch.Tensor:
         """Positions in the picture's box ``[-1, 1]^2``."""
         return position
-
-
-class RewardTaskGymEnv(SingleCopyEnv):
-    """Gymnasium view of one copy of a :class:`RewardTaskEnv`: a task drawn at every reset, or fixed by
-    ``options={"task": i}`` (an index or a task name); ``info["is_success"]`` every step."""
-
-    def _wrap_tasks(self, env: RewardTaskEnv, render_mode: str | None) -> None:
-        self._wrap(env, render_mode)
-        self.task_set = env.task_set
-
-    @staticmethod
-    def _to_numpy(obs: Obs) -> dict[str, Any]:
-        return {"observation": obs["observation"][0].cpu().numpy().copy(), "task": np.int64(obs["task"][0].item())}
-
-    def reset(self, *, seed: int | None = None, options: dict | None = None):
-        obs, info = super().reset(seed=seed)
-        task = (options or {}).get("task")
-        if task is not None:
-            names = self.task_set.names
-            index = names.index(task) if isinstance(task, str) and task in names else task
-            if not isinstance(index, int) or not 0 <= index < len(names):
-                raise ValueError(f"options['task'] must be in 0..{len(names) - 1} or one of {names}; got {task!r}")
-            self._env.task[0] = index
-            obs = self._to_numpy(self._env._obs())
-        return obs, info
 
 
 def reward_task_family(

@@ -14,9 +14,10 @@ import torch
 
 from taskrl.replay.episodes import EpisodeRecorder
 
-__all__ = ["MEDIUM_RANDOM_SHARE", "collect_task_datasets", "random_actions"]
+__all__ = ["RANDOM_SHARE", "collect_task_datasets", "random_actions"]
 
-MEDIUM_RANDOM_SHARE = 0.5
+#: the probability of a uniformly random action in place of the expert's, by dataset quality
+RANDOM_SHARE = {"expert": 0.0, "medium": 0.5, "random": 1.0}
 
 
 def random_actions(space: gym.spaces.Space, n: int, generator: torch.Generator, device: torch.device) -> torch.Tensor:
@@ -41,9 +42,7 @@ def collect_task_datasets(
         seed: seed of the env and of the random actions.
     """
     names = env.task_set.names
-    level = torch.tensor([("expert", "medium", "random").index(qualities[n]) for n in names], device=env.device)
-    copy_level = level[env.slot_tasks.long()]
-    random_share = torch.tensor([0.0, MEDIUM_RANDOM_SHARE, 1.0], device=env.device)[copy_level]
+    random_share = torch.tensor([RANDOM_SHARE[qualities[n]] for n in names], device=env.device)[env.slot_tasks.long()]
     per_task = env.num_envs // len(names)
     generator = torch.Generator(device=env.device)
     generator.manual_seed(seed)
