@@ -62,12 +62,12 @@ class StateActionQ(nn.Module):
         On CPU the rows go through the network in chunks of about ``chunk_rows`` (default 2048 per
         torch thread): a chunk's activations (2048 x 256 floats = 2 MiB) stay in cache between
         layers, which measured 2x faster (one thread) than one pass over all 16384 rows of a
-        256-state, 64-sample CEM round. On GPU (or with ``chunk_rows=0``) it is one pass. Rows
+        256-state, 64-sample CEM round. On GPU, in a compiled step (or with ``chunk_rows=0``) it is one pass. Rows
         stay 2-D (a 3-D input makes ``Linear`` ~35% slower on CPU) and ReLUs run in place.
         """
         b, n, _ = actions.shape
         if chunk_rows is None:
-            chunk_rows = 0 if x.is_cuda else 2048 * torch.get_num_threads()
+            chunk_rows = 0 if x.is_cuda or torch.compiler.is_compiling() else 2048 * torch.get_num_threads()
         per_chunk = b if chunk_rows <= 0 else max(1, chunk_rows // n)
         if per_chunk >= b:
             return self._score(x, actions)

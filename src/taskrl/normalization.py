@@ -38,7 +38,7 @@ class RunningNorm(nn.Module):
         self.mean += delta * (n / total).float()
         m2 = self.var * self.count.float() + batch_var * n + delta.square() * (self.count * n / total).float()
         self.var.copy_(m2 / total.float())
-        self.count.copy_(total)
+        self.count.view(1).add_(n)  # = total; through a view: a compiled step loses writes to a 0-d float64 tensor (torch 2.13)
         self._refresh()
 
     def _refresh(self) -> None:

@@ -6,7 +6,8 @@ An agent subclasses :class:`Agent` and implements
   tensors, greedy when ``explore`` is False, with the algorithm's own exploration when True (DQN's
   epsilon, QT-Opt's random actions, TD3's noise, SAC's and PPO's sampling), decayed by
   ``env_steps`` where its schedule says so;
-- ``update(batch) -> dict of scalars``;
+- ``update(batch) -> dict of scalars``: counters and schedules, around ``self.step(...)``, the
+  update itself (``learn``), run eagerly or compiled (:meth:`Agent.compile`);
 - ``checkpointed``: checkpoint name -> attribute path of each module, optimiser or tensor to save.
 
 and gets :meth:`Agent.act`, :meth:`Agent.exploration`, :meth:`Agent.state_dict` and
@@ -16,13 +17,15 @@ and gets :meth:`Agent.act`, :meth:`Agent.exploration`, :meth:`Agent.state_dict` 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any, ClassVar
 
 import numpy as np
 import torch
 
+from taskrl.agents.compiled import COMPILE_MODES, CompiledStep
 from taskrl.agents.parts import ObservationInput
+from taskrl.errors import one_of
 from taskrl.types import Obs
 
 __all__ = ["Agent", "ObservationForm", "batch_observations"]
@@ -132,6 +135,26 @@ class Agent:
     def exploration(self, env_steps: int) -> dict[str, float]:
         """The exploration levels in force at ``env_steps`` (logged with each metrics row)."""
         return {}
+
+    # ---------------------------------------------------------------- learning
+    def learn(self, *args: Any) -> dict[str, torch.Tensor]:
+        """One update's tensor work (implemented by each agent that compiles; see :meth:`compile`)."""
+        raise NotImplementedError
+
+    def step(self, *args: Any) -> dict[str, torch.Tensor]:
+        """The update step as this agent runs it: :meth:`learn` eagerly, or compiled after :meth:`compile`."""
+        return self.learn(*args)
+
+    def compile(self, mode: str, say: Callable[[str], None] | None = None) -> None:
+        """Run :meth:`learn` as one ``torch.compile`` graph (``mode``: see :mod:`taskrl.agents.compiled`),
+        or eagerly again with ``"off"``. ``say`` gets the one-line notice if compilation turns out unavailable."""
+        one_of(mode, COMPILE_MODES, "compile", "mode")
+        if mode == "off":
+            self.__dict__.pop("step", None)
+            return
+        optimizers = [obj for obj in self._parts().values() if isinstance(obj, torch.optim.Optimizer)]
+        kwargs = {} if say is None else {"say": say}
+        self.step = CompiledStep(self.learn, mode, optimizers, **kwargs)
 
     # ---------------------------------------------------------------- checkpointing
     def _parts(self) -> dict[str, Any]:

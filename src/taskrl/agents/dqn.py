@@ -202,9 +202,10 @@ class DQNAgent(Agent):
         """y = r + gamma * (1 - terminated) * Q_target(s', a*), a* from Q (double) or Q_target."""
         cfg = self.config
         with torch.no_grad():
-            next_q_target = self.q_values(batch.next_obs, self.q_target)
+            next_x, context, task = self.inputs(batch.next_obs), *self.task_inputs(batch.next_obs)  # read once, used twice
+            next_q_target = self.q_target(next_x, context, task)
             if cfg.double_q:
-                next_action = self.q_values(batch.next_obs).argmax(dim=1, keepdim=True)
+                next_action = self.q(next_x, context, task).argmax(dim=1, keepdim=True)
                 next_value = next_q_target.gather(1, next_action).squeeze(1)
             else:
                 next_value = next_q_target.max(dim=1).values
@@ -213,6 +214,11 @@ class DQNAgent(Agent):
 
     def update(self, batch: Batch) -> dict[str, torch.Tensor]:
         """One gradient step on the TD error; returns detached scalars (``loss``, ``q_mean``)."""
+        self.updates += 1
+        return self.step(batch, self.updates % self.config.target_update_interval == 0)
+
+    def learn(self, batch: Batch, refresh_target: bool) -> dict[str, torch.Tensor]:
+        """The update itself (what ``--compile`` compiles): the TD step, then the target average if due."""
         cfg = self.config
         self.inputs.update_statistics(batch.obs)
         target = self.bellman_target(batch)
@@ -226,9 +232,7 @@ class DQNAgent(Agent):
             metrics["cql_gap"] = gap.detach()
 
         gradient_step(self.optimizer, loss, self._params, cfg.max_grad_norm)
-
-        self.updates += 1
-        if self.updates % cfg.target_update_interval == 0:
+        if refresh_target:
             self.update_target()
         return {"loss": loss.detach(), "q_mean": q_taken.detach().mean(), **metrics}
 

@@ -5,7 +5,8 @@
 - :class:`ActionBox`: between an action box ``[low, high]`` and the ``[-1, 1]^A`` networks see;
 - :func:`td_target`: ``y = r + gamma (1 - terminated) v'``, optionally clipped;
 - :func:`polyak_update`: ``theta_target <- tau theta + (1 - tau) theta_target`` over parameter lists;
-- :func:`gradient_step`: zero the gradients, backpropagate, clip the norm, step;
+- :func:`gradient_step`: zero the gradients, backpropagate, clip the norm, step (functionally
+  inside a compiled update: :func:`functional_adam_step`);
 - :func:`explore_in_box`: the hindsight paper's exploration for deterministic policies;
 - :func:`linear_schedule`: an exploration level decaying linearly with env steps;
 - :func:`check_learning_settings`: the checks every algorithm's section shares.
@@ -18,6 +19,7 @@ from typing import Any
 
 import torch
 from torch import nn
+from torch.optim.adam import adam
 
 from taskrl.agents.cem import action_bounds
 from taskrl.errors import require
@@ -112,12 +114,79 @@ def polyak_update(target: list[torch.Tensor], online: list[torch.Tensor], tau: f
 
 
 def gradient_step(optimizer: torch.optim.Optimizer, loss: torch.Tensor, params: list[torch.Tensor], max_grad_norm: float) -> None:
-    """``zero_grad -> backward -> clip_grad_norm (if max_grad_norm > 0) -> step``."""
+    """``zero_grad -> backward -> clip_grad_norm (if max_grad_norm > 0) -> step``.
+
+    Inside a compiled update (:mod:`taskrl.agents.compiled`) the same step is taken without touching
+    ``.grad``, which a compiled graph cannot: :func:`functional_adam_step`.
+    """
+    if torch.compiler.is_compiling():
+        functional_adam_step(optimizer, loss, params, max_grad_norm)
+        return
     optimizer.zero_grad(set_to_none=True)
     loss.backward()
     if max_grad_norm > 0:
         nn.utils.clip_grad_norm_(params, max_grad_norm, foreach=True)
     optimizer.step()
+
+
+def functional_adam_step(optimizer: torch.optim.Optimizer, loss: torch.Tensor, clipped: list[torch.Tensor], max_grad_norm: float) -> None:
+    """The step of :func:`gradient_step` as pure tensor operations (what ``torch.compile`` fuses into one graph):
+
+        g = d loss / d theta                                        (torch.autograd.grad)
+        g <- g * min(1, max_grad_norm / (||g_clipped||_2 + 1e-6))   (over ``clipped``' gradients only, as clip_grad_norm_)
+        theta <- Adam(theta, g)                                     (torch.optim's functional Adam, on the optimiser's own state)
+
+    Parameters the loss does not reach are left alone, as ``optimizer.step`` leaves a parameter without
+    a gradient. The optimiser's state must exist first (:func:`init_adam_state`).
+    """
+    group = optimizer.param_groups[0]
+    params = group["params"]
+    grads = torch.autograd.grad(loss, params, allow_unused=True)
+    reached = [(p, g) for p, g in zip(params, grads) if g is not None]
+    with torch.no_grad():
+        if max_grad_norm > 0:
+            is_clipped = [any(p is c for c in clipped) for p, _ in reached]
+            norms = torch._foreach_norm([g for (_, g), c in zip(reached, is_clipped) if c])
+            scale = (max_grad_norm / (torch.linalg.vector_norm(torch.stack(norms)) + 1e-6)).clamp(max=1.0)
+            reached = [(p, g * scale if c else g) for (p, g), c in zip(reached, is_clipped)]
+        state = [optimizer.state[p] for p, _ in reached]
+        beta1, beta2 = group["betas"]
+        adam(
+            [p for p, _ in reached],
+            [g for _, g in reached],
+            [s["exp_avg"] for s in state],
+            [s["exp_avg_sq"] for s in state],
+            [],
+            [s["step"] for s in state],
+            foreach=True,
+            # bias corrections as tensor ops, which a graph (and a CUDA graph) can hold
+            capturable=torch.compiler.is_compiling() or params[0].device.type != "cpu",
+            amsgrad=False,
+            beta1=beta1,
+            beta2=beta2,
+            lr=group["lr"],
+            weight_decay=group["weight_decay"],
+            eps=group["eps"],
+            maximize=False,
+        )
+
+
+def init_adam_state(optimizer: torch.optim.Optimizer) -> None:
+    """Create the Adam state of every parameter that has none yet, as ``Adam.step`` would on its first
+    call (zero moments, step 0 on the parameter's device): a compiled step reads it and cannot create it."""
+    require(
+        type(optimizer) is torch.optim.Adam and len(optimizer.param_groups) == 1,
+        "compile",
+        "compiles updates of agents with one Adam optimiser per loss",
+    )
+    require(not optimizer.param_groups[0]["amsgrad"], "compile", "does not support Adam's amsgrad")
+    for p in optimizer.param_groups[0]["params"]:
+        if not optimizer.state[p]:
+            optimizer.state[p] = {
+                "step": torch.zeros((), dtype=torch.float32, device=p.device),
+                "exp_avg": torch.zeros_like(p, memory_format=torch.preserve_format),
+                "exp_avg_sq": torch.zeros_like(p, memory_format=torch.preserve_format),
+            }
 
 
 def explore_in_box(

@@ -222,12 +222,22 @@ class QTOptAgent(Agent):
             target = td_target(batch.reward, batch.terminated, next_value, cfg.gamma, clip)
         return (target, self.box.from_unit(next_action)) if return_action else target
 
-    def regress(self, batch: Batch, target: torch.Tensor) -> dict[str, torch.Tensor]:
-        """One gradient step of Q(s, a) towards ``target`` (the trainer's step); refreshes the targets.
+    def regress(self, batch: Batch, target: torch.Tensor | None, generator: torch.Generator | None = None) -> dict[str, torch.Tensor]:
+        """One gradient step of Q(s, a) towards ``target`` (the trainer's step; ``None``: the Bellman
+        target computed here); refreshes the targets.
 
         Returns detached scalars: ``loss``, ``q_mean`` (Q of the batch's actions), ``target_mean``.
         """
+        self.updates += 1
+        return self.step(batch, target, generator, self.updates % self.config.target2_interval == 0)
+
+    def learn(
+        self, batch: Batch, target: torch.Tensor | None, generator: torch.Generator | None, copy_target2: bool
+    ) -> dict[str, torch.Tensor]:
+        """The update itself (what ``--compile`` compiles): the target if not given, the regression, the target networks."""
         cfg = self.config
+        if target is None:
+            target = self.bellman_target(batch, generator)
         self.inputs.update_statistics(batch.obs)
         out = self.q(self.inputs(batch.obs), self.box.to_unit(batch.action))
         if cfg.loss == "cross_entropy":
@@ -238,19 +248,20 @@ class QTOptAgent(Agent):
             loss = F.mse_loss(out, target)
 
         gradient_step(self.optimizer, loss, self._params, cfg.max_grad_norm)
-
-        self.updates += 1
-        self.update_targets()
+        self.update_targets(copy_target2)
         return {"loss": loss.detach(), "q_mean": self.q_value(out.detach()).mean(), "target_mean": target.mean()}
 
     def update(self, batch: Batch, generator: torch.Generator | None = None) -> dict[str, torch.Tensor]:
         """Bellman target then regression: ``regress(batch, bellman_target(batch))``."""
-        return self.regress(batch, self.bellman_target(batch, generator))
+        return self.regress(batch, None, generator)
 
-    def update_targets(self) -> None:
-        """target1 <- tau * online + (1 - tau) * target1; every target2_interval updates target2 <- target1."""
+    def update_targets(self, copy_target2: bool | None = None) -> None:
+        """target1 <- tau * online + (1 - tau) * target1; every target2_interval updates (or as
+        ``copy_target2`` says) target2 <- target1."""
         polyak_update(self._target1_params, self._params, self.config.tau)
-        if self.updates % self.config.target2_interval == 0:
+        if copy_target2 is None:
+            copy_target2 = self.updates % self.config.target2_interval == 0
+        if copy_target2:
             polyak_update(self._target2_params, self._target1_params, 1.0)
 
 

@@ -291,6 +291,11 @@ class SACAgent(Agent):
     def update(self, batch: Batch, generator: torch.Generator | None = None) -> dict[str, torch.Tensor]:
         """One critic, actor and temperature step; returns detached scalars
         (``critic_loss``, ``actor_loss``, ``alpha``, ``entropy``, ``q_mean``)."""
+        self.updates += 1
+        return self.step(batch, generator)
+
+    def learn(self, batch: Batch, generator: torch.Generator | None = None) -> dict[str, torch.Tensor]:
+        """The update itself (what ``--compile`` compiles): critics, actor, temperature, target critics."""
         cfg = self.config
         self.inputs.update_statistics(batch.obs)
         target = self.bellman_target(batch, generator)
@@ -321,12 +326,9 @@ class SACAgent(Agent):
         log_prob = log_prob.detach()
         if cfg.learn_alpha:
             alpha_loss = -(self._row_alpha(task, self.log_alpha) * (log_prob + self.target_entropy)).mean()
-            self.alpha_optimizer.zero_grad(set_to_none=True)
-            alpha_loss.backward()
-            self.alpha_optimizer.step()
+            gradient_step(self.alpha_optimizer, alpha_loss, [self.log_alpha], 0.0)
 
         self.update_target()
-        self.updates += 1
         return {
             "critic_loss": critic_loss.detach(),
             "actor_loss": actor_loss.detach(),
@@ -371,6 +373,10 @@ class SACAgent(Agent):
         return torch.minimum(*(q(x, unit, context, task) for q in self.critics))
 
     def _set_critic_grad(self, enabled: bool) -> None:
+        """Keep the actor's backward out of the critics (eager; a compiled step differentiates the actor's
+        parameters only and needs no switch)."""
+        if torch.compiler.is_compiling():
+            return
         for p in self._critic_params:
             p.requires_grad_(enabled)
 

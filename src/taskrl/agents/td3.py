@@ -177,6 +177,14 @@ class TD3Agent(Agent):
     def update(self, batch: Batch, generator: torch.Generator | None = None) -> dict[str, torch.Tensor]:
         """A critic step; every ``policy_delay`` updates also an actor step and the target update.
         Returns detached scalars ``critic_loss``, ``actor_loss`` (the latest), ``q_mean``."""
+        self.updates += 1
+        metrics = self.step(batch, self.updates % self.config.policy_delay == 0, generator)
+        self._last_actor_loss = metrics.get("actor_loss", self._last_actor_loss)
+        return {"critic_loss": metrics["critic_loss"], "actor_loss": self._last_actor_loss, "q_mean": metrics["q_mean"]}
+
+    def learn(self, batch: Batch, actor_step: bool, generator: torch.Generator | None = None) -> dict[str, torch.Tensor]:
+        """The update itself (what ``--compile`` compiles): the critic step; with ``actor_step`` also the
+        actor step and the target average."""
         cfg = self.config
         self.inputs.update_statistics(batch.obs)
         target = self.bellman_target(batch, generator)
@@ -184,18 +192,23 @@ class TD3Agent(Agent):
         q1, q2 = (q(x, action) for q in self.critics)
         critic_loss = 0.5 * (F.mse_loss(q1, target) + F.mse_loss(q2, target))
         gradient_step(self.critic_optimizer, critic_loss, self._critic_params, self.config.max_grad_norm)
+        metrics = {"critic_loss": critic_loss.detach(), "q_mean": q1.detach().mean()}
 
-        self.updates += 1
-        if self.updates % cfg.policy_delay == 0:
-            for p in self._critic_params:
-                p.requires_grad_(False)
+        if actor_step:
+            self._set_critic_grad(False)
             actor_loss = -self.critics[0](x, self.actor(x)).mean()
             gradient_step(self.actor_optimizer, actor_loss, self._actor_params, self.config.max_grad_norm)
-            for p in self._critic_params:
-                p.requires_grad_(True)
-            self._last_actor_loss = actor_loss.detach()
+            self._set_critic_grad(True)
+            metrics["actor_loss"] = actor_loss.detach()
             self.update_target()
-        return {"critic_loss": critic_loss.detach(), "actor_loss": self._last_actor_loss, "q_mean": q1.detach().mean()}
+        return metrics
+
+    def _set_critic_grad(self, enabled: bool) -> None:
+        """Keep the actor's backward out of the critics (eager; a compiled step needs no switch)."""
+        if torch.compiler.is_compiling():
+            return
+        for p in self._critic_params:
+            p.requires_grad_(enabled)
 
     def update_target(self) -> None:
         """theta_target <- tau * theta + (1 - tau) * theta_target, actor and critics."""

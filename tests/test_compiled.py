@@ -1,0 +1,172 @@
+"""Compiled updates (``--compile``): the same step as eager, the fused helpers against their formulas."""
+
+import copy
+
+import pytest
+import torch
+from agent_batches import bandit_batch
+
+from taskrl.agents.compiled import CompiledStep
+from taskrl.agents.dqn import DQNAgent, DQNConfig
+from taskrl.agents.parts import functional_adam_step, gradient_step, init_adam_state, polyak_update
+from taskrl.agents.qtopt import QTOptAgent, QTOptConfig
+from taskrl.agents.sac import SACAgent, SACConfig
+from taskrl.agents.td3 import TD3Agent, TD3Config
+from taskrl.conditioning.networks import TaskConditioning
+from taskrl.errors import ConfigError
+from taskrl.replay.batch import Batch
+
+BOX = (torch.tensor([-2.0]), torch.tensor([1.0]))
+
+
+def discrete_batch(n: int = 64, seed: int = 0, tasks: int = 0) -> Batch:
+    g = torch.Generator().manual_seed(seed)
+    obs = {"observation": torch.randn(n, 6, generator=g)}
+    next_obs = {"observation": torch.randn(n, 6, generator=g)}
+    if tasks:
+        obs["task"] = next_obs["task"] = torch.randint(0, tasks, (n,), generator=g)
+    return Batch(
+        obs=obs,
+        action=torch.randint(0, 4, (n,), generator=g),
+        reward=-torch.rand(n, generator=g),
+        next_obs=next_obs,
+        terminated=torch.rand(n, generator=g) < 0.2,
+        truncated=torch.zeros(n, dtype=torch.bool),
+        episode=torch.zeros(n, dtype=torch.long),
+        step=torch.zeros(n, dtype=torch.long),
+    )
+
+
+def agents():
+    """One small agent of each kind whose updates compile, with a batch it learns from."""
+    bandit = bandit_batch(torch.tensor([0.5, -0.5]), torch.Generator().manual_seed(0))
+    box = dict(input_keys=("observation",), input_dim=2, action_space=BOX)
+    return {
+        "dqn": (DQNAgent(("observation",), 6, 4, DQNConfig(hidden_sizes=(16, 16), target_update_interval=2)), discrete_batch()),
+        "sac": (SACAgent(**box, config=SACConfig(hidden_sizes=(16, 16), max_grad_norm=1.0)), bandit),
+        "td3": (TD3Agent(**box, config=TD3Config(hidden_sizes=(16, 16))), bandit),
+        "qtopt": (QTOptAgent(**box, config=QTOptConfig(hidden_sizes=(16, 16), target2_interval=2)), bandit),
+    }
+
+
+def learned(agent) -> list[torch.Tensor]:
+    return [t.detach().clone() for name, t in agent.state_dict().items() if name != "updates" for t in _tensors(t)]
+
+
+def _tensors(state) -> list[torch.Tensor]:
+    if isinstance(state, torch.Tensor):
+        return [state]
+    if isinstance(state, dict):
+        return [t for v in state.values() for t in _tensors(v)]
+    if isinstance(state, (list, tuple)):
+        return [t for v in state for t in _tensors(v)]
+    return []
+
+
+@pytest.fixture
+def same_random_numbers():
+    """Compiled randomness from torch's own generator, so a compiled SAC draws what eager draws."""
+    with torch._inductor.config.patch(fallback_random=True):
+        yield
+
+
+@pytest.mark.parametrize("name", ["dqn", "sac", "td3", "qtopt"])
+def test_compiled_updates_give_the_eager_parameters(name, same_random_numbers):
+    torch.manual_seed(0)
+    eager, batch = agents()[name]
+    compiled = copy.deepcopy(eager)
+    notices = []
+    compiled.compile("default", say=notices.append)
+    for step in range(4):
+        torch.manual_seed(step)
+        m_eager = eager.update(batch)
+        torch.manual_seed(step)
+        m_compiled = compiled.update(batch)
+        assert m_compiled.keys() == m_eager.keys()
+        for key in m_eager:
+            torch.testing.assert_close(m_compiled[key], m_eager[key], rtol=1e-4, atol=1e-5)
+    assert notices == [] and compiled.step.active, notices
+    assert compiled.updates == eager.updates == 4
+    before = learned(agents()[name][0])
+    after_eager, after_compiled = learned(eager), learned(compiled)
+    assert len(after_eager) == len(after_compiled)
+    assert any(not torch.equal(a, b) for a, b in zip(before, after_eager) if a.shape == b.shape)  # it learned
+    for a, b in zip(after_eager, after_compiled):
+        torch.testing.assert_close(b, a, rtol=1e-4, atol=1e-5)
+
+
+def test_a_multitask_sac_update_compiles_to_the_eager_one(same_random_numbers):
+    from taskrl.conditioning.networks import make_conditioning
+    from taskrl.config import ConditioningConfig
+
+    conditioning: TaskConditioning = make_conditioning(ConditioningConfig(), 3, None)
+    torch.manual_seed(0)
+    eager = SACAgent(("observation",), 6, BOX, SACConfig(hidden_sizes=(16, 16)), conditioning=conditioning)
+    compiled = copy.deepcopy(eager)
+    compiled.compile("default", say=pytest.fail)
+    batch = discrete_batch(tasks=3).replace(action=torch.rand(64, 1) * 3 - 2)
+    for step in range(3):
+        torch.manual_seed(step)
+        eager.update(batch)
+        torch.manual_seed(step)
+        compiled.update(batch)
+    for a, b in zip(learned(eager), learned(compiled)):
+        torch.testing.assert_close(b, a, rtol=1e-4, atol=1e-5)
+
+
+def test_the_functional_adam_step_is_torchs_adam_with_the_norm_clip():
+    torch.manual_seed(0)
+    net = torch.nn.Sequential(torch.nn.Linear(5, 7), torch.nn.Tanh(), torch.nn.Linear(7, 1))
+    twin = copy.deepcopy(net)
+    opt = torch.optim.Adam(net.parameters(), lr=1e-2)
+    opt_twin = torch.optim.Adam(twin.parameters(), lr=1e-2)
+    init_adam_state(opt_twin)
+    x = torch.randn(32, 5)
+    clipped = list(net.parameters())[:2]  # the clip sees only the first layer, as gradient_step's list says
+    for _ in range(5):
+        gradient_step(opt, net(x).square().mean() * 100, clipped, 0.5)
+        functional_adam_step(opt_twin, twin(x).square().mean() * 100, list(twin.parameters())[:2], 0.5)
+    for a, b in zip(net.parameters(), twin.parameters()):
+        torch.testing.assert_close(b, a, rtol=1e-5, atol=1e-6)
+
+
+def test_the_fused_target_update_is_the_polyak_formula():
+    torch.manual_seed(0)
+    target, online = [torch.randn(3, 4), torch.randn(7)], [torch.randn(3, 4), torch.randn(7)]
+    expected = [0.1 * p + 0.9 * t for t, p in zip(target, online)]
+    polyak_update(target, online, 0.1)
+    for t, e in zip(target, expected):
+        torch.testing.assert_close(t, e)
+    polyak_update(target, online, 1.0)  # tau = 1: a copy
+    assert all(torch.equal(t, p) for t, p in zip(target, online))
+
+
+def test_a_failed_compilation_says_so_in_one_line_and_updates_eagerly():
+    agent, batch = agents()["dqn"]
+    twin = copy.deepcopy(agent)
+    notices = []
+
+    def refuse(*args):
+        raise RuntimeError("no C++ compiler found\nsecond line")
+
+    agent.compile("default", say=notices.append)
+    agent.step.compiled = refuse  # what torch.compile does where it cannot compile
+    agent.update(batch)
+    twin.update(batch)
+    assert len(notices) == 1 and "\n" not in notices[0] and "updating eagerly" in notices[0]
+    assert "no C++ compiler found" in notices[0]
+    assert not agent.step.active
+    agent.update(batch)  # stays eager, says nothing more
+    assert len(notices) == 1
+    for a, b in zip(learned(twin), learned(agent)):
+        assert a.shape == b.shape
+    agent.compile("off")
+    assert not isinstance(agent.step, CompiledStep)
+
+
+def test_unknown_compile_modes_are_refused():
+    agent, _ = agents()["dqn"]
+    with pytest.raises(ConfigError, match="compile"):
+        agent.compile("fastest")
+    with pytest.raises(ConfigError, match="compile"):
+        CompiledStep(agent.learn, "turbo", [])
