@@ -262,6 +262,8 @@ def build(config: TrainConfig, source: Any = None) -> RunParts:
     try:
         eval_env = make_env(config, device, evaluation=True, source=source)
         agent = make_agent(config, env, device)
+        if config.compile != "off":
+            agent.compile(config.compile)
         generator = torch.Generator(device=device)
         generator.manual_seed(config.seed + 1)
         parts = RunParts(config, family, device, env, eval_env, agent, generator, source=source)

@@ -251,4 +251,5 @@ SPEC = AlgorithmSpec(
     loop="off_policy",
     actions=("discrete",),
     multitask=True,
+    compiles=True,
 )

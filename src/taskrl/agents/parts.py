@@ -129,7 +129,9 @@ def gradient_step(optimizer: torch.optim.Optimizer, loss: torch.Tensor, params: 
     optimizer.step()
 
 
-def functional_adam_step(optimizer: torch.optim.Optimizer, loss: torch.Tensor, clipped: list[torch.Tensor], max_grad_norm: float) -> None:
+def functional_adam_step(
+    optimizer: torch.optim.Optimizer, loss: torch.Tensor, clipped: list[torch.Tensor], max_grad_norm: float
+) -> None:
     """The step of :func:`gradient_step` as pure tensor operations (what ``torch.compile`` fuses into one graph):
 
         g = d loss / d theta                                        (torch.autograd.grad)

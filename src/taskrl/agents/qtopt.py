@@ -222,7 +222,9 @@ class QTOptAgent(Agent):
             target = td_target(batch.reward, batch.terminated, next_value, cfg.gamma, clip)
         return (target, self.box.from_unit(next_action)) if return_action else target
 
-    def regress(self, batch: Batch, target: torch.Tensor | None, generator: torch.Generator | None = None) -> dict[str, torch.Tensor]:
+    def regress(
+        self, batch: Batch, target: torch.Tensor | None, generator: torch.Generator | None = None
+    ) -> dict[str, torch.Tensor]:
         """One gradient step of Q(s, a) towards ``target`` (the trainer's step; ``None``: the Bellman
         target computed here); refreshes the targets.
 
@@ -273,4 +275,5 @@ SPEC = AlgorithmSpec(
     loop="off_policy",
     actions=("box",),
     bellman_updaters=True,
+    compiles=True,
 )

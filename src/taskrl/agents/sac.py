@@ -395,4 +395,5 @@ SPEC = AlgorithmSpec(
     loop="off_policy",
     actions=("box",),
     multitask=True,
+    compiles=True,
 )

@@ -41,6 +41,8 @@ class AlgorithmSpec:
         bellman_updaters: whether its agent splits an update into ``bellman_target(batch)`` and
             ``regress(batch, target)`` with ``bellman_parts`` (the weights targets read), so Bellman
             updaters can compute targets apart from the trainer (QT-Opt).
+        compiles: whether its update runs as one compiled graph (``--compile``; its agent
+            implements ``learn``, see :mod:`taskrl.agents.compiled`).
     """
 
     name: str
@@ -51,3 +53,4 @@ class AlgorithmSpec:
     actions: tuple[str, ...]
     multitask: bool = False
     bellman_updaters: bool = False
+    compiles: bool = False

@@ -185,7 +185,6 @@ class TD3Agent(Agent):
     def learn(self, batch: Batch, actor_step: bool, generator: torch.Generator | None = None) -> dict[str, torch.Tensor]:
         """The update itself (what ``--compile`` compiles): the critic step; with ``actor_step`` also the
         actor step and the target average."""
-        cfg = self.config
         self.inputs.update_statistics(batch.obs)
         target = self.bellman_target(batch, generator)
         x, action = self.inputs(batch.obs), self.box.to_unit(batch.action)
@@ -222,4 +221,5 @@ SPEC = AlgorithmSpec(
     build=lambda inputs, config, device, conditioning: TD3Agent(inputs.keys, inputs.dim, inputs.action_space, config, device),
     loop="off_policy",
     actions=("box",),
+    compiles=True,
 )

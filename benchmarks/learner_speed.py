@@ -1,0 +1,463 @@
+"""Learner speed: taskrl against Stable-Baselines3 at equal work, and against the FLOP bound.
+
+``equal``: both libraries with the same settings, in one script, on the same machine and thread count:
+
+- DQN + HER on random-goal bit flipping (n = 15), at SB3's settings of its HER test: 2 envs, one
+  gradient update per env step (``gradient_steps = n_envs`` every step), lr 2e-3, gamma 0.99, Huber loss,
+  gradient-norm clip 10, no double-Q, a hard target copy every 100 updates, epsilon 1.0 -> 0.05 over the
+  first 20k env steps, 100 learning-starts steps, a 100k replay, HER ``future`` with k = 4; at batch 32 /
+  (64, 64) and batch 256 / (256, 256).
+- SAC + HER on FetchReach-v4, at rl-baselines3-zoo's settings: 1 env, one update per env step, gamma
+  0.95, lr 1e-3, batch 256, (64, 64), tau 0.005, temperature learned from 1.0, 1000 learning-starts
+  steps, a 1M replay, HER ``future`` with k = 4, observation normalisation.
+
+For each, over seeds: wall-clock and env steps to 90% success (evaluation on the same 100 episodes every
+1000 env steps, by the same function, excluded from both clocks), then training throughput over a fixed
+budget with no evaluation: env steps/s and gradient updates/s. taskrl runs eager and ``--compile default``.
+
+``bound``: ms per gradient update on a fixed batch (sampling apart) against the FLOP bound: the update's
+floating-point operations (counted by ``torch.utils.flop_counter`` on one eager update: matrix products,
+forward and backward) over the best matrix-multiply rate measured on this machine. DQN and SAC at
+(256, 256) / batch 256, and multi-task SAC at the MT10 presets' scale ((400, 400, 400), batch 1280),
+eager and compiled, with the compile step's own cost and the run length from which it pays.
+
+    .venv/bin/python benchmarks/learner_speed.py bound --write
+    .venv/bin/python benchmarks/learner_speed.py equal --seeds 0 1 2 --write
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import functools
+import json
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+import torch
+
+import taskrl
+from common import append_results, sb3_learn_until
+from taskrl.run import EVAL_SEED_OFFSET
+from taskrl.training.evaluation import evaluate
+
+RESULTS_DIR = Path(__file__).with_name("results")
+
+# ----------------------------------------------------------------------------- equal work
+#: taskrl settings equal to SB3's DQN + HER bit-flipping settings (``her_bitflip.sb3_model``)
+DQN_EQUAL = dict(
+    n_bits=15,
+    num_envs=2,
+    updates_per_step=1.0,
+    lr=2e-3,
+    gamma=0.99,
+    loss="huber",
+    max_grad_norm=10.0,
+    double_q=False,
+    target_update_interval=100,
+    tau=1.0,
+    clip_target=False,
+    normalize_inputs=False,
+    epsilon_start=1.0,
+    epsilon_end=0.05,
+    epsilon_decay_steps=20_000,
+    learning_starts=100,
+    buffer_size=100_000,
+    her="future",
+    her_k=4,
+)
+#: taskrl settings equal to rl-baselines3-zoo's SAC + HER FetchReach settings (``her_fetch.sb3_time_to_success``)
+SAC_EQUAL = dict(
+    num_envs=1,
+    updates_per_step=1.0,
+    gamma=0.95,
+    lr=1e-3,
+    batch_size=256,
+    hidden_sizes=(64, 64),
+    tau=0.005,
+    init_alpha=1.0,
+    learning_starts=1000,
+    buffer_size=1_000_000,
+    her="future",
+    her_k=4,
+    normalize_inputs=True,
+)
+DIFFERENCES = {
+    "dqn": "SB3's network reads observation, achieved and desired goal (45 inputs), taskrl's observation and "
+    "desired goal (30); SB3 computes a relabelled transition's termination as stored, taskrl for the new goal; "
+    "SB3 copies the target every 100 env steps (50 calls of 2), taskrl every 100 updates (the same count at one "
+    "update per env step)",
+    "sac": "SB3 (the zoo's `normalize: True`) also normalises rewards with VecNormalize, taskrl normalises observations "
+    "only (running mean/std from training batches, clipped to +-5, against VecNormalize's clip 10)",
+}
+
+
+def _taskrl_run(
+    preset: str, settings: dict, seed: int, budget: int, eval_interval: int, target: float, compile_mode: str
+) -> dict:
+    with tempfile.TemporaryDirectory() as tmp:
+        run = taskrl.train(
+            preset,
+            out=Path(tmp) / "run",
+            seed=seed,
+            total_steps=budget,
+            eval_interval=eval_interval,
+            stop_at_success=target,
+            tensorboard=False,
+            checkpoint_interval=10**12,
+            save_replay=False,
+            compile=compile_mode,
+            **settings,
+        )
+    m = run.metrics
+    step = run.agent.step
+    compile_seconds = getattr(step, "compile_seconds", 0.0)
+    return {
+        "solved": target > 0 and m["success_rate"] >= target,
+        "env_steps": m["env_steps"],
+        "updates": m["updates"],
+        "seconds": m["wall_seconds"],
+        "compile_seconds": compile_seconds,
+        "env_steps_per_s": m["env_steps"] / max(m["wall_seconds"], 1e-9),
+        "updates_per_s": m["updates"] / max(m["wall_seconds"], 1e-9),
+        "updates_per_s_after_compile": m["updates"] / max(m["wall_seconds"] - compile_seconds, 1e-9),
+        "final_success": m["success_rate"],
+    }
+
+
+def dqn_case(batch: int, hidden: tuple[int, ...]):
+    from her_bitflip import sb3_model, sb3_policy
+    from taskrl.envs import BitFlip
+
+    settings = {**DQN_EQUAL, "batch_size": batch, "hidden_sizes": hidden}
+    n = DQN_EQUAL["n_bits"]
+
+    def sb3(seed: int, budget: int, eval_interval: int, target: float) -> dict:
+        model = sb3_model(n, seed, budget, batch_size=batch, net_arch=hidden)
+        if target <= 0:
+            return _sb3_throughput(model, budget)
+        eval_seed = seed + EVAL_SEED_OFFSET
+        eval_env = BitFlip(n, num_envs=100, seed=eval_seed)
+        r = sb3_learn_until(
+            model, lambda m: evaluate(sb3_policy(m), eval_env, eval_seed)["success_rate"], eval_interval, target, budget
+        )
+        return {**r, "updates": model._n_updates}
+
+    def ours(seed, budget, eval_interval, target, compile_mode):
+        return _taskrl_run("bitflip-her", settings, seed, budget, eval_interval, target, compile_mode)
+
+    return f"dqn-her bitflip n=15, batch {batch}, {list(hidden)}", sb3, ours
+
+
+def sac_case():
+    from her_fetch import sb3_time_to_success
+
+    def sb3(seed: int, budget: int, eval_interval: int, target: float) -> dict:
+        if target <= 0:
+            return _sb3_throughput(_sb3_fetch_model(seed), budget)
+        return sb3_time_to_success(seed, budget, eval_interval, target, normalize=True)
+
+    def ours(seed, budget, eval_interval, target, compile_mode):
+        return _taskrl_run("fetchreach-sac-her", SAC_EQUAL, seed, budget, eval_interval, target, compile_mode)
+
+    return "sac-her FetchReach-v4, batch 256, [64, 64]", sb3, ours
+
+
+def _sb3_fetch_model(seed: int):
+    import gymnasium as gym
+    import gymnasium_robotics
+    from stable_baselines3 import SAC, HerReplayBuffer
+    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+
+    gym.register_envs(gymnasium_robotics)
+    venv = VecNormalize(DummyVecEnv([lambda: gym.make("FetchReach-v4")]), gamma=0.95)
+    return SAC(
+        "MultiInputPolicy",
+        venv,
+        replay_buffer_class=HerReplayBuffer,
+        replay_buffer_kwargs=dict(n_sampled_goal=4, goal_selection_strategy="future"),
+        learning_rate=1e-3,
+        batch_size=256,
+        gamma=0.95,
+        learning_starts=1000,
+        buffer_size=int(1e6),
+        policy_kwargs=dict(net_arch=[64, 64]),
+        seed=seed,
+        verbose=0,
+    )
+
+
+def _sb3_throughput(model, budget: int) -> dict:
+    start = time.perf_counter()
+    model.learn(total_timesteps=budget)
+    seconds = time.perf_counter() - start
+    return {
+        "env_steps": model.num_timesteps,
+        "updates": model._n_updates,
+        "seconds": seconds,
+        "env_steps_per_s": model.num_timesteps / seconds,
+        "updates_per_s": model._n_updates / seconds,
+    }
+
+
+def _median(runs: list[dict], key: str) -> float:
+    return statistics.median(r[key] for r in runs)
+
+
+def _with_compile(ours, compile_mode: str, *args):
+    return ours(*args, compile_mode)
+
+
+def equal(args) -> tuple[str, dict]:
+    cases = {"dqn32": lambda: dqn_case(32, (64, 64)), "dqn256": lambda: dqn_case(256, (256, 256)), "sac": sac_case}
+    budgets = {"dqn32": (100_000, 20_000), "dqn256": (100_000, 20_000), "sac": (20_000, 6_000)}
+    out, lines = {}, []
+    for key in args.cases:
+        title, sb3, ours = cases[key]()
+        to_target, throughput_steps = budgets[key]
+        runners = {
+            "sb3": sb3,
+            "taskrl": functools.partial(_with_compile, ours, "off"),
+            "taskrl compiled": functools.partial(_with_compile, ours, "default"),
+        }
+        runs: dict[str, dict[str, list]] = {lib: {"target": [], "throughput": []} for lib in runners}
+        for lib, runner in runners.items():
+            for seed in args.seeds:
+                r = runner(seed, to_target, 1_000, args.target)
+                runs[lib]["target"].append({**r, "seed": seed})
+                print(json.dumps({"case": key, "lib": lib, "to_target": r}), flush=True)
+                r = runner(seed, throughput_steps, 10**12, 0.0)
+                runs[lib]["throughput"].append({**r, "seed": seed})
+                print(json.dumps({"case": key, "lib": lib, "throughput": r}), flush=True)
+        out[key] = {"title": title, "runs": runs}
+        lines += [f"**{title}** ({len(args.seeds)} seeds; medians)", ""]
+        lines += [
+            "| library | solved | env steps to 90% | seconds to 90% | training env steps/s | training updates/s | "
+            "updates/s after compiling | ratio of updates/s to SB3 |",
+            "|---|---|---|---|---|---|---|---|",
+        ]
+        sb3_rate = _median(runs["sb3"]["throughput"], "updates_per_s")
+        for lib, r in runs.items():
+            t, p = r["target"], r["throughput"]
+            solved = sum(x["solved"] for x in t)
+            after = (
+                _median(p, "updates_per_s_after_compile")
+                if "updates_per_s_after_compile" in p[0]
+                else _median(p, "updates_per_s")
+            )
+            lines.append(
+                f"| {lib} | {solved}/{len(t)} | {_median(t, 'env_steps'):,.0f} | {_median(t, 'seconds'):.1f} | "
+                f"{_median(p, 'env_steps_per_s'):,.0f} | {_median(p, 'updates_per_s'):,.0f} | {after:,.0f} | "
+                f"{_median(p, 'updates_per_s') / sb3_rate:.2f}x ({after / sb3_rate:.2f}x after compiling) |"
+            )
+        sb3_seconds = _median(runs["sb3"]["target"], "seconds")
+        for lib in ("taskrl", "taskrl compiled"):
+            lines.append(f"\nWall-clock to 90%, SB3 / {lib}: {sb3_seconds / _median(runs[lib]['target'], 'seconds'):.2f}x")
+        lines += ["", f"Differences left: {DIFFERENCES['sac' if key == 'sac' else 'dqn']}.", ""]
+        lines.append(
+            f"Per-seed throughput runs: {throughput_steps:,} env steps each, no evaluation; time-to-90% runs: up to {to_target:,}."
+        )
+        lines.append("")
+    return "\n".join(lines), out
+
+
+# ----------------------------------------------------------------------------- the bound
+def matmul_rate() -> float:
+    """The best float32 matrix-multiply rate (FLOP/s) over square sizes, on this thread count."""
+    best = 0.0
+    for n in (256, 512, 1024):
+        a, b = torch.randn(n, n), torch.randn(n, n)
+        for _ in range(5):
+            a @ b
+        reps = max(3, int(2e9 / (2 * n**3)))
+        start = time.perf_counter()
+        for _ in range(reps):
+            a @ b
+        best = max(best, 2 * n**3 * reps / (time.perf_counter() - start))
+    return best
+
+
+def update_flops(agent, batch) -> int:
+    from torch.utils.flop_counter import FlopCounterMode
+
+    twin = copy.deepcopy(agent)
+    with FlopCounterMode(display=False) as counter:
+        twin.update(batch)
+    return counter.get_total_flops()
+
+
+def schedule_period(agent) -> int:
+    """Updates after which every variant of the step has run (a target refresh every N updates is a second graph)."""
+    cfg = agent.config
+    return max(getattr(cfg, "target_update_interval", 1), getattr(cfg, "policy_delay", 1), getattr(cfg, "target2_interval", 1))
+
+
+def ms_per_update(agent, batch, seconds: float = 3.0) -> float:
+    for _ in range(schedule_period(agent) + 5):
+        agent.update(batch)
+    n, start = 0, time.perf_counter()
+    while time.perf_counter() - start < seconds:
+        agent.update(batch)
+        n += 1
+    return (time.perf_counter() - start) / n * 1e3
+
+
+def bitflip_agent_and_batch(batch_size: int, hidden: tuple[int, ...], double_q: bool):
+    """A DQN agent at the equal-work settings (or with double-Q) and one relabelled batch from a filled replay,
+    with the cost of sampling + relabelling that batch."""
+    from taskrl.config import with_overrides
+    from taskrl.presets import preset_config
+    from taskrl.replay import EpisodeReplay
+    from taskrl.run import make_agent, make_env, make_relabeler
+
+    settings = {**DQN_EQUAL, "batch_size": batch_size, "hidden_sizes": hidden, "double_q": double_q}
+    cfg = with_overrides(preset_config("bitflip-her"), settings)
+    env = make_env(cfg, "cpu", num_envs=16, seed=0)
+    agent, relabel = make_agent(cfg, env, torch.device("cpu")), make_relabeler(cfg, env)
+    replay = EpisodeReplay(env.single_observation_space, env.single_action_space, 100_000, env.horizon, 16)
+    obs = env.reset(seed=0)
+    replay.start(obs)
+    for _ in range(4_000 // 16):
+        action = torch.randint(0, cfg.env_settings.n_bits, (16,))
+        nxt, r, te, tr, info = env.step(action)
+        replay.add(action, r, te, tr, info["final_obs"], nxt)
+    g = torch.Generator().manual_seed(0)
+    for _ in range(20):
+        relabel(replay.sample(batch_size, g), replay, g)
+    start, n = time.perf_counter(), 2_000
+    for _ in range(n):
+        relabel(replay.sample(batch_size, g), replay, g)
+    sample_ms = (time.perf_counter() - start) / n * 1e3
+    return agent, relabel(replay.sample(batch_size, g), replay, g), sample_ms
+
+
+def sac_agent_and_batch(batch_size: int, hidden: tuple[int, ...], in_dim: int, action_dim: int, tasks: int = 0, preset: str = ""):
+    """A SAC agent and a random batch of its shapes (FetchReach's 13 inputs and 4 actions; or an MT10 preset's)."""
+    from taskrl.agents.sac import SACAgent, SACConfig
+    from taskrl.replay.batch import Batch
+
+    conditioning = None
+    if tasks:
+        from taskrl.conditioning.networks import make_conditioning
+        from taskrl.config import with_overrides
+        from taskrl.presets import preset_config
+
+        cfg = with_overrides(preset_config(preset), {})
+        descriptions = [f"task {i}" for i in range(tasks)]
+        conditioning = make_conditioning(cfg.conditioning, tasks, descriptions)
+        config = cfg.algo_settings
+    else:
+        config = SACConfig(hidden_sizes=hidden)
+    low, high = -torch.ones(action_dim), torch.ones(action_dim)
+    agent = SACAgent(("observation",), in_dim, (low, high), config, conditioning=conditioning)
+    g = torch.Generator().manual_seed(0)
+    obs = {"observation": torch.randn(batch_size, in_dim, generator=g)}
+    nxt = {"observation": torch.randn(batch_size, in_dim, generator=g)}
+    if tasks:
+        obs["task"] = nxt["task"] = torch.arange(batch_size) % tasks
+    batch = Batch(
+        obs=obs,
+        action=torch.rand(batch_size, action_dim, generator=g) * 2 - 1,
+        reward=-torch.rand(batch_size, generator=g),
+        next_obs=nxt,
+        terminated=torch.zeros(batch_size, dtype=torch.bool),
+        truncated=torch.zeros(batch_size, dtype=torch.bool),
+        episode=torch.zeros(batch_size, dtype=torch.long),
+        step=torch.zeros(batch_size, dtype=torch.long),
+    )
+    return agent, batch, 0.0
+
+
+def bound(args) -> tuple[str, dict]:
+    rate = matmul_rate()
+    cases = {
+        "DQN (64, 64) / 32, as SB3's": lambda: bitflip_agent_and_batch(32, (64, 64), False),
+        "DQN (256, 256) / 256, as SB3's": lambda: bitflip_agent_and_batch(256, (256, 256), False),
+        "DQN (256, 256) / 256, double-Q": lambda: bitflip_agent_and_batch(256, (256, 256), True),
+        "SAC (256, 256) / 256, FetchReach shapes": lambda: sac_agent_and_batch(256, (256, 256), 13, 4),
+        "SAC (64, 64) / 256, FetchReach shapes": lambda: sac_agent_and_batch(256, (64, 64), 13, 4),
+        "MT10 SAC one-hot (400, 400, 400) / 1280": lambda: sac_agent_and_batch(1280, (), 39, 4, 10, "mt10-sac-onehot"),
+        "MT10 SAC CARE (400, 400, 400) / 1280": lambda: sac_agent_and_batch(1280, (), 39, 4, 10, "mt10-sac-care"),
+    }
+    rows, out = [], {"matmul_gflops": rate / 1e9, "cases": []}
+    for name, make in cases.items():
+        if args.only and not any(word in name for word in args.only):
+            continue
+        agent, batch, sample_ms = make()
+        flops = update_flops(agent, batch)
+        bound_ms = flops / rate * 1e3
+        eager_ms = ms_per_update(agent, batch, args.seconds)
+        compiled = copy.deepcopy(agent)
+        compiled.compile("default", say=lambda line: None)
+        warm, start = schedule_period(agent) + 1, time.perf_counter()
+        for _ in range(warm):  # the first call compiles, and the first target refresh compiles its variant
+            compiled.update(batch)
+        warm_seconds = time.perf_counter() - start
+        compiled_ms = ms_per_update(compiled, batch, args.seconds)
+        compile_s = warm_seconds - warm * compiled_ms / 1e3 if compiled.step.active else float("nan")
+        pays_after = compile_s / max((eager_ms - compiled_ms) / 1e3, 1e-12) if eager_ms > compiled_ms else float("inf")
+        r = dict(
+            case=name,
+            mflop=flops / 1e6,
+            bound_ms=bound_ms,
+            eager_ms=eager_ms,
+            compiled_ms=compiled_ms,
+            sample_relabel_ms=sample_ms,
+            compile_seconds=compile_s,
+            pays_after_updates=pays_after,
+        )
+        out["cases"].append(r)
+        print(json.dumps(r), flush=True)
+        rows.append(
+            f"| {name} | {flops / 1e6:,.0f} | {bound_ms:.2f} | {eager_ms:.2f} ({eager_ms / bound_ms:.2f}x) | "
+            f"{compiled_ms:.2f} ({compiled_ms / bound_ms:.2f}x) | {eager_ms / compiled_ms:.2f}x | "
+            f"{sample_ms:.2f} | {compile_s:.1f} | {pays_after:,.0f} |"
+        )
+    table = "\n".join(
+        [
+            f"Matrix-multiply rate (best of 256, 512, 1024 square float32 products, one thread): {rate / 1e9:.1f} GFLOP/s.",
+            "",
+            "| update | MFLOP | bound ms | eager ms (x bound) | compiled ms (x bound) | compiled speed-up | "
+            "sample + relabel ms | compile s | compile pays after (updates) |",
+            "|---|---|---|---|---|---|---|---|---|",
+            *rows,
+        ]
+    )
+    return table, out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("mode", choices=["equal", "bound"])
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    parser.add_argument("--cases", nargs="+", default=["dqn32", "dqn256", "sac"], choices=["dqn32", "dqn256", "sac"])
+    parser.add_argument("--only", nargs="*", default=[], help="bound: only the cases whose names hold one of these words")
+    parser.add_argument("--target", type=float, default=0.9)
+    parser.add_argument("--seconds", type=float, default=3.0, help="bound: timing per case and path")
+    parser.add_argument("--threads", type=int, default=1, help="torch threads (both libraries)")
+    parser.add_argument("--write", action="store_true", help="append the results to benchmarks/RESULTS.md")
+    parser.add_argument(
+        "--json", type=Path, default=None, help="per-seed / per-case results (default results/learner_<mode>.json)"
+    )
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    table, data = (equal if args.mode == "equal" else bound)(args)
+    path = args.json or RESULTS_DIR / f"learner_{args.mode}.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(data, indent=2))
+    print(table)
+    if args.write:
+        titles = {
+            "equal": "Learner speed at equal work against Stable-Baselines3",
+            "bound": "Learner speed against the FLOP bound",
+        }
+        append_results(
+            titles[args.mode],
+            f"torch threads = {args.threads}; raw data: `{path.relative_to(RESULTS_DIR.parent.parent) if path.is_absolute() else path}`.\n\n{table}",
+        )
+
+
+if __name__ == "__main__":
+    main()
