@@ -21,12 +21,14 @@ from pathlib import Path
 from common import append_results
 
 ROOT = Path(__file__).resolve().parent.parent
+#: case name -> (preset, its arguments)
 CASES = {
-    "bitflip-her": ["--n-bits", "8", "--total-steps", "6000", "--eval-interval", "2000"],
-    "pointreach-sac-her": ["--total-steps", "4000", "--eval-interval", "2000"],
-    "pointreach-qtopt-her": ["--total-steps", "3000", "--eval-interval", "1500"],
-    "pointreach-mt-ppo-onehot": ["--total-steps", "8192", "--eval-interval", "4096"],
-    "pointreach-mt-sac-onehot": ["--total-steps", "3000", "--eval-interval", "1500"],
+    "bitflip-her": ("bitflip-her", ["--n-bits", "8", "--total-steps", "6000", "--eval-interval", "2000"]),
+    "pointreach-sac-her": ("pointreach-sac-her", ["--total-steps", "4000", "--eval-interval", "2000"]),
+    "pointreach-td3-her": ("pointreach-sac-her", ["--algo", "td3", "--total-steps", "4000", "--eval-interval", "2000"]),
+    "pointreach-qtopt-her": ("pointreach-qtopt-her", ["--total-steps", "3000", "--eval-interval", "1500"]),
+    "pointreach-mt-ppo-onehot": ("pointreach-mt-ppo-onehot", ["--total-steps", "8192", "--eval-interval", "4096"]),
+    "pointreach-mt-sac-onehot": ("pointreach-mt-sac-onehot", ["--total-steps", "3000", "--eval-interval", "1500"]),
 }
 TIMING = {"wall_seconds", "env_steps_per_s", "updates_per_s"}
 #: exploration levels logged under another name (the value is the agent's, at the same step)
@@ -63,21 +65,22 @@ def main() -> None:
     parser.add_argument("--write", action="store_true")
     args = parser.parse_args()
     lines = [
-        "| preset | rows | learned columns compared | identical | training env steps/s (base -> now) |",
+        "| case | rows | learned columns compared | identical | training env steps/s (base -> now) |",
         "|---|---|---|---|---|",
     ]
     with tempfile.TemporaryDirectory() as tmp:
         tree = Path(tmp) / "base"
         subprocess.run(["git", "worktree", "add", "-q", "--detach", str(tree), args.base], check=True, cwd=ROOT)
         try:
-            for preset in args.presets:
-                base = run(tree / "src", preset, CASES[preset], Path(tmp) / f"{preset}-base")
-                now = run(ROOT / "src", preset, CASES[preset], Path(tmp) / f"{preset}-now")
+            for case in args.presets:
+                preset, case_args = CASES[case]
+                base = run(tree / "src", preset, case_args, Path(tmp) / f"{case}-base")
+                now = run(ROOT / "src", preset, case_args, Path(tmp) / f"{case}-now")
                 learned = sorted((set(base[0]) & set(now[0])) - TIMING - RENAMED)
                 same = len(base) == len(now) and all(_same(a[k], b[k]) for a, b in zip(base, now) for k in learned)
                 speed = [float(r[-1]["env_steps"]) / float(r[-1]["wall_seconds"]) for r in (base, now)]
                 lines.append(
-                    f"| {preset} | {len(now)} | {len(learned)} | {'yes' if same else 'NO'} | {speed[0]:,.0f} -> {speed[1]:,.0f} |"
+                    f"| {case} | {len(now)} | {len(learned)} | {'yes' if same else 'NO'} | {speed[0]:,.0f} -> {speed[1]:,.0f} |"
                 )
                 print(lines[-1], flush=True)
         finally:

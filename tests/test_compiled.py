@@ -185,3 +185,58 @@ def test_each_agent_runs_its_own_graph():
         compiled.compile("default", say=lambda line: None)
         for _ in range(2):
             torch.testing.assert_close(compiled.update(batch)["loss"], eager.update(batch)["loss"], rtol=1e-4, atol=1e-6)
+
+
+@pytest.mark.parametrize("name", ["dqn", "td3", "qtopt", "sac"])
+def test_k_updates_in_one_call_are_k_updates(name, same_random_numbers):
+    torch.manual_seed(0)
+    one_by_one, batch = agents()[name]
+    batches = [batch.replace(reward=batch.reward + 0.1 * i) for i in range(4)]
+    eager_many, compiled_many = copy.deepcopy(one_by_one), copy.deepcopy(one_by_one)
+    compiled_many.compile("default", say=print)
+    torch.manual_seed(1)
+    singles = [one_by_one.update(b) for b in batches]
+    torch.manual_seed(1)
+    many = eager_many.update_many(batches)
+    torch.manual_seed(1)
+    many_compiled = compiled_many.update_many(batches)
+    assert compiled_many.step_many.active
+    assert one_by_one.updates == eager_many.updates == compiled_many.updates == 4
+    for single, m, c in zip(singles, many, many_compiled):
+        for key in single:
+            torch.testing.assert_close(m[key], single[key], rtol=0, atol=0)  # eager: the same numbers
+            torch.testing.assert_close(c[key], single[key], rtol=1e-4, atol=1e-5)
+    for a, b in zip(learned(one_by_one), learned(compiled_many)):
+        torch.testing.assert_close(b, a, rtol=1e-4, atol=1e-5)
+
+
+def test_a_compiled_run_with_four_updates_per_call_learns_bit_flipping(tmp_path, capsys):
+    import taskrl
+
+    run = taskrl.train(
+        "bitflip-her",
+        out=tmp_path / "run",
+        n_bits=6,
+        total_steps=3_000,
+        eval_interval=3_000,
+        updates_per_step=0.25,
+        updates_per_call=4,
+        compile="default",
+        tensorboard=False,
+    )
+    assert run.agent.step_many.active
+    assert run.metrics["updates"] == pytest.approx(0.25 * (3_000 - run.config.learning_starts), abs=4 + 32)
+    assert run.metrics["updates"] % 4 == 0
+    assert run.metrics["success_rate"] >= 0.9  # a random policy: about 0.1 on 6 bits
+    assert "compiled the updates (default) in" in capsys.readouterr().err
+
+
+def test_updates_per_call_is_refused_where_no_loop_takes_it():
+    import taskrl
+
+    with pytest.raises(ConfigError, match="updates_per_call"):
+        taskrl.train("pointreach-mt-ppo-onehot", updates_per_call=2)
+    with pytest.raises(ConfigError, match="updates_per_call"):
+        taskrl.train("bitflip-her", updates_per_call=0)
+    with pytest.raises(ConfigError, match="compile"):
+        taskrl.train("pointreach-mt-ppo-onehot", compile="default")

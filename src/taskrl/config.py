@@ -75,6 +75,9 @@ class TrainConfig:
         batch_size: transitions per gradient update.
         learning_starts: environment steps collected before the first update.
         updates_per_step: gradient updates per environment step (fractions accumulate).
+        updates_per_call: gradient updates made in one call of the agent, each on its own batch
+            (with ``--compile``, one graph for all of them: less overhead per update at high update
+            ratios); updates wait until that many are due. 1 = one at a time.
         sampling: ``uniform`` over stored transitions, or ``task_balanced`` (multi-task envs: the
             same number of transitions of every task in each batch).
         eval_interval: environment steps between evaluations.
@@ -127,6 +130,7 @@ class TrainConfig:
     batch_size: int = 256
     learning_starts: int = 1_000
     updates_per_step: float = 0.1
+    updates_per_call: int = 1
     sampling: Literal["uniform", "task_balanced"] = "uniform"
     eval_interval: int = 5_000
     eval_episodes: int = 100
@@ -309,9 +313,21 @@ def validate(config: TrainConfig) -> TrainConfig:
     require(0.0 <= c.stop_at_success <= 1.0, "stop_at_success", f"must be in [0, 1] (got {c.stop_at_success})")
     check_device(c.device)
     one_of(c.compile, COMPILE_MODES, "compile", "mode")
+    compiling = ", ".join(a.name for a in ALGORITHMS.values() if a.compiles)
     if c.compile != "off":
-        compiling = ", ".join(a.name for a in ALGORITHMS.values() if a.compiles)
         require(algorithm(c.algo).compiles, "compile", f"compiles the updates of {compiling}, not {c.algo}; use --compile off")
+    require(c.updates_per_call >= 1, "updates_per_call", f"must be >= 1 (got {c.updates_per_call})")
+    if c.updates_per_call > 1:
+        require(
+            algorithm(c.algo).compiles and algorithm(c.algo).loop == "off_policy",
+            "updates_per_call",
+            f"applies to the off-policy updates of {compiling}, not {c.algo}; use 1",
+        )
+        require(
+            not c.cluster.distributed and not c.offline,
+            "updates_per_call",
+            "applies to the off-policy loop in one process (not --distributed or --offline); use 1",
+        )
     require(c.checkpoint_minutes >= 0, "checkpoint_minutes", f"must be >= 0 (0 = by env steps only; got {c.checkpoint_minutes})")
     if algorithm(c.algo).loop == "off_policy":
         require(

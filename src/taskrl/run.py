@@ -513,6 +513,7 @@ def _off_policy_loop(parts: RunParts, books: Bookkeeping) -> OffPolicyLoop:
         learning_starts=c.learning_starts,
         updates_per_step=c.updates_per_step,
         offline_updates=c.offline_updates,
+        updates_per_call=c.updates_per_call,
     )
     return OffPolicyLoop(
         parts.env, parts.agent, parts.replay, parts.relabel, schedule, books, parts.generator, sample=parts.sampler

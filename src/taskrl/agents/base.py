@@ -17,7 +17,7 @@ and gets :meth:`Agent.act`, :meth:`Agent.exploration`, :meth:`Agent.state_dict` 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any, ClassVar
 
 import numpy as np
@@ -141,9 +141,29 @@ class Agent:
         """One update's tensor work (implemented by each agent that compiles; see :meth:`compile`)."""
         raise NotImplementedError
 
+    def schedule(self, update: int) -> tuple:
+        """What :meth:`learn` takes after the batch at update number ``update`` (1-based): the flags of
+        its schedules (whether a target network refreshes, an actor steps), fixed by the count alone."""
+        return ()
+
     def step(self, *args: Any) -> dict[str, torch.Tensor]:
         """The update step as this agent runs it: :meth:`learn` eagerly, or compiled after :meth:`compile`."""
         return self.learn(*args)
+
+    def update_many(self, batches: Sequence[Any]) -> list[dict[str, torch.Tensor]]:
+        """``len(batches)`` updates in one call, one per batch, in order (after :meth:`compile`: one graph
+        for all of them, which saves the per-call overhead K - 1 times); the metrics of each."""
+        flags = tuple(self.schedule(self.updates + i + 1) for i in range(len(batches)))
+        self.updates += len(batches)
+        return self.step_many(tuple(batches), flags)
+
+    def learn_many(self, batches: tuple[Any, ...], flags: tuple[tuple, ...]) -> list[dict[str, torch.Tensor]]:
+        """:meth:`learn` on each batch with its flags."""
+        return [self.learn(batch, *batch_flags) for batch, batch_flags in zip(batches, flags)]
+
+    def step_many(self, batches: tuple[Any, ...], flags: tuple[tuple, ...]) -> list[dict[str, torch.Tensor]]:
+        """:meth:`learn_many` eagerly, or compiled after :meth:`compile`."""
+        return self.learn_many(batches, flags)
 
     def compile(self, mode: str, say: Callable[[str], None] | None = None) -> None:
         """Run :meth:`learn` as one ``torch.compile`` graph (``mode``: see :mod:`taskrl.agents.compiled`),
@@ -151,10 +171,12 @@ class Agent:
         one_of(mode, COMPILE_MODES, "compile", "mode")
         if mode == "off":
             self.__dict__.pop("step", None)
+            self.__dict__.pop("step_many", None)
             return
         optimizers = [obj for obj in self._parts().values() if isinstance(obj, torch.optim.Optimizer)]
         kwargs = {} if say is None else {"say": say}
         self.step = CompiledStep(self.learn, mode, optimizers, **kwargs)
+        self.step_many = CompiledStep(self.learn_many, mode, optimizers, what="updates", **kwargs)
 
     # ---------------------------------------------------------------- checkpointing
     def _parts(self) -> dict[str, Any]:

@@ -58,7 +58,8 @@ class CompiledStep:
             that changes between calls.
         mode: a ``torch.compile`` mode (:data:`COMPILE_MODES` without ``off``).
         optimizers: the Adam optimisers ``fn`` steps; their state is completed before the first trace.
-        say: where the one-line notice of a fallback goes (default: stderr).
+        say: where the one-line notices go (the compile time; a fallback), default stderr.
+        what: what it compiles, for those notices.
     """
 
     def __init__(
@@ -67,12 +68,14 @@ class CompiledStep:
         mode: str,
         optimizers: list[torch.optim.Optimizer],
         say: Callable[[str], None] = _say,
+        what: str = "update",
     ) -> None:
         one_of(mode, COMPILE_MODES[1:], "compile", "mode")
-        self.fn, self.mode, self.say, self.optimizers = fn, mode, say, optimizers
+        self.fn, self.mode, self.say, self.optimizers, self.what = fn, mode, say, optimizers, what
         # a mode is a set of compiler options; given as options, so the guard filter can join them
         options = {**torch._inductor.list_mode_options(mode), "guard_filter_fn": _skip_parameter_guards}
-        self.compiled: Callable[..., Any] | None = torch.compile(fn, fullgraph=True, options=options)
+        # static shapes: the batch size is fixed for a run, and another agent's shapes must not turn this one's dynamic
+        self.compiled: Callable[..., Any] | None = torch.compile(fn, fullgraph=True, dynamic=False, options=options)
         self.calls = 0
         #: seconds the first call took (tracing, compiling, one update): the cost before compiled updates pay
         self.compile_seconds = 0.0
@@ -90,16 +93,19 @@ class CompiledStep:
                 init_adam_state(optimizer)
         started = time.perf_counter()
         try:
-            # autograd.grad inside the graph: traced, not a graph break
-            with torch._dynamo.config.patch(trace_autograd_ops=True):
+            # autograd.grad inside the graph: traced, not a graph break. Every agent of a class compiles the same
+            # code with its own guards: room for many in one process, and a notice (not silent eager) past that.
+            with torch._dynamo.config.patch(trace_autograd_ops=True, recompile_limit=64, fail_on_recompile_limit_hit=True):
                 out = self.compiled(*args)
         except Exception as error:  # a compiler that is missing or refuses: the same step, eagerly
             self.compiled = None
             reason = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
-            self.say(f"--compile {self.mode} is unavailable here ({type(error).__name__}: {reason[:300]}); updating eagerly")
+            self.say(
+                f"--compile {self.mode} is unavailable for the {self.what} here ({type(error).__name__}: {reason[:300]}); updating eagerly"
+            )
             return self.fn(*args)
         if self.calls == 0:
             self.compile_seconds = time.perf_counter() - started
-            self.say(f"compiled the update ({self.mode}) in {self.compile_seconds:.1f} s")
+            self.say(f"compiled the {self.what} ({self.mode}) in {self.compile_seconds:.1f} s")
         self.calls += 1
         return out

@@ -215,7 +215,11 @@ class DQNAgent(Agent):
     def update(self, batch: Batch) -> dict[str, torch.Tensor]:
         """One gradient step on the TD error; returns detached scalars (``loss``, ``q_mean``)."""
         self.updates += 1
-        return self.step(batch, self.updates % self.config.target_update_interval == 0)
+        return self.step(batch, *self.schedule(self.updates))
+
+    def schedule(self, update: int) -> tuple[bool]:
+        """``(refresh_target,)``: every ``target_update_interval`` updates."""
+        return (update % self.config.target_update_interval == 0,)
 
     def learn(self, batch: Batch, refresh_target: bool) -> dict[str, torch.Tensor]:
         """The update itself (what ``--compile`` compiles): the TD step, then the target average if due."""

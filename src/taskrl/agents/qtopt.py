@@ -231,10 +231,18 @@ class QTOptAgent(Agent):
         Returns detached scalars: ``loss``, ``q_mean`` (Q of the batch's actions), ``target_mean``.
         """
         self.updates += 1
-        return self.step(batch, target, generator, self.updates % self.config.target2_interval == 0)
+        return self.step(batch, *self.schedule(self.updates), target, generator)
+
+    def schedule(self, update: int) -> tuple[bool]:
+        """``(copy_target2,)``: every ``target2_interval`` updates."""
+        return (update % self.config.target2_interval == 0,)
 
     def learn(
-        self, batch: Batch, target: torch.Tensor | None, generator: torch.Generator | None, copy_target2: bool
+        self,
+        batch: Batch,
+        copy_target2: bool,
+        target: torch.Tensor | None = None,
+        generator: torch.Generator | None = None,
     ) -> dict[str, torch.Tensor]:
         """The update itself (what ``--compile`` compiles): the target if not given, the regression, the target networks."""
         cfg = self.config

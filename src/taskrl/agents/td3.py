@@ -178,9 +178,11 @@ class TD3Agent(Agent):
         """A critic step; every ``policy_delay`` updates also an actor step and the target update.
         Returns detached scalars ``critic_loss``, ``actor_loss`` (the latest), ``q_mean``."""
         self.updates += 1
-        metrics = self.step(batch, self.updates % self.config.policy_delay == 0, generator)
-        self._last_actor_loss = metrics.get("actor_loss", self._last_actor_loss)
-        return {"critic_loss": metrics["critic_loss"], "actor_loss": self._last_actor_loss, "q_mean": metrics["q_mean"]}
+        return self.step(batch, *self.schedule(self.updates), generator)
+
+    def schedule(self, update: int) -> tuple[bool]:
+        """``(actor_step,)``: every ``policy_delay`` updates."""
+        return (update % self.config.policy_delay == 0,)
 
     def learn(self, batch: Batch, actor_step: bool, generator: torch.Generator | None = None) -> dict[str, torch.Tensor]:
         """The update itself (what ``--compile`` compiles): the critic step; with ``actor_step`` also the
@@ -191,16 +193,15 @@ class TD3Agent(Agent):
         q1, q2 = (q(x, action) for q in self.critics)
         critic_loss = 0.5 * (F.mse_loss(q1, target) + F.mse_loss(q2, target))
         gradient_step(self.critic_optimizer, critic_loss, self._critic_params, self.config.max_grad_norm)
-        metrics = {"critic_loss": critic_loss.detach(), "q_mean": q1.detach().mean()}
 
         if actor_step:
             self._set_critic_grad(False)
             actor_loss = -self.critics[0](x, self.actor(x)).mean()
             gradient_step(self.actor_optimizer, actor_loss, self._actor_params, self.config.max_grad_norm)
             self._set_critic_grad(True)
-            metrics["actor_loss"] = actor_loss.detach()
+            self._last_actor_loss.copy_(actor_loss.detach())
             self.update_target()
-        return metrics
+        return {"critic_loss": critic_loss.detach(), "actor_loss": self._last_actor_loss.clone(), "q_mean": q1.detach().mean()}
 
     def _set_critic_grad(self, enabled: bool) -> None:
         """Keep the actor's backward out of the critics (eager; a compiled step needs no switch)."""

@@ -62,6 +62,9 @@ class LoopSchedule:
         learning_starts: environment steps collected before the first update.
         updates_per_step: gradient updates per environment step (fractions accumulate).
         offline_updates: gradient updates on preloaded data before the first env step.
+        updates_per_call: updates handed to the agent at once, each on its own freshly sampled
+            batch (``agent.update_many``; one compiled graph for all of them under ``--compile``);
+            the update credit waits until it holds that many.
     """
 
     total_steps: int
@@ -69,6 +72,7 @@ class LoopSchedule:
     learning_starts: int
     updates_per_step: float
     offline_updates: int = 0
+    updates_per_call: int = 1
 
 
 class OffPolicyLoop:
@@ -123,10 +127,15 @@ class OffPolicyLoop:
 
             if state.env_steps >= s.learning_starts and replay.num_episodes > 0:
                 state.update_credit += env.num_envs * s.updates_per_step
-                n_updates = int(state.update_credit)
+                k = s.updates_per_call
+                n_updates = int(state.update_credit // k) * k
                 state.update_credit -= n_updates
-                for _ in range(n_updates):
-                    books.add_update(agent.update(self.sample_batch()))
+                if k == 1:
+                    for _ in range(n_updates):
+                        books.add_update(agent.update(self.sample_batch()))
+                for _ in range(n_updates // k if k > 1 else 0):
+                    for metrics in agent.update_many([self.sample_batch() for _ in range(k)]):
+                        books.add_update(metrics)
 
             if books.after_step(agent.exploration(acted_at)):  # the level this step explored with
                 break
