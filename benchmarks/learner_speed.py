@@ -13,7 +13,8 @@
 
 For each, over seeds: wall-clock and env steps to 90% success (evaluation on the same 100 episodes every
 1000 env steps, by the same function, excluded from both clocks), then training throughput over a fixed
-budget with no evaluation: env steps/s and gradient updates/s. taskrl runs eager and ``--compile default``.
+budget with no evaluation: env steps/s and gradient updates/s. taskrl runs eager, ``--compile default``,
+and compiled with 4 updates per call (``--updates-per-call 4``: the same updates, made in groups of 4).
 
 ``bound``: ms per gradient update on a fixed batch (sampling apart) against the FLOP bound: the update's
 floating-point operations (counted by ``torch.utils.flop_counter`` on one eager update: matrix products,
@@ -151,8 +152,10 @@ def dqn_case(batch: int, hidden: tuple[int, ...]):
         )
         return {**r, "updates": model._n_updates}
 
-    def ours(seed, budget, eval_interval, target, compile_mode):
-        return _taskrl_run("bitflip-her", settings, seed, budget, eval_interval, target, compile_mode)
+    def ours(seed, budget, eval_interval, target, compile_mode, per_call):
+        return _taskrl_run(
+            "bitflip-her", {**settings, "updates_per_call": per_call}, seed, budget, eval_interval, target, compile_mode
+        )
 
     return f"dqn-her bitflip n=15, batch {batch}, {list(hidden)}", sb3, ours
 
@@ -165,8 +168,10 @@ def sac_case():
             return _sb3_throughput(_sb3_fetch_model(seed), budget)
         return sb3_time_to_success(seed, budget, eval_interval, target, normalize=True)
 
-    def ours(seed, budget, eval_interval, target, compile_mode):
-        return _taskrl_run("fetchreach-sac-her", SAC_EQUAL, seed, budget, eval_interval, target, compile_mode)
+    def ours(seed, budget, eval_interval, target, compile_mode, per_call):
+        return _taskrl_run(
+            "fetchreach-sac-her", {**SAC_EQUAL, "updates_per_call": per_call}, seed, budget, eval_interval, target, compile_mode
+        )
 
     return "sac-her FetchReach-v4, batch 256, [64, 64]", sb3, ours
 
@@ -212,8 +217,8 @@ def _median(runs: list[dict], key: str) -> float:
     return statistics.median(r[key] for r in runs)
 
 
-def _with_compile(ours, compile_mode: str, *args):
-    return ours(*args, compile_mode)
+def _with_compile(ours, compile_mode: str, per_call: int = 1, *args):
+    return ours(*args, compile_mode, per_call)
 
 
 def equal(args) -> tuple[str, dict]:
@@ -227,6 +232,7 @@ def equal(args) -> tuple[str, dict]:
             "sb3": sb3,
             "taskrl": functools.partial(_with_compile, ours, "off"),
             "taskrl compiled": functools.partial(_with_compile, ours, "default"),
+            "taskrl compiled, 4 per call": functools.partial(_with_compile, ours, "default", 4),
         }
         runs: dict[str, dict[str, list]] = {lib: {"target": [], "throughput": []} for lib in runners}
         for lib, runner in runners.items():
@@ -259,7 +265,7 @@ def equal(args) -> tuple[str, dict]:
                 f"{_median(p, 'updates_per_s') / sb3_rate:.2f}x ({after / sb3_rate:.2f}x after compiling) |"
             )
         sb3_seconds = _median(runs["sb3"]["target"], "seconds")
-        for lib in ("taskrl", "taskrl compiled"):
+        for lib in list(runners)[1:]:
             lines.append(f"\nWall-clock to 90%, SB3 / {lib}: {sb3_seconds / _median(runs[lib]['target'], 'seconds'):.2f}x")
         lines += ["", f"Differences left: {DIFFERENCES['sac' if key == 'sac' else 'dqn']}.", ""]
         lines.append(
