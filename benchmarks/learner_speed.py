@@ -24,6 +24,13 @@ eager and compiled, with the compile step's own cost and the run length from whi
 
     .venv/bin/python benchmarks/learner_speed.py bound --write
     .venv/bin/python benchmarks/learner_speed.py equal --seeds 0 1 2 --write
+    .venv/bin/python benchmarks/learner_speed.py curves --seeds 0 1 2 --write
+
+``curves``: each compiling algorithm's small preset trained eagerly and with ``--compile default`` on the
+same seeds: the evaluation curves (mean over seeds, in ``figures/learner_curves.png``) and final success.
+A compiled run draws its random numbers from the compiler's generator, so runs are compared as
+distributions over seeds, not row by row (eager runs are compared row by row with a base commit by
+``same_learning.py``).
 """
 
 from __future__ import annotations
@@ -217,7 +224,7 @@ def _median(runs: list[dict], key: str) -> float:
     return statistics.median(r[key] for r in runs)
 
 
-def _with_compile(ours, compile_mode: str, per_call: int = 1, *args):
+def _with_compile(ours, compile_mode: str, per_call: int, *args):
     return ours(*args, compile_mode, per_call)
 
 
@@ -230,8 +237,8 @@ def equal(args) -> tuple[str, dict]:
         to_target, throughput_steps = budgets[key]
         runners = {
             "sb3": sb3,
-            "taskrl": functools.partial(_with_compile, ours, "off"),
-            "taskrl compiled": functools.partial(_with_compile, ours, "default"),
+            "taskrl": functools.partial(_with_compile, ours, "off", 1),
+            "taskrl compiled": functools.partial(_with_compile, ours, "default", 1),
             "taskrl compiled, 4 per call": functools.partial(_with_compile, ours, "default", 4),
         }
         runs: dict[str, dict[str, list]] = {lib: {"target": [], "throughput": []} for lib in runners}
@@ -453,9 +460,75 @@ def bound(args) -> tuple[str, dict]:
     return table, out
 
 
+# ----------------------------------------------------------------------------- learning, eager against compiled
+#: case -> (preset, overrides): one per algorithm whose update compiles (multi-task SAC included)
+CURVE_CASES = {
+    "dqn": ("bitflip-her", dict(n_bits=8, total_steps=6_000, eval_interval=1_000)),
+    "sac": ("pointreach-sac-her", dict(total_steps=6_000, eval_interval=1_000)),
+    "td3": ("pointreach-sac-her", dict(algo="td3", total_steps=6_000, eval_interval=1_000)),
+    "qtopt": ("pointreach-qtopt-her", dict(total_steps=4_000, eval_interval=1_000)),
+    "mt-sac": ("pointreach-mt-sac-onehot", dict(total_steps=8_000, eval_interval=2_000)),
+}
+
+
+def _curve(preset: str, overrides: dict, seed: int, compile_mode: str) -> dict:
+    import csv
+
+    with tempfile.TemporaryDirectory() as tmp:
+        run = taskrl.train(preset, out=Path(tmp) / "run", seed=seed, compile=compile_mode, tensorboard=False, **overrides)
+        rows = [r for r in csv.DictReader(open(Path(tmp) / "run" / "metrics.csv")) if r.get("success_rate")]
+    return {
+        "env_steps": [int(float(r["env_steps"])) for r in rows],
+        "success": [float(r["success_rate"]) for r in rows],
+        "seconds": run.metrics["wall_seconds"],
+    }
+
+
+def curves(args) -> tuple[str, dict]:
+    """Evaluation curves of each algorithm's small preset, eager and compiled, over seeds."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out, lines = (
+        {},
+        ["| case | preset | seeds | final success, eager | final success, compiled | mean abs. difference of the mean curves |"],
+    )
+    lines.append("|---|---|---|---|---|---|")
+    fig, axes = plt.subplots(1, len(args.curve_cases), figsize=(3.2 * len(args.curve_cases), 3), squeeze=False)
+    for ax, case in zip(axes[0], args.curve_cases):
+        preset, overrides = CURVE_CASES[case]
+        runs = {mode: [_curve(preset, overrides, seed, mode) for seed in args.seeds] for mode in ("off", "default")}
+        out[case] = runs
+        means = {}
+        for mode, label in (("off", "eager"), ("default", "compiled")):
+            steps = runs[mode][0]["env_steps"]
+            means[mode] = [statistics.mean(r["success"][i] for r in runs[mode]) for i in range(len(steps))]
+            ax.plot(steps, means[mode], label=label)
+        ax.set_title(case)
+        ax.set_xlabel("env steps")
+        ax.set_ylim(0, 1.02)
+        gap = statistics.mean(abs(a - b) for a, b in zip(means["off"], means["default"]))
+        final = {m: [r["success"][-1] for r in runs[m]] for m in runs}
+        lines.append(
+            f"| {case} | {preset} {overrides} | {len(args.seeds)} | "
+            f"{statistics.mean(final['off']):.2f} ({', '.join(f'{x:.2f}' for x in final['off'])}) | "
+            f"{statistics.mean(final['default']):.2f} ({', '.join(f'{x:.2f}' for x in final['default'])}) | {gap:.3f} |"
+        )
+        print(lines[-1], flush=True)
+    axes[0][0].set_ylabel("success (mean over seeds)")
+    axes[0][0].legend()
+    fig.tight_layout()
+    figure = Path(__file__).with_name("figures") / "learner_curves.png"
+    fig.savefig(figure, dpi=110)
+    return "\n".join(lines) + f"\n\nCurves: `benchmarks/figures/{figure.name}`.", out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("mode", choices=["equal", "bound"])
+    parser.add_argument("mode", choices=["equal", "bound", "curves"])
+    parser.add_argument("--curve-cases", nargs="+", default=list(CURVE_CASES), choices=list(CURVE_CASES))
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--cases", nargs="+", default=["dqn32", "dqn256", "sac"], choices=["dqn32", "dqn256", "sac"])
     parser.add_argument("--only", nargs="*", default=[], help="bound: only the cases whose names hold one of these words")
@@ -469,7 +542,7 @@ def main() -> None:
     )
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
-    table, data = (equal if args.mode == "equal" else bound)(args)
+    table, data = {"equal": equal, "bound": bound, "curves": curves}[args.mode](args)
     path = args.json or RESULTS_DIR / f"learner_{args.mode}.json"
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(data, indent=2))
@@ -478,6 +551,7 @@ def main() -> None:
         titles = {
             "equal": "Learner speed at equal work against Stable-Baselines3",
             "bound": "Learner speed against the FLOP bound",
+            "curves": "Learning with compiled updates against eager ones",
         }
         append_results(
             titles[args.mode],

@@ -186,7 +186,7 @@ class EpisodeReplay:
 
     def sample_indices(self, batch_size: int, generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """Uniform over stored transitions: returns ``(episode, step)`` index tensors."""
-        if int(self._cumulative[-1]) == 0:
+        if self.num_episodes == 0:  # a count on the host: no device sync per batch
             raise RuntimeError("cannot sample from an empty replay: no episode has finished yet")
         return draw_transitions(self._cumulative, self.length, batch_size, generator)
 

@@ -48,7 +48,7 @@ class TaskBalancedSampler:
         per_task_length = r.length * (episode_task == self._tasks[:, None])  # [T, E]
         cumulative = torch.cat([per_task_length, r.length[None]]).cumsum(1)  # [T + 1, E]; last row: all tasks
         totals = cumulative[:, -1]
-        if int(totals[-1]) == 0:
+        if r.num_episodes == 0:  # a count on the host: no device sync per batch
             raise RuntimeError("cannot sample from an empty replay: no episode has finished yet")
         rows = torch.where(totals[:T] > 0, self._tasks, T)  # empty task -> all data
         per = -(-batch_size // T)  # ceil
