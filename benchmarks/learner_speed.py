@@ -224,6 +224,22 @@ def _median(runs: list[dict], key: str) -> float:
     return statistics.median(r[key] for r in runs)
 
 
+def _earlier_runs(log: Path | None, seeds: list[int]) -> dict:
+    """``(case, lib, kind, seed) -> result`` from an earlier run's log of JSON lines (seeds in order
+    where a line has none), for ``--reuse-log``."""
+    found, count = {}, {}
+    for line in log.read_text().splitlines() if log else []:
+        if not line.startswith('{"case"'):
+            continue
+        r = json.loads(line)
+        kind = "to_target" if "to_target" in r else "throughput"
+        at = (r["case"], r["lib"], kind)
+        seed = r.get("seed", seeds[count.get(at, 0)] if count.get(at, 0) < len(seeds) else None)
+        count[at] = count.get(at, 0) + 1
+        found[(*at, seed)] = r[kind]
+    return found
+
+
 def _with_compile(ours, compile_mode: str, per_call: int, *args):
     return ours(*args, compile_mode, per_call)
 
@@ -232,6 +248,7 @@ def equal(args) -> tuple[str, dict]:
     cases = {"dqn32": lambda: dqn_case(32, (64, 64)), "dqn256": lambda: dqn_case(256, (256, 256)), "sac": sac_case}
     budgets = {"dqn32": (100_000, 20_000), "dqn256": (100_000, 20_000), "sac": (20_000, 6_000)}
     out, lines = {}, []
+    reused = _earlier_runs(args.reuse_log, args.seeds)
     for key in args.cases:
         title, sb3, ours = cases[key]()
         to_target, throughput_steps = budgets[key]
@@ -244,12 +261,15 @@ def equal(args) -> tuple[str, dict]:
         runs: dict[str, dict[str, list]] = {lib: {"target": [], "throughput": []} for lib in runners}
         for lib, runner in runners.items():
             for seed in args.seeds:
-                r = runner(seed, to_target, 1_000, args.target)
-                runs[lib]["target"].append({**r, "seed": seed})
-                print(json.dumps({"case": key, "lib": lib, "to_target": r}), flush=True)
-                r = runner(seed, throughput_steps, 10**12, 0.0)
-                runs[lib]["throughput"].append({**r, "seed": seed})
-                print(json.dumps({"case": key, "lib": lib, "throughput": r}), flush=True)
+                for kind, (budget, interval, target) in {
+                    "to_target": (to_target, 1_000, args.target),
+                    "throughput": (throughput_steps, 10**12, 0.0),
+                }.items():
+                    r = reused.get((key, lib, kind, seed)) if lib in args.reuse_libs else None
+                    if r is None:
+                        r = runner(seed, budget, interval, target)
+                        print(json.dumps({"case": key, "lib": lib, kind: r, "seed": seed}), flush=True)
+                    runs[lib]["target" if kind == "to_target" else "throughput"].append({**r, "seed": seed})
         out[key] = {"title": title, "runs": runs}
         lines += [f"**{title}** ({len(args.seeds)} seeds; medians)", ""]
         lines += [
@@ -534,6 +554,8 @@ def main() -> None:
     parser.add_argument("--only", nargs="*", default=[], help="bound: only the cases whose names hold one of these words")
     parser.add_argument("--per-call", type=int, default=4, help="bound: updates per call in the K-updates column")
     parser.add_argument("--target", type=float, default=0.9)
+    parser.add_argument("--reuse-log", type=Path, default=None, help="equal: an earlier run's output, whose results to keep")
+    parser.add_argument("--reuse-libs", nargs="*", default=["sb3"], help="equal: the libraries whose earlier results to keep")
     parser.add_argument("--seconds", type=float, default=3.0, help="bound: timing per case and path")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (both libraries)")
     parser.add_argument("--write", action="store_true", help="append the results to benchmarks/RESULTS.md")

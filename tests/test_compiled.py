@@ -241,3 +241,28 @@ def test_updates_per_call_is_refused_where_no_loop_takes_it():
         taskrl.train("bitflip-her", updates_per_call=0)
     with pytest.raises(ConfigError, match="compile"):
         taskrl.train("pointreach-mt-ppo-onehot", compile="default")
+
+
+def test_k_batches_drawn_together_are_k_task_balanced_batches():
+    import gymnasium as gym
+
+    from taskrl.replay import EpisodeReplay
+    from taskrl.replay.sampling import TaskBalancedSampler
+    from taskrl.training.offpolicy import batches_sampler
+
+    space = gym.spaces.Dict({"observation": gym.spaces.Box(-1, 1, (2,)), "task": gym.spaces.Discrete(4)})
+    replay = EpisodeReplay(space, gym.spaces.Discrete(3), 4_000, 10, 4)
+    g = torch.Generator().manual_seed(0)
+    for _ in range(20):  # episodes of every task, task i in env i
+        obs = {"observation": torch.rand(4, 2, generator=g), "task": torch.arange(4)}
+        replay.start(obs)
+        for t in range(10):
+            replay.add(torch.zeros(4), -torch.ones(4), torch.zeros(4, dtype=torch.bool), torch.full((4,), t == 9), obs, obs)
+    draw = batches_sampler(replay, None, 32, 4, g, TaskBalancedSampler(replay, 4))
+    batches = draw()
+    assert [len(b) for b in batches] == [32] * 4
+    for b in batches:  # each of the 4 keeps the balance: 8 rows of every task
+        assert torch.bincount(b.obs["task"], minlength=4).tolist() == [8, 8, 8, 8]
+        assert torch.equal(b.next_obs["task"], b.obs["task"])
+    rows = torch.cat([b.episode * 10 + b.step for b in batches])
+    assert rows.unique().numel() > 100  # distinct draws, not one batch four times

@@ -50,6 +50,11 @@ def _skip_parameter_guards(entries: list[Any]) -> list[bool]:
     return [not (entry.guard_type == "TENSOR_MATCH" and isinstance(entry.value, torch.nn.Parameter)) for entry in entries]
 
 
+def _graphs_compiled() -> int:
+    """Graphs ``torch.compile`` has made in this process so far (its own statistics counter)."""
+    return torch._dynamo.utils.counters["stats"]["unique_graphs"]
+
+
 class CompiledStep:
     """``step(*args)``: ``fn`` compiled on its first call, or ``fn`` itself once compilation failed.
 
@@ -77,7 +82,8 @@ class CompiledStep:
         # static shapes: the batch size is fixed for a run, and another agent's shapes must not turn this one's dynamic
         self.compiled: Callable[..., Any] | None = torch.compile(fn, fullgraph=True, dynamic=False, options=options)
         self.calls = 0
-        #: seconds the first call took (tracing, compiling, one update): the cost before compiled updates pay
+        #: seconds of the calls that compiled (tracing, compiling, one update each): the first, and the
+        #: first of each further variant (a target refresh every N updates); the cost before compiling pays
         self.compile_seconds = 0.0
 
     @property
@@ -91,7 +97,7 @@ class CompiledStep:
         if self.calls == 0:  # the state a loaded checkpoint brought, or none yet: complete it before tracing
             for optimizer in self.optimizers:
                 init_adam_state(optimizer)
-        started = time.perf_counter()
+        started, graphs = time.perf_counter(), _graphs_compiled()
         try:
             # autograd.grad inside the graph: traced, not a graph break. Every agent of a class compiles the same
             # code with its own guards: room for many in one process, and a notice (not silent eager) past that.
@@ -104,8 +110,9 @@ class CompiledStep:
                 f"--compile {self.mode} is unavailable for the {self.what} here ({type(error).__name__}: {reason[:300]}); updating eagerly"
             )
             return self.fn(*args)
-        if self.calls == 0:
-            self.compile_seconds = time.perf_counter() - started
-            self.say(f"compiled the {self.what} ({self.mode}) in {self.compile_seconds:.1f} s")
+        if _graphs_compiled() != graphs:  # this call compiled (the first, or a schedule's other variant)
+            self.compile_seconds += time.perf_counter() - started
+            if self.calls == 0:
+                self.say(f"compiled the {self.what} ({self.mode}) in {self.compile_seconds:.1f} s")
         self.calls += 1
         return out

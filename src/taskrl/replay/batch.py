@@ -36,6 +36,21 @@ class Batch:
     def replace(self, **changes) -> Batch:
         return dataclasses.replace(self, **changes)
 
+    def split(self, k: int) -> list[Batch]:
+        """``k`` batches of ``len(self) // k`` rows: batch ``i`` holds rows ``i, i + k, i + 2k, ...``, so a
+        batch drawn task by task (task-balanced, shared) splits into ``k`` batches that each keep its mix."""
+        n = len(self) // k
+        order = torch.arange(n * k, device=self.reward.device).view(n, k).t().reshape(-1)  # rows of batch 0, then 1, ...
+
+        def parts(value: torch.Tensor | Obs) -> list:
+            if isinstance(value, dict):
+                split = {key: parts(v) for key, v in value.items()}
+                return [{key: split[key][i] for key in value} for i in range(k)]
+            return list(value.index_select(0, order).split(n))
+
+        fields = {f.name: parts(getattr(self, f.name)) for f in dataclasses.fields(self)}
+        return [Batch(**{name: values[i] for name, values in fields.items()}) for i in range(k)]
+
     def to(self, device: str | torch.device) -> Batch:
         """This batch on ``device`` (itself when already there)."""
         device = torch.device(device)

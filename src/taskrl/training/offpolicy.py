@@ -52,6 +52,22 @@ def batch_sampler(
     return sample_batch
 
 
+def batches_sampler(
+    replay: EpisodeReplay,
+    relabel: Relabel | None,
+    batch_size: int,
+    k: int,
+    generator: torch.Generator,
+    sample: Callable[[int, torch.Generator], Batch] | None = None,
+) -> Callable[[], list[Batch]]:
+    """``() -> [Batch] * k``: ``k`` batches of ``batch_size`` drawn and relabelled as one batch of
+    ``k * batch_size`` (each row drawn independently, so the ``k`` batches are as ``k`` draws are), then
+    split (:meth:`Batch.split`): sampling and relabelling cost about one batch's small tensor operations,
+    not ``k`` times them."""
+    draw_all = batch_sampler(replay, relabel, k * batch_size, generator, sample)
+    return lambda: draw_all().split(k)
+
+
 @dataclasses.dataclass
 class LoopSchedule:
     """When learning happens, in environment steps (evaluation and checkpoints: the Bookkeeping's).
@@ -62,9 +78,9 @@ class LoopSchedule:
         learning_starts: environment steps collected before the first update.
         updates_per_step: gradient updates per environment step (fractions accumulate).
         offline_updates: gradient updates on preloaded data before the first env step.
-        updates_per_call: updates handed to the agent at once, each on its own freshly sampled
-            batch (``agent.update_many``; one compiled graph for all of them under ``--compile``);
-            the update credit waits until it holds that many.
+        updates_per_call: updates handed to the agent at once, each on its own batch, the batches
+            drawn together (:func:`batches_sampler`) (``agent.update_many``; one compiled graph for
+            all of them under ``--compile``); the update credit waits until it holds that many.
     """
 
     total_steps: int
@@ -103,6 +119,7 @@ class OffPolicyLoop:
     ) -> None:
         self.env, self.agent, self.replay, self.relabel = env, agent, replay, relabel
         self.sample_batch = batch_sampler(replay, relabel, schedule.batch_size, generator, sample)
+        self.sample_batches = batches_sampler(replay, relabel, schedule.batch_size, schedule.updates_per_call, generator, sample)
         self.schedule, self.books, self.generator = schedule, books, generator
 
     def run(self, env_seed: int) -> LoopState:
@@ -134,7 +151,7 @@ class OffPolicyLoop:
                     for _ in range(n_updates):
                         books.add_update(agent.update(self.sample_batch()))
                 for _ in range(n_updates // k if k > 1 else 0):
-                    for metrics in agent.update_many([self.sample_batch() for _ in range(k)]):
+                    for metrics in agent.update_many(self.sample_batches()):
                         books.add_update(metrics)
 
             if books.after_step(agent.exploration(acted_at)):  # the level this step explored with
