@@ -60,6 +60,40 @@ def append_results(title: str, body: str) -> None:
         f.write(text)
 
 
+def taskrl_learn_until(preset: str, seed: int, budget: int, eval_interval: int, target: float, **settings) -> dict:
+    """Train a taskrl preset (with ``settings``) until evaluation success reaches ``target`` (0: the whole
+    ``budget``), in a temporary run directory; evaluation excluded from its clock (``wall_seconds``)."""
+    import tempfile
+
+    import taskrl
+
+    with tempfile.TemporaryDirectory() as tmp:
+        run = taskrl.train(
+            preset,
+            out=Path(tmp) / "run",
+            seed=seed,
+            total_steps=budget,
+            eval_interval=eval_interval,
+            stop_at_success=target,
+            tensorboard=False,
+            checkpoint_interval=10**12,
+            save_replay=False,
+            **settings,
+        )
+    m = run.metrics
+    return {
+        "solved": target > 0 and m["success_rate"] >= target,
+        "env_steps": m["env_steps"],
+        "updates": m["updates"],
+        "seconds": m["wall_seconds"],
+        "env_steps_per_s": m["env_steps"] / max(m["wall_seconds"], 1e-9),
+        "updates_per_s": m["updates"] / max(m["wall_seconds"], 1e-9),
+        "final_success": m["success_rate"],
+        # every compiled step's (one update, and K per call)
+        "compile_seconds": sum(getattr(getattr(run.agent, name, None), "compile_seconds", 0.0) for name in ("step", "step_many")),
+    }
+
+
 def sb3_learn_until(model, evaluate_fn, eval_interval: int, target: float, budget: int) -> dict:
     """Train a Stable-Baselines3 model, evaluating every ``eval_interval`` env steps with
     ``evaluate_fn(model) -> success rate``; stop at ``target``. The clock excludes evaluation,

@@ -29,35 +29,14 @@ from pathlib import Path
 import torch
 
 import taskrl
-from common import append_results, median_table, sb3_learn_until
+from common import append_results, median_table, sb3_learn_until, taskrl_learn_until
 from taskrl.envs import BitFlip
 from taskrl.run import EVAL_SEED_OFFSET
 from taskrl.training.evaluation import evaluate
 
 
 def taskrl_time_to_success(n_bits: int, seed: int, budget: int, eval_interval: int, target: float) -> dict:
-    with tempfile.TemporaryDirectory() as tmp:
-        run = taskrl.train(
-            "bitflip-her",
-            out=Path(tmp) / "run",
-            n_bits=n_bits,
-            seed=seed,
-            total_steps=budget,
-            eval_interval=eval_interval,
-            stop_at_success=target,
-            tensorboard=False,
-            checkpoint_interval=10**12,
-            save_replay=False,
-        )
-        m = run.metrics
-    solved = m["success_rate"] >= target
-    return {
-        "solved": solved,
-        "env_steps": m["env_steps"],
-        "seconds": m["wall_seconds"],
-        "env_steps_per_s": m["env_steps"] / max(m["wall_seconds"], 1e-9),
-        "final_success": m["success_rate"],
-    }
+    return taskrl_learn_until("bitflip-her", seed, budget, eval_interval, target, n_bits=n_bits)
 
 
 def sb3_model(n_bits: int, seed: int, budget: int, batch_size: int = 32, net_arch=(64, 64)):

@@ -18,13 +18,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import tempfile
 from pathlib import Path
 
 import torch
 
-import taskrl
-from common import append_results, median_table, sb3_learn_until
+from common import append_results, median_table, sb3_learn_until, taskrl_learn_until
 from taskrl.envs import GymnasiumGoalEnv
 from taskrl.run import EVAL_SEED_OFFSET
 from taskrl.training.evaluation import evaluate
@@ -33,30 +31,11 @@ ENV_ID = "FetchReach-v4"
 
 
 def taskrl_time_to_success(seed: int, budget: int, eval_interval: int, target: float) -> dict:
-    with tempfile.TemporaryDirectory() as tmp:
-        run = taskrl.train(
-            "fetchreach-sac-her",
-            out=Path(tmp) / "run",
-            seed=seed,
-            total_steps=budget,
-            hidden_sizes=(64, 64),
-            eval_interval=eval_interval,
-            stop_at_success=target,
-            tensorboard=False,
-            checkpoint_interval=10**12,
-            save_replay=False,
-        )
-    m = run.metrics
-    return {
-        "solved": m["success_rate"] >= target,
-        "env_steps": m["env_steps"],
-        "seconds": m["wall_seconds"],
-        "env_steps_per_s": m["env_steps"] / max(m["wall_seconds"], 1e-9),
-        "final_success": m["success_rate"],
-    }
+    return taskrl_learn_until("fetchreach-sac-her", seed, budget, eval_interval, target, hidden_sizes=(64, 64))
 
 
-def sb3_time_to_success(seed: int, budget: int, eval_interval: int, target: float, normalize: bool = True) -> dict:
+def sb3_model(seed: int, normalize: bool = True):
+    """``(model, venv)``: SB3's SAC + HER with the zoo's FetchReach settings (``normalize``: its VecNormalize)."""
     import gymnasium as gym
     import gymnasium_robotics
     from stable_baselines3 import SAC, HerReplayBuffer
@@ -80,6 +59,11 @@ def sb3_time_to_success(seed: int, budget: int, eval_interval: int, target: floa
         seed=seed,
         verbose=0,
     )
+    return model, venv
+
+
+def sb3_time_to_success(seed: int, budget: int, eval_interval: int, target: float, normalize: bool = True) -> dict:
+    model, venv = sb3_model(seed, normalize)
     eval_seed = seed + EVAL_SEED_OFFSET
     eval_env = GymnasiumGoalEnv(ENV_ID, num_envs=100)
 

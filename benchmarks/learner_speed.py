@@ -53,7 +53,7 @@ from pathlib import Path
 import torch
 
 import taskrl
-from common import append_results, sb3_learn_until
+from common import append_results, sb3_learn_until, taskrl_learn_until
 from taskrl.run import EVAL_SEED_OFFSET
 from taskrl.training.evaluation import evaluate
 
@@ -111,34 +111,8 @@ DIFFERENCES = {
 def _taskrl_run(
     preset: str, settings: dict, seed: int, budget: int, eval_interval: int, target: float, compile_mode: str
 ) -> dict:
-    with tempfile.TemporaryDirectory() as tmp:
-        run = taskrl.train(
-            preset,
-            out=Path(tmp) / "run",
-            seed=seed,
-            total_steps=budget,
-            eval_interval=eval_interval,
-            stop_at_success=target,
-            tensorboard=False,
-            checkpoint_interval=10**12,
-            save_replay=False,
-            compile=compile_mode,
-            **settings,
-        )
-    m = run.metrics
-    step = run.agent.step
-    compile_seconds = getattr(step, "compile_seconds", 0.0)
-    return {
-        "solved": target > 0 and m["success_rate"] >= target,
-        "env_steps": m["env_steps"],
-        "updates": m["updates"],
-        "seconds": m["wall_seconds"],
-        "compile_seconds": compile_seconds,
-        "env_steps_per_s": m["env_steps"] / max(m["wall_seconds"], 1e-9),
-        "updates_per_s": m["updates"] / max(m["wall_seconds"], 1e-9),
-        "updates_per_s_after_compile": m["updates"] / max(m["wall_seconds"] - compile_seconds, 1e-9),
-        "final_success": m["success_rate"],
-    }
+    r = taskrl_learn_until(preset, seed, budget, eval_interval, target, compile=compile_mode, **settings)
+    return {**r, "updates_per_s_after_compile": r["updates"] / max(r["seconds"] - r["compile_seconds"], 1e-9)}
 
 
 def dqn_case(batch: int, hidden: tuple[int, ...]):
@@ -168,11 +142,11 @@ def dqn_case(batch: int, hidden: tuple[int, ...]):
 
 
 def sac_case():
-    from her_fetch import sb3_time_to_success
+    from her_fetch import sb3_model, sb3_time_to_success
 
     def sb3(seed: int, budget: int, eval_interval: int, target: float) -> dict:
         if target <= 0:
-            return _sb3_throughput(_sb3_fetch_model(seed), budget)
+            return _sb3_throughput(sb3_model(seed)[0], budget)
         return sb3_time_to_success(seed, budget, eval_interval, target, normalize=True)
 
     def ours(seed, budget, eval_interval, target, compile_mode, per_call):
@@ -181,30 +155,6 @@ def sac_case():
         )
 
     return "sac-her FetchReach-v4, batch 256, [64, 64]", sb3, ours
-
-
-def _sb3_fetch_model(seed: int):
-    import gymnasium as gym
-    import gymnasium_robotics
-    from stable_baselines3 import SAC, HerReplayBuffer
-    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
-
-    gym.register_envs(gymnasium_robotics)
-    venv = VecNormalize(DummyVecEnv([lambda: gym.make("FetchReach-v4")]), gamma=0.95)
-    return SAC(
-        "MultiInputPolicy",
-        venv,
-        replay_buffer_class=HerReplayBuffer,
-        replay_buffer_kwargs=dict(n_sampled_goal=4, goal_selection_strategy="future"),
-        learning_rate=1e-3,
-        batch_size=256,
-        gamma=0.95,
-        learning_starts=1000,
-        buffer_size=int(1e6),
-        policy_kwargs=dict(net_arch=[64, 64]),
-        seed=seed,
-        verbose=0,
-    )
 
 
 def _sb3_throughput(model, budget: int) -> dict:
@@ -265,7 +215,8 @@ def equal(args) -> tuple[str, dict]:
                     "to_target": (to_target, 1_000, args.target),
                     "throughput": (throughput_steps, 10**12, 0.0),
                 }.items():
-                    r = reused.get((key, lib, kind, seed)) if lib in args.reuse_libs else None
+                    keep = lib in args.reuse_libs or f"{key}/{lib}" in args.reuse_libs
+                    r = reused.get((key, lib, kind, seed)) if keep else None
                     if r is None:
                         r = runner(seed, budget, interval, target)
                         print(json.dumps({"case": key, "lib": lib, kind: r, "seed": seed}), flush=True)
@@ -555,7 +506,9 @@ def main() -> None:
     parser.add_argument("--per-call", type=int, default=4, help="bound: updates per call in the K-updates column")
     parser.add_argument("--target", type=float, default=0.9)
     parser.add_argument("--reuse-log", type=Path, default=None, help="equal: an earlier run's output, whose results to keep")
-    parser.add_argument("--reuse-libs", nargs="*", default=["sb3"], help="equal: the libraries whose earlier results to keep")
+    parser.add_argument(
+        "--reuse-libs", nargs="*", default=["sb3"], help="equal: the libraries (or CASE/LIBRARY) whose earlier results to keep"
+    )
     parser.add_argument("--seconds", type=float, default=3.0, help="bound: timing per case and path")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (both libraries)")
     parser.add_argument("--write", action="store_true", help="append the results to benchmarks/RESULTS.md")
