@@ -435,8 +435,8 @@ def bound(args) -> tuple[str, dict]:
 #: case -> (preset, overrides): one per algorithm whose update compiles (multi-task SAC included)
 CURVE_CASES = {
     "dqn": ("bitflip-her", dict(n_bits=8, total_steps=6_000, eval_interval=1_000)),
-    "sac": ("pointreach-sac-her", dict(total_steps=6_000, eval_interval=1_000)),
-    "td3": ("pointreach-sac-her", dict(algo="td3", total_steps=6_000, eval_interval=1_000)),
+    "sac": ("pointreach-sac-her", dict(total_steps=20_000, eval_interval=4_000)),
+    "td3": ("pointreach-sac-her", dict(algo="td3", total_steps=20_000, eval_interval=4_000)),
     "qtopt": ("pointreach-qtopt-her", dict(total_steps=4_000, eval_interval=1_000)),
     "mt-sac": ("pointreach-mt-sac-onehot", dict(total_steps=8_000, eval_interval=2_000)),
 }
