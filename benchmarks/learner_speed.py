@@ -25,6 +25,10 @@ eager and compiled, with the compile step's own cost and the run length from whi
     .venv/bin/python benchmarks/learner_speed.py bound --write
     .venv/bin/python benchmarks/learner_speed.py equal --seeds 0 1 2 --write
     .venv/bin/python benchmarks/learner_speed.py curves --seeds 0 1 2 --write
+    .venv/bin/python benchmarks/learner_speed.py loop --write
+
+``loop``: each piece of the off-policy loop (update, sample + relabel, act, env step, store) timed inside a real
+DQN + HER run at the equal-work settings, eager and compiled, at both network sizes.
 
 ``curves``: each compiling algorithm's small preset trained eagerly and with ``--compile default`` on the
 same seeds: the evaluation curves (mean over seeds, in ``figures/learner_curves.png``) and final success.
@@ -496,9 +500,90 @@ def curves(args) -> tuple[str, dict]:
     return "\n".join(lines) + f"\n\nCurves: `benchmarks/figures/{figure.name}`.", out
 
 
+# ----------------------------------------------------------------------------- where a run's time goes
+class _Clock:
+    """Seconds and calls of wrapped functions, leaving out each one's first ``skip`` calls."""
+
+    def __init__(self, skip: int) -> None:
+        self.skip, self.seconds, self.calls = skip, {}, {}
+
+    def wrap(self, name: str, fn):
+        def run(*a, **k):
+            self.calls[name] = self.calls.get(name, 0) + 1
+            start = time.perf_counter()
+            result = fn(*a, **k)
+            if self.calls[name] > self.skip:
+                self.seconds[name] = self.seconds.get(name, 0.0) + time.perf_counter() - start
+            return result
+
+        return run
+
+    def ms_per_call(self) -> dict[str, float]:
+        return {n: self.seconds.get(n, 0.0) / max(c - self.skip, 1) * 1e3 for n, c in self.calls.items()}
+
+
+def _clocked_sampler(clock: _Clock, sampler, *args, **kwargs):
+    return clock.wrap("sample + relabel", sampler(*args, **kwargs))
+
+
+def loop(args) -> tuple[str, dict]:
+    """Time each piece of the off-policy loop in a real run (DQN + HER at the equal-work settings) by
+    wrapping it with a clock; the first 300 calls of each piece (compilation, warm-up) are left out."""
+    import taskrl.agents.base as base
+    import taskrl.agents.dqn as dqn
+    import taskrl.envs.bitflip as bitflip
+    import taskrl.replay.episodes as episodes
+    from taskrl.training import offpolicy
+
+    pieces = {
+        "update": (dqn.DQNAgent, "update"),
+        "act": (base.Agent, "act"),
+        "env step": (bitflip.BitFlip, "step"),
+        "store": (episodes.EpisodeReplay, "add"),
+    }
+    out, rows = {}, []
+    for batch, hidden in ((32, (64, 64)), (256, (256, 256))):
+        for compile_mode in ("off", "default"):
+            clock = _Clock(skip=300)
+            originals = {name: getattr(owner, attr) for name, (owner, attr) in pieces.items()}
+            sampler = offpolicy.batch_sampler
+            try:
+                for name, (owner, attr) in pieces.items():
+                    setattr(owner, attr, clock.wrap(name, originals[name]))
+                offpolicy.batch_sampler = functools.partial(_clocked_sampler, clock, sampler)
+                settings = {**DQN_EQUAL, "batch_size": batch, "hidden_sizes": hidden}
+                r = taskrl_learn_until("bitflip-her", 0, args.loop_steps, 10**12, 0.0, compile=compile_mode, **settings)
+            finally:
+                for name, (owner, attr) in pieces.items():
+                    setattr(owner, attr, originals[name])
+                offpolicy.batch_sampler = sampler
+            per = clock.ms_per_call()
+            key = f"batch {batch}, {list(hidden)}, compile {compile_mode}"
+            out[key] = {"per_call_ms": per, "calls": clock.calls, "run": r}
+            rows.append(
+                f"| {key} | {r['seconds'] / r['env_steps'] * 1e3:.2f} | "
+                + " | ".join(f"{per.get(name, 0.0):.3f}" for name in ("update", "sample + relabel", "act", "env step", "store"))
+                + " |"
+            )
+            print(rows[-1], flush=True)
+    table = "\n".join(
+        [
+            f"DQN + HER on bit flipping n = 15 at the equal-work settings, {args.loop_steps:,} env steps, seed 0; ms per call "
+            "after the first 300 calls of each (2 envs: one act, env step and store per 2 env steps, one update and one "
+            "sample per env step).",
+            "",
+            "| run | wall ms per env step | update | sample + relabel | act | env step | store |",
+            "|---|---|---|---|---|---|---|",
+            *rows,
+        ]
+    )
+    return table, out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("mode", choices=["equal", "bound", "curves"])
+    parser.add_argument("mode", choices=["equal", "bound", "curves", "loop"])
+    parser.add_argument("--loop-steps", type=int, default=8_000, help="loop: env steps of each timed run")
     parser.add_argument("--curve-cases", nargs="+", default=list(CURVE_CASES), choices=list(CURVE_CASES))
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--cases", nargs="+", default=["dqn32", "dqn256", "sac"], choices=["dqn32", "dqn256", "sac"])
@@ -517,7 +602,7 @@ def main() -> None:
     )
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
-    table, data = {"equal": equal, "bound": bound, "curves": curves}[args.mode](args)
+    table, data = {"equal": equal, "bound": bound, "curves": curves, "loop": loop}[args.mode](args)
     path = args.json or RESULTS_DIR / f"learner_{args.mode}.json"
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(data, indent=2))
@@ -527,6 +612,7 @@ def main() -> None:
             "equal": "Learner speed at equal work against Stable-Baselines3",
             "bound": "Learner speed against the FLOP bound",
             "curves": "Learning with compiled updates against eager ones",
+            "loop": "Where the time of a training run goes: the off-policy loop's pieces",
         }
         append_results(
             titles[args.mode],
