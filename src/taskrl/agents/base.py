@@ -150,6 +150,11 @@ class Agent:
         """The update step as this agent runs it: :meth:`learn` eagerly, or compiled after :meth:`compile`."""
         return self.learn(*args)
 
+    def counted_step(self, batch: Any, *args: Any) -> dict[str, torch.Tensor]:
+        """One update: count it, then :meth:`step` on ``batch`` with its :meth:`schedule` flags and ``args``."""
+        self.updates += 1
+        return self.step(batch, *self.schedule(self.updates), *args)
+
     def update_many(self, batches: Sequence[Any]) -> list[dict[str, torch.Tensor]]:
         """``len(batches)`` updates in one call, one per batch, in order (after :meth:`compile`: one graph
         for all of them, which saves the per-call overhead K - 1 times); the metrics of each."""

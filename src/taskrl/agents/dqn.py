@@ -214,8 +214,7 @@ class DQNAgent(Agent):
 
     def update(self, batch: Batch) -> dict[str, torch.Tensor]:
         """One gradient step on the TD error; returns detached scalars (``loss``, ``q_mean``)."""
-        self.updates += 1
-        return self.step(batch, *self.schedule(self.updates))
+        return self.counted_step(batch)
 
     def schedule(self, update: int) -> tuple[bool]:
         """``(refresh_target,)``: every ``target_update_interval`` updates."""

@@ -7,6 +7,7 @@
 - :func:`polyak_update`: ``theta_target <- tau theta + (1 - tau) theta_target`` over parameter lists;
 - :func:`gradient_step`: zero the gradients, backpropagate, clip the norm, step (functionally
   inside a compiled update: :func:`functional_adam_step`);
+- :func:`set_requires_grad`: gradients of some parameters off and on again (eager updates);
 - :func:`explore_in_box`: the hindsight paper's exploration for deterministic policies;
 - :func:`linear_schedule`: an exploration level decaying linearly with env steps;
 - :func:`check_learning_settings`: the checks every algorithm's section shares.
@@ -127,6 +128,15 @@ def gradient_step(optimizer: torch.optim.Optimizer, loss: torch.Tensor, params: 
     if max_grad_norm > 0:
         nn.utils.clip_grad_norm_(params, max_grad_norm, foreach=True)
     optimizer.step()
+
+
+def set_requires_grad(params: list[torch.Tensor], enabled: bool) -> None:
+    """Switch gradients of ``params`` on or off, e.g. to keep an actor's backward out of the critics. Eager
+    only: a compiled step differentiates the named parameters (``torch.autograd.grad``) and needs no switch."""
+    if torch.compiler.is_compiling():
+        return
+    for p in params:
+        p.requires_grad_(enabled)
 
 
 def functional_adam_step(

@@ -230,8 +230,7 @@ class QTOptAgent(Agent):
 
         Returns detached scalars: ``loss``, ``q_mean`` (Q of the batch's actions), ``target_mean``.
         """
-        self.updates += 1
-        return self.step(batch, *self.schedule(self.updates), target, generator)
+        return self.counted_step(batch, target, generator)
 
     def schedule(self, update: int) -> tuple[bool]:
         """``(copy_target2,)``: every ``target2_interval`` updates."""

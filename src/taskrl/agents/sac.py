@@ -57,6 +57,7 @@ from taskrl.agents.parts import (
     gradient_step,
     negative_return_bounds,
     polyak_update,
+    set_requires_grad,
     td_target,
 )
 from taskrl.agents.spec import AlgorithmSpec
@@ -291,8 +292,7 @@ class SACAgent(Agent):
     def update(self, batch: Batch, generator: torch.Generator | None = None) -> dict[str, torch.Tensor]:
         """One critic, actor and temperature step; returns detached scalars
         (``critic_loss``, ``actor_loss``, ``alpha``, ``entropy``, ``q_mean``)."""
-        self.updates += 1
-        return self.step(batch, generator)
+        return self.counted_step(batch, generator)
 
     def learn(self, batch: Batch, generator: torch.Generator | None = None) -> dict[str, torch.Tensor]:
         """The update itself (what ``--compile`` compiles): critics, actor, temperature, target critics."""
@@ -314,13 +314,13 @@ class SACAgent(Agent):
         gradient_step(self.critic_optimizer, critic_loss, self._critic_params, self.config.max_grad_norm)
 
         # actor: J_pi = alpha log pi(a~|s) - min_i Q_i(s, a~); the critics (and the context) are constants here
-        self._set_critic_grad(False)
+        set_requires_grad(self._critic_params, False)
         context = context.detach() if context is not None else None
         new_action, log_prob = self.actor.sample(x, generator, context, task)
         q_new = torch.minimum(*(q(x, new_action, context, task) for q in self.critics))
         actor_loss = (alpha * log_prob - q_new).mean()
         gradient_step(self.actor_optimizer, actor_loss, self._actor_params, self.config.max_grad_norm)
-        self._set_critic_grad(True)
+        set_requires_grad(self._critic_params, True)
 
         # temperature: J_alpha = -log_alpha_k (log pi + target_entropy), k the row's task
         log_prob = log_prob.detach()
@@ -371,14 +371,6 @@ class SACAgent(Agent):
         x, unit = self.inputs(obs), self.box.to_unit(action)
         context, task = self.task_inputs(obs)
         return torch.minimum(*(q(x, unit, context, task) for q in self.critics))
-
-    def _set_critic_grad(self, enabled: bool) -> None:
-        """Keep the actor's backward out of the critics (eager; a compiled step differentiates the actor's
-        parameters only and needs no switch)."""
-        if torch.compiler.is_compiling():
-            return
-        for p in self._critic_params:
-            p.requires_grad_(enabled)
 
     def update_target(self) -> None:
         """theta_target_i <- tau * theta_i + (1 - tau) * theta_target_i."""

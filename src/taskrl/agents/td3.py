@@ -35,6 +35,7 @@ from taskrl.agents.parts import (
     gradient_step,
     negative_return_bounds,
     polyak_update,
+    set_requires_grad,
     td_target,
 )
 from taskrl.agents.spec import AlgorithmSpec
@@ -177,8 +178,7 @@ class TD3Agent(Agent):
     def update(self, batch: Batch, generator: torch.Generator | None = None) -> dict[str, torch.Tensor]:
         """A critic step; every ``policy_delay`` updates also an actor step and the target update.
         Returns detached scalars ``critic_loss``, ``actor_loss`` (the latest), ``q_mean``."""
-        self.updates += 1
-        return self.step(batch, *self.schedule(self.updates), generator)
+        return self.counted_step(batch, generator)
 
     def schedule(self, update: int) -> tuple[bool]:
         """``(actor_step,)``: every ``policy_delay`` updates."""
@@ -195,20 +195,13 @@ class TD3Agent(Agent):
         gradient_step(self.critic_optimizer, critic_loss, self._critic_params, self.config.max_grad_norm)
 
         if actor_step:
-            self._set_critic_grad(False)
+            set_requires_grad(self._critic_params, False)
             actor_loss = -self.critics[0](x, self.actor(x)).mean()
             gradient_step(self.actor_optimizer, actor_loss, self._actor_params, self.config.max_grad_norm)
-            self._set_critic_grad(True)
+            set_requires_grad(self._critic_params, True)
             self._last_actor_loss.copy_(actor_loss.detach())
             self.update_target()
         return {"critic_loss": critic_loss.detach(), "actor_loss": self._last_actor_loss.clone(), "q_mean": q1.detach().mean()}
-
-    def _set_critic_grad(self, enabled: bool) -> None:
-        """Keep the actor's backward out of the critics (eager; a compiled step needs no switch)."""
-        if torch.compiler.is_compiling():
-            return
-        for p in self._critic_params:
-            p.requires_grad_(enabled)
 
     def update_target(self) -> None:
         """theta_target <- tau * theta + (1 - tau) * theta_target, actor and critics."""

@@ -150,9 +150,10 @@ class OffPolicyLoop:
                 if k == 1:
                     for _ in range(n_updates):
                         books.add_update(agent.update(self.sample_batch()))
-                for _ in range(n_updates // k if k > 1 else 0):
-                    for metrics in agent.update_many(self.sample_batches()):
-                        books.add_update(metrics)
+                else:
+                    for _ in range(n_updates // k):
+                        for metrics in agent.update_many(self.sample_batches()):
+                            books.add_update(metrics)
 
             if books.after_step(agent.exploration(acted_at)):  # the level this step explored with
                 break
