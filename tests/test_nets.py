@@ -1,0 +1,73 @@
+"""nets.Linear: nn.Linear's numbers, in the layouts a CPU runs fastest."""
+
+import pytest
+import torch
+from torch import nn
+
+from taskrl import nets
+
+# (rows, in, out): a 30-input first layer (dW laid out wide), a 15-action head (W padded to 16 rows),
+# a 17-input critic layer, and a square layer that keeps the plain path.
+SHAPES = [(256, 30, 256), (256, 256, 15), (256, 17, 256), (256, 256, 256), (256, 256, 30)]
+
+
+def _pair(n_in: int, n_out: int) -> tuple[nets.Linear, nn.Linear]:
+    torch.manual_seed(0)
+    laid_out = nets.Linear(n_in, n_out)
+    plain = nn.Linear(n_in, n_out)
+    plain.load_state_dict(laid_out.state_dict())
+    return laid_out, plain
+
+
+def _outputs_and_grads(layer: nn.Module, x: torch.Tensor, g: torch.Tensor, compiled: bool):
+    x = x.clone().requires_grad_()
+
+    def forward_backward(x):
+        y = layer(x)
+        return (y.detach(), *torch.autograd.grad((y * g).sum(), [x, layer.weight, layer.bias]))
+
+    if not compiled:
+        return forward_backward(x)
+    with torch._dynamo.config.patch(trace_autograd_ops=True):  # as agents.compiled traces an update
+        return torch.compile(forward_backward, backend="aot_eager", fullgraph=True)(x)
+
+
+@pytest.mark.parametrize("rows,n_in,n_out", SHAPES)
+@pytest.mark.parametrize("compiled", [False, True], ids=["eager", "traced"])
+def test_laid_out_products_give_nn_linears_outputs_and_gradients(rows, n_in, n_out, compiled):
+    laid_out, plain = _pair(n_in, n_out)
+    x, g = torch.randn(rows, n_in), torch.randn(rows, n_out)
+    got = _outputs_and_grads(laid_out, x, g, compiled)
+    want = _outputs_and_grads(plain, x, g, compiled=False)
+    for a, b, name in zip(got, want, ("y", "dx", "dW", "db")):
+        assert a.shape == b.shape, name
+        torch.testing.assert_close(a, b, rtol=1e-6, atol=1e-6, msg=name)
+
+
+def test_the_layouts_are_taken_where_they_apply(monkeypatch):
+    def traced_ops(layer, n_in):
+        graphs = []
+
+        def backend(gm, example_inputs):
+            graphs.append(gm)
+            return gm.forward
+
+        torch.compile(lambda x: layer(x).sum(), backend=backend, fullgraph=True)(torch.randn(256, n_in))
+        return " ".join(str(node.target) for gm in graphs for node in gm.graph.nodes)
+
+    for n_in, n_out, laid_out in ((30, 256, True), (256, 15, True), (256, 256, False)):
+        layer, _ = _pair(n_in, n_out)
+        assert ("autograd_function_apply" in traced_ops(layer, n_in)) is laid_out, (n_in, n_out)
+    padded = []
+    monkeypatch.setattr(nets, "_padded_linear", lambda x, w, b, pad: padded.append(pad) or torch.nn.functional.linear(x, w, b))
+    head, _ = _pair(256, 15)
+    with torch.no_grad():  # acting and targets: the padded product without an autograd.Function
+        head(torch.randn(256, 256))
+    assert padded == [1]
+
+
+def test_batched_inputs_keep_their_leading_shape():
+    layer, plain = _pair(256, 15)
+    x = torch.randn(4, 64, 256)
+    with torch.no_grad():
+        torch.testing.assert_close(layer(x), plain(x), rtol=1e-6, atol=1e-6)
