@@ -24,6 +24,23 @@ ROOT = Path(__file__).resolve().parent.parent
 #: case name -> (preset, its arguments)
 CASES = {
     "bitflip-her": ("bitflip-her", ["--n-bits", "8", "--total-steps", "6000", "--eval-interval", "2000"]),
+    # 15 actions at batch 256 / (256, 256): the padded head and the wide weight-gradient layout of nets.Linear
+    "bitflip-her-15-wide": (
+        "bitflip-her",
+        [
+            "--n-bits",
+            "15",
+            "--batch-size",
+            "256",
+            "--hidden-sizes",
+            "256",
+            "256",
+            "--total-steps",
+            "3000",
+            "--eval-interval",
+            "1500",
+        ],
+    ),
     "pointreach-sac-her": ("pointreach-sac-her", ["--total-steps", "4000", "--eval-interval", "2000"]),
     "pointreach-td3-her": ("pointreach-sac-her", ["--algo", "td3", "--total-steps", "4000", "--eval-interval", "2000"]),
     "pointreach-qtopt-her": ("pointreach-qtopt-her", ["--total-steps", "3000", "--eval-interval", "1500"]),
