@@ -15,20 +15,23 @@ _LAYOUT_MIN_MACS = 1 << 19
 
 
 class Linear(nn.Linear):
-    """``nn.Linear`` (the same parameters, initialisation and checkpoint keys) whose matrix products take
-    the layout that the CPU's BLAS (MKL) runs fastest, with bitwise the same results.
+    """``nn.Linear`` (the same parameters, initialisation and checkpoint keys) whose CPU matrix products
+    take the layout MKL runs fastest, with the same results.
 
     MKL's single-precision product slows down when its output's rows are narrow or end in a ragged
-    tail, and a layer's products can be laid out two ways (measured on one core, batch 256, see
-    ``docs/speed.md``):
+    tail, and a layer's products can be laid out two ways (one core, batch 256;
+    ``benchmarks/cpu_layouts.py``, ``docs/speed.md``):
 
-    - forward ``y = x W^T + b`` with ``out_features % 16`` in 13..15 (15 actions of 15-bit flipping):
-      padding ``W`` with zero rows to a multiple of 16 and dropping the extra columns is 2x faster;
-    - the weight gradient ``dW = g^T x`` has ``in_features`` columns; where ``in_features <
-      out_features`` (a first layer reading 30 inputs into 256 units) ``dW = (x^T g)^T`` is 1.2-7x faster.
+    - forward ``y = x W^T + b`` with ``out_features % 16`` in 13..15 (15-bit flipping's 15 actions):
+      ``W`` padded with zero rows to a multiple of 16, the extra columns dropped, is 2x faster;
+    - the weight gradient ``dW = g^T x`` is ``in_features`` wide; where ``in_features < out_features``
+      (a first layer from 30 inputs to 256 units) ``(x^T g)^T`` is 256 wide and about 2x faster. It
+      needs its own backward (:class:`_LaidOutLinear`), which only compiled updates take: eagerly an
+      ``autograd.Function`` costs more than it saves.
 
-    Both give the same bits as the plain products for these shapes (``tests/test_nets.py``). Elsewhere
-    (on GPU, other dtypes, small products) this is ``nn.Linear``.
+    On this machine's MKL both gave the same bits as the plain products at these shapes;
+    ``tests/test_nets.py`` checks outputs and gradients against ``nn.Linear``. On GPU, for other dtypes,
+    without a bias, and for small products it is ``nn.Linear``.
     """
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:

@@ -1,0 +1,147 @@
+"""The CPU micro-benchmarks behind two pieces of the learner: ``nets.Linear``'s product layouts and the
+written-out Adam of a compiled update (``parts.functional_adam_step``).
+
+- ``products``: microseconds of each matrix product of a layer, plain (what ``nn.Linear`` and its
+  autograd run) against the layout ``nets.Linear`` takes, and whether the bits are the same;
+- ``adam``: a compiled DQN (256, 256) step (forward, backward, clip, Adam) with torch's functional
+  Adam (capturable, as compiled updates took it before) against ``functional_adam_step``.
+
+    cd benchmarks && ../.venv/bin/python cpu_layouts.py [--write]
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import os
+import tempfile
+import time
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+from torch.optim.adam import adam
+
+from common import append_results
+from taskrl.agents.parts import functional_adam_step, init_adam_state
+from taskrl.nets import mlp
+
+#: (rows, in_features, out_features): the DQN bit-flipping n = 15 layers at batch 256, FetchReach's SAC
+#: first layers, an MT10 first layer, and heads of other widths
+LAYERS = [
+    (256, 30, 256),
+    (256, 256, 256),
+    (256, 256, 15),
+    (256, 13, 256),
+    (256, 17, 256),
+    (256, 256, 8),
+    (256, 256, 30),
+    (256, 256, 20),
+    (1280, 49, 400),
+    (1280, 400, 13),
+]
+
+
+def _us(fn, seconds: float = 0.3) -> float:
+    for _ in range(20):
+        fn()
+    n, start = 0, time.perf_counter()
+    while time.perf_counter() - start < seconds:
+        fn()
+        n += 1
+    return (time.perf_counter() - start) / n * 1e6
+
+
+def _layer_row(m: int, k: int, n: int) -> str:
+    x, w, b, g = torch.randn(m, k), torch.randn(n, k), torch.randn(n), torch.randn(m, n)
+    pad = -n % 16
+    padded_w, padded_b = F.pad(w, (0, 0, 0, pad)), F.pad(b, (0, pad))
+    plain = _us(lambda: F.linear(x, w, b))
+    padded = _us(lambda: F.linear(x, F.pad(w, (0, 0, 0, pad)), F.pad(b, (0, pad)))[:, :n]) if pad else plain
+    same_fwd = torch.equal(F.linear(x, w, b), F.linear(x, padded_w, padded_b)[:, :n])
+    grad_plain, grad_wide = _us(lambda: g.t().mm(x)), _us(lambda: x.t().mm(g).t())
+    same_grad = torch.equal(g.t().mm(x), x.t().mm(g).t())
+    return (
+        f"| {m}, {k} -> {n} | {plain:.0f} / {padded:.0f} | {'yes' if same_fwd else 'no'} | "
+        f"{grad_plain:.0f} / {grad_wide:.0f} | {'yes' if same_grad else 'no'} |"
+    )
+
+
+def products() -> str:
+    rows = [
+        "| rows, in -> out | forward: plain / padded to 16 | same bits | weight gradient: g^T x / (x^T g)^T | same bits |",
+        "|---|---|---|---|---|",
+    ]
+    return "\n".join(rows + [_layer_row(*shape) for shape in LAYERS])
+
+
+def _torch_functional_adam(optimizer, loss, params, max_grad_norm: float) -> None:
+    """The compiled step as it was before: the clip, then torch.optim's functional Adam (capturable)."""
+    grads = torch.autograd.grad(loss, params)
+    with torch.no_grad():
+        norm = torch.linalg.vector_norm(torch.stack(torch._foreach_norm(list(grads))))
+        grads = [g * (max_grad_norm / (norm + 1e-6)).clamp(max=1.0) for g in grads]
+        state = [optimizer.state[p] for p in params]
+        adam(
+            params,
+            grads,
+            [s["exp_avg"] for s in state],
+            [s["exp_avg_sq"] for s in state],
+            [],
+            [s["step"] for s in state],
+            foreach=True,
+            capturable=True,
+            amsgrad=False,
+            beta1=0.9,
+            beta2=0.999,
+            lr=1e-3,
+            weight_decay=0.0,
+            eps=1e-8,
+            maximize=False,
+        )
+
+
+def adam_steps() -> str:
+    torch.manual_seed(0)
+    x, y = torch.randn(256, 30), torch.randn(256, 15)
+    rows = ["| compiled step of a (30 -> 256 -> 256 -> 15) network, batch 256 | ms per step |", "|---|---|"]
+    for name, step in (("torch's functional Adam (capturable)", _torch_functional_adam), ("functional_adam_step", None)):
+        net = mlp(30, (256, 256), 15)
+        for m in net.modules():  # the products stay plain in both: only Adam differs
+            if isinstance(m, nn.Linear):
+                m.__class__ = nn.Linear
+        optimizer = torch.optim.Adam(net.parameters(), lr=1e-3)
+        init_adam_state(optimizer)
+        params = list(net.parameters())
+
+        def update(x, y, net=net, optimizer=optimizer, params=params, step=step):
+            loss = F.mse_loss(net(x), y)
+            if step is None:
+                functional_adam_step(optimizer, loss, params, 10.0)
+            else:
+                step(optimizer, loss, params, 10.0)
+            return loss.detach()
+
+        with torch._dynamo.config.patch(trace_autograd_ops=True):
+            compiled = torch.compile(update, fullgraph=True)
+            rows.append(f"| {name} | {_us(functools.partial(compiled, x, y), seconds=2.0) / 1e3:.3f} |")
+    return "\n".join(rows)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--write", action="store_true", help="append the results to benchmarks/RESULTS.md")
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    os.environ.setdefault("TORCHINDUCTOR_CACHE_DIR", tempfile.mkdtemp(prefix="taskrl-inductor-"))
+    table = (
+        "One torch thread; microseconds per product (best layout of each row in the second and fourth "
+        "columns where they differ).\n\n" + products() + "\n\n" + adam_steps()
+    )
+    print(table)
+    if args.write:
+        append_results("CPU product layouts and the compiled Adam step", table)
+
+
+if __name__ == "__main__":
+    main()
