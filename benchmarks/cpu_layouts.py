@@ -3,6 +3,7 @@ written-out Adam of a compiled update (``parts.functional_adam_step``).
 
 - ``products``: microseconds of each matrix product of a layer, plain (what ``nn.Linear`` and its
   autograd run) against the layout ``nets.Linear`` takes, and whether the bits are the same;
+- an A/B of the compiled DQN (256, 256) / 256 agent update with ``nets.Linear`` and ``nn.Linear``;
 - ``adam``: a compiled DQN (256, 256) step (forward, backward, clip, Adam) with torch's functional
   Adam (capturable, as compiled updates took it before) against ``functional_adam_step``.
 
@@ -128,6 +129,41 @@ def adam_steps() -> str:
     return "\n".join(rows)
 
 
+def agents_side_by_side(rounds: int = 10, block: int = 150) -> str:
+    """The compiled DQN (256, 256) / 256 update of bit flipping n = 15 with ``nets.Linear`` and with
+    ``nn.Linear``, timed in alternating blocks in one process (the machine's drift hits both alike)."""
+    from learner_speed import bitflip_agent_and_batch
+
+    laid_out, batch, _ = bitflip_agent_and_batch(256, (256, 256), False)
+    plain, _, _ = bitflip_agent_and_batch(256, (256, 256), False)
+    for part in plain._parts().values():
+        for module in part.modules() if isinstance(part, nn.Module) else ():
+            if isinstance(module, nn.Linear):
+                module.__class__ = nn.Linear
+    times: dict[str, list[float]] = {"nets.Linear": [], "nn.Linear": []}
+    agents = {"nets.Linear": laid_out, "nn.Linear": plain}
+    for agent in agents.values():
+        agent.compile("default", say=lambda line: None)
+        for _ in range(120):
+            agent.update(batch)
+    for r in range(rounds):
+        for name in sorted(agents, reverse=bool(r % 2)):
+            start = time.perf_counter()
+            for _ in range(block):
+                agents[name].update(batch)
+            times[name].append((time.perf_counter() - start) / block * 1e3)
+    median = {name: sorted(t)[len(t) // 2] for name, t in times.items()}
+    return "\n".join(
+        [
+            f"| compiled DQN (256, 256) / 256 update, {rounds} alternating blocks of {block} | median ms | blocks (ms) |",
+            "|---|---|---|",
+            *(f"| {name} | {median[name]:.3f} | {', '.join(f'{t:.2f}' for t in times[name])} |" for name in agents),
+            "",
+            f"nn.Linear / nets.Linear: {median['nn.Linear'] / median['nets.Linear']:.3f}x.",
+        ]
+    )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--write", action="store_true", help="append the results to benchmarks/RESULTS.md")
@@ -136,7 +172,7 @@ def main() -> None:
     os.environ.setdefault("TORCHINDUCTOR_CACHE_DIR", tempfile.mkdtemp(prefix="taskrl-inductor-"))
     table = (
         "One torch thread; microseconds per product (best layout of each row in the second and fourth "
-        "columns where they differ).\n\n" + products() + "\n\n" + adam_steps()
+        "columns where they differ).\n\n" + products() + "\n\n" + adam_steps() + "\n\n" + agents_side_by_side()
     )
     print(table)
     if args.write:
