@@ -1,11 +1,8 @@
-"""The CPU micro-benchmarks behind two pieces of the learner: ``nets.Linear``'s product layouts and the
-written-out Adam of a compiled update (``parts.functional_adam_step``).
+"""The CPU micro-benchmarks behind ``nets.Linear``: its product layouts, and what they buy in an update.
 
 - ``products``: microseconds of each matrix product of a layer, plain (what ``nn.Linear`` and its
   autograd run) against the layout ``nets.Linear`` takes, and whether the bits are the same;
 - an A/B of the compiled DQN (256, 256) / 256 agent update with ``nets.Linear`` and ``nn.Linear``;
-- ``adam``: a compiled DQN (256, 256) step (forward, backward, clip, Adam) with torch's functional
-  Adam (capturable, as compiled updates took it before) against ``functional_adam_step``.
 
     cd benchmarks && ../.venv/bin/python cpu_layouts.py [--write]
 """
@@ -13,7 +10,6 @@ written-out Adam of a compiled update (``parts.functional_adam_step``).
 from __future__ import annotations
 
 import argparse
-import functools
 import os
 import tempfile
 import time
@@ -21,11 +17,8 @@ import time
 import torch
 import torch.nn.functional as F
 from torch import nn
-from torch.optim.adam import adam
 
 from common import append_results
-from taskrl.agents.parts import functional_adam_step, init_adam_state
-from taskrl.nets import mlp
 
 #: (rows, in_features, out_features): the DQN bit-flipping n = 15 layers at batch 256, FetchReach's SAC
 #: first layers, an MT10 first layer, and heads of other widths
@@ -76,59 +69,6 @@ def products() -> str:
     return "\n".join(rows + [_layer_row(*shape) for shape in LAYERS])
 
 
-def _torch_functional_adam(optimizer, loss, params, max_grad_norm: float) -> None:
-    """The compiled step as it was before: the clip, then torch.optim's functional Adam (capturable)."""
-    grads = torch.autograd.grad(loss, params)
-    with torch.no_grad():
-        norm = torch.linalg.vector_norm(torch.stack(torch._foreach_norm(list(grads))))
-        grads = [g * (max_grad_norm / (norm + 1e-6)).clamp(max=1.0) for g in grads]
-        state = [optimizer.state[p] for p in params]
-        adam(
-            params,
-            grads,
-            [s["exp_avg"] for s in state],
-            [s["exp_avg_sq"] for s in state],
-            [],
-            [s["step"] for s in state],
-            foreach=True,
-            capturable=True,
-            amsgrad=False,
-            beta1=0.9,
-            beta2=0.999,
-            lr=1e-3,
-            weight_decay=0.0,
-            eps=1e-8,
-            maximize=False,
-        )
-
-
-def adam_steps() -> str:
-    torch.manual_seed(0)
-    x, y = torch.randn(256, 30), torch.randn(256, 15)
-    rows = ["| compiled step of a (30 -> 256 -> 256 -> 15) network, batch 256 | ms per step |", "|---|---|"]
-    for name, step in (("torch's functional Adam (capturable)", _torch_functional_adam), ("functional_adam_step", None)):
-        net = mlp(30, (256, 256), 15)
-        for m in net.modules():  # the products stay plain in both: only Adam differs
-            if isinstance(m, nn.Linear):
-                m.__class__ = nn.Linear
-        optimizer = torch.optim.Adam(net.parameters(), lr=1e-3)
-        init_adam_state(optimizer)
-        params = list(net.parameters())
-
-        def update(x, y, net=net, optimizer=optimizer, params=params, step=step):
-            loss = F.mse_loss(net(x), y)
-            if step is None:
-                functional_adam_step(optimizer, loss, params, 10.0)
-            else:
-                step(optimizer, loss, params, 10.0)
-            return loss.detach()
-
-        with torch._dynamo.config.patch(trace_autograd_ops=True):
-            compiled = torch.compile(update, fullgraph=True)
-            rows.append(f"| {name} | {_us(functools.partial(compiled, x, y), seconds=2.0) / 1e3:.3f} |")
-    return "\n".join(rows)
-
-
 def agents_side_by_side(rounds: int = 10, block: int = 150) -> str:
     """The compiled DQN (256, 256) / 256 update of bit flipping n = 15 with ``nets.Linear`` and with
     ``nn.Linear``, timed in alternating blocks in one process (the machine's drift hits both alike)."""
@@ -172,7 +112,7 @@ def main() -> None:
     os.environ.setdefault("TORCHINDUCTOR_CACHE_DIR", tempfile.mkdtemp(prefix="taskrl-inductor-"))
     table = (
         "One torch thread; microseconds per product (best layout of each row in the second and fourth "
-        "columns where they differ).\n\n" + products() + "\n\n" + adam_steps() + "\n\n" + agents_side_by_side()
+        "columns where they differ).\n\n" + products() + "\n\n" + agents_side_by_side()
     )
     print(table)
     if args.write:

@@ -20,6 +20,7 @@ from typing import Any
 
 import torch
 from torch import nn
+from torch.optim.adam import adam
 
 from taskrl.agents.cem import action_bounds
 from taskrl.errors import require
@@ -145,10 +146,7 @@ def functional_adam_step(
 
         g = d loss / d theta                                        (torch.autograd.grad)
         g <- g * min(1, max_grad_norm / (||g_clipped||_2 + 1e-6))   (over ``clipped``' gradients only, as clip_grad_norm_)
-        t <- t + 1                                                  (Adam, as torch.optim.Adam, on its own state)
-        m <- beta1 m + (1 - beta1) g
-        v <- beta2 v + (1 - beta2) g^2
-        theta <- theta - lr / (1 - beta1^t) * m / (sqrt(v / (1 - beta2^t)) + eps)
+        theta <- Adam(theta, g)                                     (torch.optim's functional Adam, on the optimiser's own state)
 
     Parameters the loss does not reach are left alone, as ``optimizer.step`` leaves a parameter without
     a gradient. The optimiser's state must exist first (:func:`init_adam_state`).
@@ -158,33 +156,31 @@ def functional_adam_step(
     grads = torch.autograd.grad(loss, params, allow_unused=True)
     reached = [(p, g) for p, g in zip(params, grads) if g is not None]
     with torch.no_grad():
-        params_, grads_ = [p for p, _ in reached], [g for _, g in reached]
-        state = [optimizer.state[p] for p in params_]
-        steps, exp_avgs, exp_avg_sqs = [s["step"] for s in state], [s["exp_avg"] for s in state], [s["exp_avg_sq"] for s in state]
+        if max_grad_norm > 0:
+            is_clipped = [any(p is c for c in clipped) for p, _ in reached]
+            norms = torch._foreach_norm([g for (_, g), c in zip(reached, is_clipped) if c])
+            scale = (max_grad_norm / (torch.linalg.vector_norm(torch.stack(norms)) + 1e-6)).clamp(max=1.0)
+            reached = [(p, g * scale if c else g) for (p, g), c in zip(reached, is_clipped)]
+        state = [optimizer.state[p] for p, _ in reached]
         beta1, beta2 = group["betas"]
-        if group["weight_decay"]:
-            grads_ = torch._foreach_add(grads_, params_, alpha=group["weight_decay"])
-        torch._foreach_add_(steps, 1)
-        # Every scalar of the step is stacked into one buffer first: a compiled graph would otherwise
-        # recompute it (powers, square roots) for each 16 elements of each parameter, which measured
-        # Adam 2x slower on CPU.
-        scalars = [group["lr"] / (1 - beta1**t) for t in steps] + [(1 - beta2**t).rsqrt() for t in steps]
-        if max_grad_norm > 0:
-            norms = torch._foreach_norm([g for p, g in reached if any(p is c for c in clipped)])
-            scalars.append((max_grad_norm / (torch.linalg.vector_norm(torch.stack(norms)) + 1e-6)).clamp(max=1.0))
-        scalars = torch.stack(scalars).unbind()
-        n = len(reached)
-        if max_grad_norm > 0:
-            grads_ = [g * scalars[-1] if any(p is c for c in clipped) else g for p, g in zip(params_, grads_)]
-        torch._foreach_lerp_(exp_avgs, grads_, 1 - beta1)
-        torch._foreach_mul_(exp_avg_sqs, beta2)
-        torch._foreach_addcmul_(exp_avg_sqs, grads_, grads_, value=1 - beta2)
-        denom = torch._foreach_sqrt(exp_avg_sqs)
-        torch._foreach_mul_(denom, list(scalars[n : 2 * n]))
-        torch._foreach_add_(denom, group["eps"])
-        updates = torch._foreach_div(exp_avgs, denom)
-        torch._foreach_mul_(updates, list(scalars[:n]))
-        torch._foreach_sub_(params_, updates)
+        adam(
+            [p for p, _ in reached],
+            [g for _, g in reached],
+            [s["exp_avg"] for s in state],
+            [s["exp_avg_sq"] for s in state],
+            [],
+            [s["step"] for s in state],
+            foreach=True,
+            # bias corrections as tensor ops, which a graph (and a CUDA graph) can hold
+            capturable=torch.compiler.is_compiling() or params[0].device.type != "cpu",
+            amsgrad=False,
+            beta1=beta1,
+            beta2=beta2,
+            lr=group["lr"],
+            weight_decay=group["weight_decay"],
+            eps=group["eps"],
+            maximize=False,
+        )
 
 
 def init_adam_state(optimizer: torch.optim.Optimizer) -> None:
