@@ -49,7 +49,8 @@ def check_drummer_relations(mdp, s0):
     assert sol.converged
     assert sol.policy[s0] == PRACTISE
     assert int(np.argmax(sol.q_values[s0])) == PRACTISE
-    assert sol.values[s0] == pytest.approx(sol.q_values[s0, PRACTISE], abs=1e-12)
+    # V* solves a linear system, Q* = r + P V* is one more product: they agree to round-off (1e-12 measured at 39 days)
+    assert sol.values[s0] == pytest.approx(sol.q_values[s0, PRACTISE], abs=1e-9)
     assert sol.q_values[s0, PRACTISE] > max(sol.q_values[s0, CHILL], sol.q_values[s0, WATCH])
     return V, sol
 
