@@ -16,7 +16,6 @@ import time
 
 import torch
 import torch.nn.functional as F
-from torch import nn
 
 from common import append_results
 
@@ -72,14 +71,10 @@ def products() -> str:
 def agents_side_by_side(rounds: int = 10, block: int = 150) -> str:
     """The compiled DQN (256, 256) / 256 update of bit flipping n = 15 with ``nets.Linear`` and with
     ``nn.Linear``, timed in alternating blocks in one process (the machine's drift hits both alike)."""
-    from learner_speed import bitflip_agent_and_batch
+    from learner_speed import bitflip_agent_and_batch, with_plain_layers
 
     laid_out, batch, _ = bitflip_agent_and_batch(256, (256, 256), False)
-    plain, _, _ = bitflip_agent_and_batch(256, (256, 256), False)
-    for part in plain._parts().values():
-        for module in part.modules() if isinstance(part, nn.Module) else ():
-            if isinstance(module, nn.Linear):
-                module.__class__ = nn.Linear
+    plain = with_plain_layers(bitflip_agent_and_batch(256, (256, 256), False)[0])
     times: dict[str, list[float]] = {"nets.Linear": [], "nn.Linear": []}
     agents = {"nets.Linear": laid_out, "nn.Linear": plain}
     for agent in agents.values():

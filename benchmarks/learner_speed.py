@@ -273,17 +273,21 @@ def matmul_rate() -> float:
     return best
 
 
-def update_flops(agent, batch) -> int:
+def with_plain_layers(agent):
+    """``agent`` with each ``nets.Linear`` made a plain ``nn.Linear`` (the same parameters; no layouts)."""
     from torch import nn
+
+    for part in agent._parts().values():
+        for module in part.modules() if isinstance(part, nn.Module) else ():
+            if isinstance(module, nn.Linear):
+                module.__class__ = nn.Linear
+    return agent
+
+
+def update_flops(agent, batch) -> int:
     from torch.utils.flop_counter import FlopCounterMode
 
-    from taskrl.nets import Linear
-
-    twin = copy.deepcopy(agent)
-    for part in twin._parts().values():  # the algorithm's work: without the zero rows of a padded head
-        for module in part.modules() if isinstance(part, nn.Module) else ():
-            if isinstance(module, Linear):
-                module.__class__ = nn.Linear
+    twin = with_plain_layers(copy.deepcopy(agent))  # the algorithm's work: without the zero rows of a padded head
     with FlopCounterMode(display=False) as counter:
         twin.update(batch)
     return counter.get_total_flops()

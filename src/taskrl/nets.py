@@ -37,22 +37,22 @@ class Linear(nn.Linear):
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         pad = -self.out_features % 16 if self.out_features % 16 >= 13 else 0
         transposed_grad = self.in_features < self.out_features
-        rows = x.numel() // max(self.in_features, 1)
+        if self.bias is None or x.device.type != "cpu" or x.dtype != torch.float32:
+            return F.linear(x, self.weight, self.bias)
+        needs_grad = torch.is_grad_enabled() and (x.requires_grad or self.weight.requires_grad or self.bias.requires_grad)
+        rows = x.numel() // self.in_features
         if (
-            not (pad or transposed_grad)
-            or x.device.type != "cpu"
-            or x.dtype != torch.float32
-            or self.bias is None
+            not (pad or (transposed_grad and needs_grad))
+            # eagerly a Python autograd.Function costs more than its layouts save
+            or (needs_grad and not torch.compiler.is_compiling())
             or rows * self.in_features * self.out_features < _LAYOUT_MIN_MACS
         ):
             return F.linear(x, self.weight, self.bias)
         flat = x.reshape(-1, self.in_features)
-        if not (torch.is_grad_enabled() and (x.requires_grad or self.weight.requires_grad or self.bias.requires_grad)):
-            y = _padded_linear(flat, self.weight, self.bias, pad)
-        elif torch.compiler.is_compiling():
+        if needs_grad:
             y = _LaidOutLinear.apply(flat, self.weight, self.bias, pad, transposed_grad)
-        else:  # eagerly a Python autograd.Function costs more (~40 us a call) than its layouts save
-            return F.linear(x, self.weight, self.bias)
+        else:
+            y = _padded_linear(flat, self.weight, self.bias, pad)
         return y.view(*x.shape[:-1], self.out_features)
 
 
