@@ -165,6 +165,20 @@ def test_a_failed_compilation_says_so_in_one_line_and_updates_eagerly():
     assert not isinstance(agent.step, CompiledStep)
 
 
+def test_a_call_that_needs_another_graph_compiles_it_and_later_calls_reuse_the_graphs():
+    from taskrl.agents.compiled import _graphs_compiled
+
+    notices = []
+    step = CompiledStep(lambda x, double: x * 2 if double else x + 1, "default", [], say=notices.append, what="test step")
+    x = torch.arange(4.0)
+    before = _graphs_compiled()
+    outputs = [step(x, double) for double in (False, False, True, True, False)]
+    assert _graphs_compiled() - before == 2  # one graph per flag, each compiled once
+    assert step.active and step.calls == 5 and len(notices) == 1, notices
+    for out, double in zip(outputs, (False, False, True, True, False)):
+        torch.testing.assert_close(out, x * 2 if double else x + 1)
+
+
 def test_unknown_compile_modes_are_refused():
     agent, _ = agents()["dqn"]
     with pytest.raises(ConfigError, match="compile"):

@@ -99,10 +99,7 @@ class CompiledStep:
                 init_adam_state(optimizer)
         started, graphs = time.perf_counter(), _graphs_compiled()
         try:
-            # autograd.grad inside the graph: traced, not a graph break. Every agent of a class compiles the same
-            # code with its own guards: room for many in one process, and a notice (not silent eager) past that.
-            with torch._dynamo.config.patch(trace_autograd_ops=True, recompile_limit=64, fail_on_recompile_limit_hit=True):
-                out = self.compiled(*args)
+            out = self._run(*args)
         except Exception as error:  # a compiler that is missing or refuses: the same step, eagerly
             self.compiled = None
             reason = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
@@ -116,3 +113,20 @@ class CompiledStep:
                 self.say(f"compiled the {self.what} ({self.mode}) in {self.compile_seconds:.1f} s")
         self.calls += 1
         return out
+
+    def _run(self, *args: Any) -> Any:
+        """The compiled call. Once a graph exists, a call first runs under the stance that refuses to
+        compile: entering it costs a few microseconds, against tens for the compile settings below (at
+        batch 32 a fifth of an update); a call that needs a new graph (a schedule's other variant) is
+        refused before anything runs and goes on to compile with those settings."""
+        if self.calls:
+            try:
+                with torch.compiler.set_stance("fail_on_recompile"):
+                    return self.compiled(*args)
+            except RuntimeError as error:
+                if "fail_on_recompile" not in str(error):
+                    raise
+        # autograd.grad inside the graph: traced, not a graph break. Every agent of a class compiles the same
+        # code with its own guards: room for many in one process, and a notice (not silent eager) past that.
+        with torch._dynamo.config.patch(trace_autograd_ops=True, recompile_limit=64, fail_on_recompile_limit_hit=True):
+            return self.compiled(*args)
