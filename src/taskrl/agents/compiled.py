@@ -77,8 +77,10 @@ class CompiledStep:
     ) -> None:
         one_of(mode, COMPILE_MODES[1:], "compile", "mode")
         self.fn, self.mode, self.say, self.optimizers, self.what = fn, mode, say, optimizers, what
-        # a mode is a set of compiler options; given as options, so the guard filter can join them
-        options = {**torch._inductor.list_mode_options(mode), "guard_filter_fn": _skip_parameter_guards}
+        # a mode is a set of compiler options; given as options, so the guard filter can join them. No size
+        # asserts: the guards check every argument's shape and strides before a call, and a parameter keeps
+        # its own for the agent's life; the asserts' Python check of each input is a tenth of a batch-32 update
+        options = {**torch._inductor.list_mode_options(mode), "guard_filter_fn": _skip_parameter_guards, "size_asserts": False}
         # static shapes: the batch size is fixed for a run, and another agent's shapes must not turn this one's dynamic
         self.compiled: Callable[..., Any] | None = torch.compile(fn, fullgraph=True, dynamic=False, options=options)
         self.calls = 0
