@@ -29,7 +29,7 @@ def draw_transitions(
     total = cumulative[-1]
     u = (torch.rand(n, generator=generator, device=cumulative.device) * total).long().clamp_(max=total - 1)
     row = torch.searchsorted(cumulative, u, right=True)
-    return row, u - (cumulative[row] - lengths[row])
+    return row, u - (cumulative.index_select(0, row) - lengths.index_select(0, row))
 
 
 class EpisodeReplay:
@@ -92,6 +92,7 @@ class EpisodeReplay:
             return t
 
         self.storage = tables(self.max_episodes)
+        self._flat = {k: v.view(-1, *v.shape[2:]) for k, v in self.storage.items()}  # the same memory, as rows
         self.staging = tables(num_envs)
         self.length = torch.zeros(self.max_episodes, dtype=torch.long, device=self.device)
         self.stage_t = torch.zeros(num_envs, dtype=torch.long, device=self.device)
@@ -192,17 +193,27 @@ class EpisodeReplay:
 
     def gather(self, episode: torch.Tensor, step: torch.Tensor) -> Batch:
         """The transitions at ``(episode, step)``."""
-        s = self.storage
+        at_obs, at_step = episode * (self.horizon + 1) + step, episode * self.horizon + step
+        rows = self._rows
         return Batch(
-            obs={k: s[f"obs/{k}"][episode, step] for k in self.obs_keys},
-            action=s["action"][episode, step],
-            reward=s["reward"][episode, step],
-            next_obs={k: s[f"obs/{k}"][episode, step + 1] for k in self.obs_keys},
-            terminated=s["terminated"][episode, step],
-            truncated=s["truncated"][episode, step],
+            obs={k: rows(f"obs/{k}", at_obs) for k in self.obs_keys},
+            action=rows("action", at_step),
+            reward=rows("reward", at_step),
+            next_obs={k: rows(f"obs/{k}", at_obs + 1) for k in self.obs_keys},
+            terminated=rows("terminated", at_step),
+            truncated=rows("truncated", at_step),
             episode=episode,
             step=step,
         )
+
+    def observation_at(self, key: str, episode: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
+        """Observation ``index`` (0: the first; ``length``: the last) of key ``key`` in each ``episode``."""
+        return self._rows(f"obs/{key}", episode * (self.horizon + 1) + index)
+
+    def _rows(self, name: str, flat: torch.Tensor) -> torch.Tensor:
+        """``storage[name][e, t]`` at flat positions ``e * steps + t``: one ``index_select`` on the table seen
+        as rows, which on CPU costs about half of indexing it with two index tensors."""
+        return self._flat[name].index_select(0, flat)
 
     def sample(self, batch_size: int, generator: torch.Generator | None = None) -> Batch:
         return self.gather(*self.sample_indices(batch_size, generator))
@@ -248,7 +259,7 @@ class EpisodeRecorder(EpisodeReplay):
         device: str | torch.device = "cpu",
     ) -> None:
         super().__init__(observation_space, action_space, 2 * num_envs * horizon, horizon, num_envs, device)
-        self.storage = {}  # finished episodes go to _finished instead
+        self.storage, self._flat = {}, {}  # finished episodes go to _finished instead
         self._finished: list[tuple[dict[str, torch.Tensor], torch.Tensor]] = []
 
     def add_episodes(self, tables: dict[str, torch.Tensor], lengths: torch.Tensor) -> None:

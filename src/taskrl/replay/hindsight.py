@@ -71,7 +71,7 @@ class HindsightRelabeler:
         ``t`` ends in observation ``t + 1``, so ``future`` draws from ``[t + 1, length]``.
         """
         episode, t = batch.episode, batch.step
-        length = replay.length[episode]
+        length = replay.length.index_select(0, episode)
         u = torch.rand(len(batch), generator=generator, device=t.device)
         if self.strategy == "future":
             index = t + 1 + (u * (length - t)).long().minimum(length - t - 1)
@@ -87,7 +87,7 @@ class HindsightRelabeler:
     def __call__(self, batch: Batch, replay: EpisodeReplay, generator: torch.Generator | None = None) -> Batch:
         relabel = torch.rand(len(batch), generator=generator, device=batch.reward.device) < self.relabel_fraction
         goal_episode, goal_index = self.goal_indices(batch, replay, generator)
-        achieved = replay.storage[f"obs/{self.achieved_key}"][goal_episode, goal_index]
+        achieved = replay.observation_at(self.achieved_key, goal_episode, goal_index)
         old_goal = batch.obs[self.desired_key]
         goal = torch.where(relabel.view(-1, *[1] * (old_goal.dim() - 1)), achieved, old_goal)
 
