@@ -213,8 +213,9 @@ def equal(args) -> tuple[str, dict]:
             "taskrl compiled, 4 per call": functools.partial(_with_compile, ours, "default", 4),
         }
         runs: dict[str, dict[str, list]] = {lib: {"target": [], "throughput": []} for lib in runners}
-        for lib, runner in runners.items():
-            for seed in args.seeds:
+        # seed by seed, every library in turn: the machine's drift over the minutes of a case falls on all alike
+        for seed in args.seeds:
+            for lib, runner in runners.items():
                 for kind, (budget, interval, target) in {
                     "to_target": (to_target, 1_000, args.target),
                     "throughput": (throughput_steps, 10**12, 0.0),
