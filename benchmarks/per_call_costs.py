@@ -1,0 +1,173 @@
+"""Side-by-side timings of the per-call costs taskrl's compiled update and sampler cut, each against the
+path it replaced, in one process and in alternating blocks (the machine's drift falls on both alike):
+
+- ``stance``: a compiled DQN update entered under ``torch.compiler.set_stance("fail_on_recompile")``
+  (what ``CompiledStep`` does once a graph exists) against entering Dynamo's compile settings
+  (``torch._dynamo.config.patch``) at every call;
+- ``size asserts``: the compiled update without Inductor's size asserts (taskrl's option) against with;
+- ``gather``: the replay's gather at flat positions (one ``index_select`` per table) against indexing
+  each table with the two index tensors ``[episode, step]``.
+
+    cd benchmarks && ../.venv/bin/python per_call_costs.py [--write]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import tempfile
+import time
+import types
+
+import torch
+
+from common import append_results
+
+ROUNDS, BLOCK = 30, 400
+
+
+def _alternating(run_a, run_b, rounds: int = ROUNDS) -> tuple[list[float], list[float]]:
+    """Milliseconds per call of each, block by block, the order swapping every round."""
+    a, b = [], []
+    for r in range(rounds):
+        for name in "ab" if r % 2 == 0 else "ba":
+            start = time.perf_counter()
+            n = (run_a if name == "a" else run_b)()
+            (a if name == "a" else b).append((time.perf_counter() - start) / n * 1e3)
+    return a, b
+
+
+def _row(what: str, old: str, new: str, a: list[float], b: list[float]) -> str:
+    ratios = sorted(y / x for x, y in zip(a, b))
+    return (
+        f"| {what} | {old}: {statistics.median(a):.3f} | {new}: {statistics.median(b):.3f} | "
+        f"{statistics.median(ratios):.3f} ({ratios[len(ratios) // 4]:.3f}-{ratios[3 * len(ratios) // 4]:.3f}) |"
+    )
+
+
+def _patched_every_call(step) -> None:
+    """Make ``step`` (a CompiledStep) enter Dynamo's compile settings at every call, as before the stance."""
+
+    def run(self, *args):
+        with torch._dynamo.config.patch(trace_autograd_ops=True, recompile_limit=64, fail_on_recompile_limit_hit=True):
+            return self.compiled(*args)
+
+    step._run = types.MethodType(run, step)
+
+
+def _with_size_asserts(step) -> None:
+    """Recompile ``step`` with Inductor's size asserts on (taskrl turns them off)."""
+    from taskrl.agents.compiled import _skip_parameter_guards
+
+    options = {**torch._inductor.list_mode_options(step.mode), "guard_filter_fn": _skip_parameter_guards, "size_asserts": True}
+    step.compiled = torch.compile(step.fn, fullgraph=True, dynamic=False, options=options)
+
+
+def compiled_pairs(batch_size: int, hidden: tuple[int, ...]) -> list[str]:
+    from learner_speed import bitflip_agent_and_batch
+
+    rows = []
+    for what, old, change in (
+        ("stance", "settings every call", _patched_every_call),
+        ("size asserts", "with", _with_size_asserts),
+    ):
+        ours, batch, _ = bitflip_agent_and_batch(batch_size, hidden, False)
+        theirs = bitflip_agent_and_batch(batch_size, hidden, False)[0]
+        for agent in (ours, theirs):
+            agent.compile("default", say=lambda line: None)
+        change(theirs.step)
+        for agent in (ours, theirs):
+            for _ in range(250):  # both graphs of the target schedule, and a warm start
+                agent.update(batch)
+        block = BLOCK if batch_size <= 64 else BLOCK // 4
+
+        def run(agent, block=block, batch=batch):
+            for _ in range(block):
+                agent.update(batch)
+            return block
+
+        a, b = _alternating(lambda theirs=theirs: run(theirs), lambda ours=ours: run(ours))
+        new = "stance" if what == "stance" else "without"
+        rows.append(_row(f"compiled DQN {list(hidden)} / {batch_size} update, {what}", old, new, a, b))
+        print(rows[-1], flush=True)
+    return rows
+
+
+def gather_pairs() -> list[str]:
+    from taskrl.replay.batch import Batch
+
+    def two_index_gather(replay, episode, step) -> Batch:
+        s = replay.storage
+        return Batch(
+            obs={k: s[f"obs/{k}"][episode, step] for k in replay.obs_keys},
+            action=s["action"][episode, step],
+            reward=s["reward"][episode, step],
+            next_obs={k: s[f"obs/{k}"][episode, step + 1] for k in replay.obs_keys},
+            terminated=s["terminated"][episode, step],
+            truncated=s["truncated"][episode, step],
+            episode=episode,
+            step=step,
+        )
+
+    replay = _filled_replay()
+    g = torch.Generator().manual_seed(0)
+    rows = []
+    for batch_size in (32, 256):
+        episode, step = replay.sample_indices(batch_size, g)
+        old, new = two_index_gather(replay, episode, step), replay.gather(episode, step)
+        assert all(torch.equal(getattr(old, f), getattr(new, f)) for f in ("action", "reward", "terminated", "truncated"))
+        assert all(torch.equal(old.obs[k], new.obs[k]) and torch.equal(old.next_obs[k], new.next_obs[k]) for k in old.obs)
+
+        def run(fn, episode=episode, step=step):
+            for _ in range(BLOCK):
+                fn(episode, step)
+            return BLOCK
+
+        a, b = _alternating(lambda: run(lambda e, s: two_index_gather(replay, e, s)), lambda: run(replay.gather))
+        rows.append(_row(f"replay gather, batch {batch_size} (bit flipping n = 15)", "two index tensors", "flat", a, b))
+        print(rows[-1], flush=True)
+    return rows
+
+
+def _filled_replay():
+    from learner_speed import DQN_EQUAL
+    from taskrl.config import with_overrides
+    from taskrl.presets import preset_config
+    from taskrl.replay import EpisodeReplay
+    from taskrl.run import make_env
+
+    cfg = with_overrides(preset_config("bitflip-her"), DQN_EQUAL)
+    env = make_env(cfg, "cpu", num_envs=16, seed=0)
+    replay = EpisodeReplay(env.single_observation_space, env.single_action_space, 100_000, env.horizon, 16)
+    replay.start(env.reset(seed=0))
+    for _ in range(4_000 // 16):
+        nxt, r, te, tr, info = env.step(torch.randint(0, cfg.env_settings.n_bits, (16,)))
+        replay.add(torch.zeros(16, dtype=torch.long), r, te, tr, info["final_obs"], nxt)
+    return replay
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--write", action="store_true", help="append the results to benchmarks/RESULTS.md")
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    os.environ.setdefault("TORCHINDUCTOR_CACHE_DIR", tempfile.mkdtemp(prefix="taskrl-inductor-"))
+    rows = [*compiled_pairs(32, (64, 64)), *compiled_pairs(256, (256, 256)), *gather_pairs()]
+    table = "\n".join(
+        [
+            f"One torch thread; {ROUNDS} alternating blocks per row; ms per call (median over blocks) of the path "
+            "replaced and of taskrl's, and the median ratio of taskrl's to it per pair of blocks (quartiles in brackets).",
+            "",
+            "| what | replaced path, ms | taskrl's path, ms | taskrl / replaced |",
+            "|---|---|---|---|",
+            *rows,
+        ]
+    )
+    print(table)
+    if args.write:
+        append_results("Per-call costs of the compiled update and the replay gather, side by side", table)
+
+
+if __name__ == "__main__":
+    main()
