@@ -47,6 +47,23 @@ def commit() -> str:
     return head + (" +changes" if dirty.strip() else "")
 
 
+def micro_benchmark_args(doc: str | None):
+    """The command line of a micro-benchmark (``--write``), with one torch thread and a fresh compile cache
+    (so the compile times measured are those of a first run)."""
+    import argparse
+    import os
+    import tempfile
+
+    import torch
+
+    parser = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--write", action="store_true", help="append the results to benchmarks/RESULTS.md")
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    os.environ.setdefault("TORCHINDUCTOR_CACHE_DIR", tempfile.mkdtemp(prefix="taskrl-inductor-"))
+    return args
+
+
 def append_results(title: str, body: str) -> None:
     """Append a dated section to benchmarks/RESULTS.md, naming the commit it was measured at."""
     stamp = datetime.date.today().isoformat()

@@ -9,15 +9,12 @@
 
 from __future__ import annotations
 
-import argparse
-import os
-import tempfile
 import time
 
 import torch
 import torch.nn.functional as F
 
-from common import append_results
+from common import append_results, micro_benchmark_args
 
 #: (rows, in_features, out_features): the DQN bit-flipping n = 15 layers at batch 256, FetchReach's SAC
 #: first layers, an MT10 first layer, and heads of other widths
@@ -100,11 +97,7 @@ def agents_side_by_side(rounds: int = 10, block: int = 150) -> str:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--write", action="store_true", help="append the results to benchmarks/RESULTS.md")
-    args = parser.parse_args()
-    torch.set_num_threads(1)
-    os.environ.setdefault("TORCHINDUCTOR_CACHE_DIR", tempfile.mkdtemp(prefix="taskrl-inductor-"))
+    args = micro_benchmark_args(__doc__)
     table = (
         "One torch thread; microseconds per product (best layout of each row in the second and fourth "
         "columns where they differ).\n\n" + products() + "\n\n" + agents_side_by_side()

@@ -310,25 +310,33 @@ def ms_per_update(agent, batch, seconds: float = 3.0) -> float:
     return (time.perf_counter() - start) / n * 1e3
 
 
-def bitflip_agent_and_batch(batch_size: int, hidden: tuple[int, ...], double_q: bool):
-    """A DQN agent at the equal-work settings (or with double-Q) and one relabelled batch from a filled replay,
-    with the cost of sampling + relabelling that batch."""
+def bitflip_replay(settings: dict, steps: int = 4_000):
+    """``(config, env, replay)``: the bit-flipping preset with ``settings``, 16 envs, and a replay of ``steps``
+    random-action env steps."""
     from taskrl.config import with_overrides
     from taskrl.presets import preset_config
     from taskrl.replay import EpisodeReplay
-    from taskrl.run import make_agent, make_env, make_relabeler
+    from taskrl.run import make_env
 
-    settings = {**DQN_EQUAL, "batch_size": batch_size, "hidden_sizes": hidden, "double_q": double_q}
     cfg = with_overrides(preset_config("bitflip-her"), settings)
     env = make_env(cfg, "cpu", num_envs=16, seed=0)
-    agent, relabel = make_agent(cfg, env, torch.device("cpu")), make_relabeler(cfg, env)
     replay = EpisodeReplay(env.single_observation_space, env.single_action_space, 100_000, env.horizon, 16)
-    obs = env.reset(seed=0)
-    replay.start(obs)
-    for _ in range(4_000 // 16):
+    replay.start(env.reset(seed=0))
+    for _ in range(steps // 16):
         action = torch.randint(0, cfg.env_settings.n_bits, (16,))
         nxt, r, te, tr, info = env.step(action)
         replay.add(action, r, te, tr, info["final_obs"], nxt)
+    return cfg, env, replay
+
+
+def bitflip_agent_and_batch(batch_size: int, hidden: tuple[int, ...], double_q: bool):
+    """A DQN agent at the equal-work settings (or with double-Q) and one relabelled batch from a filled replay,
+    with the cost of sampling + relabelling that batch."""
+    from taskrl.run import make_agent, make_relabeler
+
+    settings = {**DQN_EQUAL, "batch_size": batch_size, "hidden_sizes": hidden, "double_q": double_q}
+    cfg, env, replay = bitflip_replay(settings)
+    agent, relabel = make_agent(cfg, env, torch.device("cpu")), make_relabeler(cfg, env)
     g = torch.Generator().manual_seed(0)
     for _ in range(20):
         relabel(replay.sample(batch_size, g), replay, g)

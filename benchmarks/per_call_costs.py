@@ -13,16 +13,13 @@ path it replaced, in one process and in alternating blocks (the machine's drift 
 
 from __future__ import annotations
 
-import argparse
-import os
 import statistics
-import tempfile
 import time
 import types
 
 import torch
 
-from common import append_results
+from common import append_results, micro_benchmark_args
 
 ROUNDS, BLOCK = 30, 400
 
@@ -110,7 +107,9 @@ def gather_pairs() -> list[str]:
             step=step,
         )
 
-    replay = _filled_replay()
+    from learner_speed import DQN_EQUAL, bitflip_replay
+
+    _, _, replay = bitflip_replay(DQN_EQUAL)
     g = torch.Generator().manual_seed(0)
     rows = []
     for batch_size in (32, 256):
@@ -130,29 +129,8 @@ def gather_pairs() -> list[str]:
     return rows
 
 
-def _filled_replay():
-    from learner_speed import DQN_EQUAL
-    from taskrl.config import with_overrides
-    from taskrl.presets import preset_config
-    from taskrl.replay import EpisodeReplay
-    from taskrl.run import make_env
-
-    cfg = with_overrides(preset_config("bitflip-her"), DQN_EQUAL)
-    env = make_env(cfg, "cpu", num_envs=16, seed=0)
-    replay = EpisodeReplay(env.single_observation_space, env.single_action_space, 100_000, env.horizon, 16)
-    replay.start(env.reset(seed=0))
-    for _ in range(4_000 // 16):
-        nxt, r, te, tr, info = env.step(torch.randint(0, cfg.env_settings.n_bits, (16,)))
-        replay.add(torch.zeros(16, dtype=torch.long), r, te, tr, info["final_obs"], nxt)
-    return replay
-
-
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--write", action="store_true", help="append the results to benchmarks/RESULTS.md")
-    args = parser.parse_args()
-    torch.set_num_threads(1)
-    os.environ.setdefault("TORCHINDUCTOR_CACHE_DIR", tempfile.mkdtemp(prefix="taskrl-inductor-"))
+    args = micro_benchmark_args(__doc__)
     rows = [*compiled_pairs(32, (64, 64)), *compiled_pairs(256, (256, 256)), *gather_pairs()]
     table = "\n".join(
         [
