@@ -300,16 +300,6 @@ def schedule_period(agent) -> int:
     return max(getattr(cfg, "target_update_interval", 1), getattr(cfg, "policy_delay", 1), getattr(cfg, "target2_interval", 1))
 
 
-def ms_per_update(agent, batch, seconds: float = 3.0) -> float:
-    for _ in range(schedule_period(agent) + 5):
-        agent.update(batch)
-    n, start = 0, time.perf_counter()
-    while time.perf_counter() - start < seconds:
-        agent.update(batch)
-        n += 1
-    return (time.perf_counter() - start) / n * 1e3
-
-
 def bitflip_replay(settings: dict, steps: int = 4_000):
     """``(config, env, replay)``: the bit-flipping preset with ``settings``, 16 envs, and a replay of ``steps``
     random-action env steps."""
@@ -385,8 +375,8 @@ def sac_agent_and_batch(batch_size: int, hidden: tuple[int, ...], in_dim: int, a
 
 
 def bound(args) -> tuple[str, dict]:
-    # The machine's speed drifts by up to 20% over minutes: each case's bound uses the best rate measured
-    # just before and just after it, and the table names that rate.
+    # The machine's speed drifts by 20-30% over minutes: the paths of a case are timed side by side, each
+    # block against the matrix-multiply rate of its own round.
     rate = matmul_rate()
     cases = {
         "DQN (64, 64) / 32, as SB3's": lambda: bitflip_agent_and_batch(32, (64, 64), False),
@@ -403,28 +393,49 @@ def bound(args) -> tuple[str, dict]:
             continue
         agent, batch, sample_ms = make()
         flops = update_flops(agent, batch)
-        before = matmul_rate()
-        eager_ms = ms_per_update(agent, batch, args.seconds)
         compiled = copy.deepcopy(agent)
         compiled.compile("default", say=lambda line: None)
         warm, start = schedule_period(agent) + 1, time.perf_counter()
         for _ in range(warm):  # the first call compiles, and the first target refresh compiles its variant
             compiled.update(batch)
         warm_seconds = time.perf_counter() - start
-        compiled_ms = ms_per_update(compiled, batch, args.seconds)
-        compile_s = warm_seconds - warm * compiled_ms / 1e3 if compiled.step.active else float("nan")
-        pays_after = compile_s / max((eager_ms - compiled_ms) / 1e3, 1e-12) if eager_ms > compiled_ms else float("inf")
         many = copy.deepcopy(agent)
         many.compile("default", say=lambda line: None)
         batches = [batch] * args.per_call
         for _ in range(-(-(schedule_period(agent) + 1) // args.per_call)):
             many.update_many(batches)
-        n, start = 0, time.perf_counter()
-        while time.perf_counter() - start < args.seconds:
-            many.update_many(batches)
-            n += args.per_call
-        many_ms = (time.perf_counter() - start) / n * 1e3 if many.step_many.active else float("nan")
-        case_rate = max(before, matmul_rate())
+        for _ in range(schedule_period(agent) + 5):
+            agent.update(batch)
+        paths = {  # path: (call, its argument, updates per call)
+            "eager": (agent.update, batch, 1),
+            "compiled": (compiled.update, batch, 1),
+            "many": (many.update_many, batches, args.per_call),
+        }
+        # side by side: round by round, the matrix-multiply rate and then a block of each path (in turn
+        # first), so each path's ratio to the bound is taken against the rate of its own minutes
+        ms: dict[str, list[float]] = {path: [] for path in paths}
+        x_bound: dict[str, list[float]] = {path: [] for path in paths}
+        rates = []
+        for round_ in range(args.rounds):
+            rates.append(matmul_rate())
+            order = list(paths)[round_ % 3 :] + list(paths)[: round_ % 3]
+            for path in order:
+                call, argument, count = paths[path]
+                n, start = 0, time.perf_counter()
+                while time.perf_counter() - start < args.seconds / args.rounds:
+                    call(argument)
+                    n += count
+                ms[path].append((time.perf_counter() - start) / n * 1e3)
+                x_bound[path].append(ms[path][-1] / (flops / rates[-1] * 1e3))
+        eager_ms, compiled_ms, many_ms = (statistics.median(ms[path]) for path in paths)
+        eager_x, compiled_x, many_x = (statistics.median(x_bound[path]) for path in paths)
+        if not compiled.step.active:
+            compiled_ms = compiled_x = float("nan")
+        if not many.step_many.active:
+            many_ms = many_x = float("nan")
+        compile_s = warm_seconds - warm * compiled_ms / 1e3 if compiled.step.active else float("nan")
+        pays_after = compile_s / max((eager_ms - compiled_ms) / 1e3, 1e-12) if eager_ms > compiled_ms else float("inf")
+        case_rate = statistics.median(rates)
         bound_ms = flops / case_rate * 1e3
         r = dict(
             case=name,
@@ -434,6 +445,9 @@ def bound(args) -> tuple[str, dict]:
             eager_ms=eager_ms,
             compiled_ms=compiled_ms,
             compiled_many_ms=many_ms,
+            x_bound={"eager": eager_x, "compiled": compiled_x, "many": many_x},
+            per_round_ms=ms,
+            per_round_gflops=[r / 1e9 for r in rates],
             per_call=args.per_call,
             sample_relabel_ms=sample_ms,
             compile_seconds=compile_s,
@@ -442,15 +456,18 @@ def bound(args) -> tuple[str, dict]:
         out["cases"].append(r)
         print(json.dumps(r), flush=True)
         rows.append(
-            f"| {name} | {flops / 1e6:,.0f} | {case_rate / 1e9:.1f} | {bound_ms:.2f} | {eager_ms:.2f} ({eager_ms / bound_ms:.2f}x) | "
-            f"{compiled_ms:.2f} ({compiled_ms / bound_ms:.2f}x) | {many_ms:.2f} ({many_ms / bound_ms:.2f}x) | {eager_ms / compiled_ms:.2f}x | "
+            f"| {name} | {flops / 1e6:,.0f} | {case_rate / 1e9:.1f} | {bound_ms:.2f} | {eager_ms:.2f} ({eager_x:.2f}x) | "
+            f"{compiled_ms:.2f} ({compiled_x:.2f}x) | {many_ms:.2f} ({many_x:.2f}x) | {eager_ms / compiled_ms:.2f}x | "
             f"{sample_ms:.2f} | {compile_s:.1f} | {pays_after:,.0f} |"
         )
     table = "\n".join(
         [
             f"Matrix-multiply rate (best of 256, 512, 1024 square float32 products, one thread): {rate / 1e9:.1f} GFLOP/s "
-            "at the start; each case's bound uses the best rate measured just before and after it (GFLOP/s column). "
-            "MFLOP: the matrix products of one update, without the zero rows of `nets.Linear`'s padded heads.",
+            f"at the start. Each case runs its three paths side by side: {args.rounds} rounds, each the matrix-multiply "
+            f"rate, then a block of each path ({args.seconds / args.rounds:.2f} s, the first path rotating). ms: the median "
+            "over rounds; x bound: the median over rounds of each block's ms against the bound at its round's rate; "
+            "GFLOP/s and bound ms: the median rate. MFLOP: the matrix products of one update, without the zero rows "
+            "of `nets.Linear`'s padded heads.",
             "",
             "| update | MFLOP | GFLOP/s | bound ms | eager ms (x bound) | compiled ms (x bound) | "
             f"compiled, {args.per_call} per call, ms per update (x bound) | compiled speed-up | "
@@ -621,7 +638,8 @@ def main() -> None:
     parser.add_argument(
         "--reuse-libs", nargs="*", default=["sb3"], help="equal: the libraries (or CASE/LIBRARY) whose earlier results to keep"
     )
-    parser.add_argument("--seconds", type=float, default=3.0, help="bound: timing per case and path")
+    parser.add_argument("--seconds", type=float, default=6.0, help="bound: timing per case and path, over all rounds")
+    parser.add_argument("--rounds", type=int, default=12, help="bound: rounds of the side-by-side timing")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (both libraries)")
     parser.add_argument("--write", action="store_true", help="append the results to benchmarks/RESULTS.md")
     parser.add_argument(
