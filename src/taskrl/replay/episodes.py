@@ -212,7 +212,8 @@ class EpisodeReplay:
 
     def _rows(self, name: str, flat: torch.Tensor) -> torch.Tensor:
         """``storage[name][e, t]`` at flat positions ``e * steps + t``: one ``index_select`` on the table seen
-        as rows, which on CPU costs about half of indexing it with two index tensors."""
+        as rows: on CPU 0.62x the time of indexing it with two index tensors at a batch of 256, 0.89x at 32
+        (``benchmarks/per_call_costs.py``)."""
         return self._flat[name].index_select(0, flat)
 
     def sample(self, batch_size: int, generator: torch.Generator | None = None) -> Batch:
