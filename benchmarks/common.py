@@ -64,6 +64,23 @@ def micro_benchmark_args(doc: str | None):
     return args
 
 
+def alternating_blocks(blocks: dict, rounds: int, before_round=None) -> dict[str, list[float]]:
+    """Milliseconds per unit of each of ``blocks`` (name -> a call that runs one block and returns how many
+    units it did), round by round, the first of each round rotating, so the machine's drift falls on all alike;
+    ``before_round()`` runs at the start of each round."""
+    import time
+
+    names, ms = list(blocks), {name: [] for name in blocks}
+    for r in range(rounds):
+        if before_round is not None:
+            before_round()
+        for name in names[r % len(names) :] + names[: r % len(names)]:
+            start = time.perf_counter()
+            units = blocks[name]()
+            ms[name].append((time.perf_counter() - start) / units * 1e3)
+    return ms
+
+
 def append_results(title: str, body: str) -> None:
     """Append a dated section to benchmarks/RESULTS.md, naming the commit it was measured at."""
     stamp = datetime.date.today().isoformat()

@@ -14,7 +14,7 @@ import time
 import torch
 import torch.nn.functional as F
 
-from common import append_results, micro_benchmark_args
+from common import alternating_blocks, append_results, micro_benchmark_args
 
 #: (rows, in_features, out_features): the DQN bit-flipping n = 15 layers at batch 256, FetchReach's SAC
 #: first layers, an MT10 first layer, and heads of other widths
@@ -72,18 +72,18 @@ def agents_side_by_side(rounds: int = 10, block: int = 150) -> str:
 
     laid_out, batch, _ = bitflip_agent_and_batch(256, (256, 256), False)
     plain = with_plain_layers(bitflip_agent_and_batch(256, (256, 256), False)[0])
-    times: dict[str, list[float]] = {"nets.Linear": [], "nn.Linear": []}
     agents = {"nets.Linear": laid_out, "nn.Linear": plain}
     for agent in agents.values():
         agent.compile("default", say=lambda line: None)
         for _ in range(120):
             agent.update(batch)
-    for r in range(rounds):
-        for name in sorted(agents, reverse=bool(r % 2)):
-            start = time.perf_counter()
-            for _ in range(block):
-                agents[name].update(batch)
-            times[name].append((time.perf_counter() - start) / block * 1e3)
+
+    def run(agent):
+        for _ in range(block):
+            agent.update(batch)
+        return block
+
+    times = alternating_blocks({name: lambda agent=agent: run(agent) for name, agent in agents.items()}, rounds)
     median = {name: sorted(t)[len(t) // 2] for name, t in times.items()}
     return "\n".join(
         [

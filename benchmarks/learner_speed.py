@@ -57,7 +57,7 @@ from pathlib import Path
 import torch
 
 import taskrl
-from common import append_results, sb3_learn_until, taskrl_learn_until
+from common import alternating_blocks, append_results, sb3_learn_until, taskrl_learn_until
 from taskrl.run import EVAL_SEED_OFFSET
 from taskrl.training.evaluation import evaluate
 
@@ -411,22 +411,23 @@ def bound(args) -> tuple[str, dict]:
             "compiled": (compiled.update, batch, 1),
             "many": (many.update_many, batches, args.per_call),
         }
+
         # side by side: round by round, the matrix-multiply rate and then a block of each path (in turn
         # first), so each path's ratio to the bound is taken against the rate of its own minutes
-        ms: dict[str, list[float]] = {path: [] for path in paths}
-        x_bound: dict[str, list[float]] = {path: [] for path in paths}
+        def block(call, argument, count) -> int:
+            n, start = 0, time.perf_counter()
+            while time.perf_counter() - start < args.seconds / args.rounds:
+                call(argument)
+                n += count
+            return n
+
         rates = []
-        for round_ in range(args.rounds):
-            rates.append(matmul_rate())
-            order = list(paths)[round_ % 3 :] + list(paths)[: round_ % 3]
-            for path in order:
-                call, argument, count = paths[path]
-                n, start = 0, time.perf_counter()
-                while time.perf_counter() - start < args.seconds / args.rounds:
-                    call(argument)
-                    n += count
-                ms[path].append((time.perf_counter() - start) / n * 1e3)
-                x_bound[path].append(ms[path][-1] / (flops / rates[-1] * 1e3))
+        ms = alternating_blocks(
+            {path: functools.partial(block, *spec) for path, spec in paths.items()},
+            args.rounds,
+            before_round=lambda rates=rates: rates.append(matmul_rate()),
+        )
+        x_bound = {path: [t / (flops / rate * 1e3) for t, rate in zip(times, rates)] for path, times in ms.items()}
         eager_ms, compiled_ms, many_ms = (statistics.median(ms[path]) for path in paths)
         eager_x, compiled_x, many_x = (statistics.median(x_bound[path]) for path in paths)
         if not compiled.step.active:

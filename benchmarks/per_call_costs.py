@@ -14,25 +14,13 @@ path it replaced, in one process and in alternating blocks (the machine's drift 
 from __future__ import annotations
 
 import statistics
-import time
 import types
 
 import torch
 
-from common import append_results, micro_benchmark_args
+from common import alternating_blocks, append_results, micro_benchmark_args
 
 ROUNDS, BLOCK = 30, 400
-
-
-def _alternating(run_a, run_b, rounds: int = ROUNDS) -> tuple[list[float], list[float]]:
-    """Milliseconds per call of each, block by block, the order swapping every round."""
-    a, b = [], []
-    for r in range(rounds):
-        for name in "ab" if r % 2 == 0 else "ba":
-            start = time.perf_counter()
-            n = (run_a if name == "a" else run_b)()
-            (a if name == "a" else b).append((time.perf_counter() - start) / n * 1e3)
-    return a, b
 
 
 def _row(what: str, old: str, new: str, a: list[float], b: list[float]) -> str:
@@ -46,8 +34,10 @@ def _row(what: str, old: str, new: str, a: list[float], b: list[float]) -> str:
 def _patched_every_call(step) -> None:
     """Make ``step`` (a CompiledStep) enter Dynamo's compile settings at every call, as before the stance."""
 
+    from taskrl.agents.compiled import COMPILE_SETTINGS
+
     def run(self, *args):
-        with torch._dynamo.config.patch(trace_autograd_ops=True, recompile_limit=64, fail_on_recompile_limit_hit=True):
+        with torch._dynamo.config.patch(**COMPILE_SETTINGS):
             return self.compiled(*args)
 
     step._run = types.MethodType(run, step)
@@ -55,9 +45,9 @@ def _patched_every_call(step) -> None:
 
 def _with_size_asserts(step) -> None:
     """Recompile ``step`` with Inductor's size asserts on (taskrl turns them off)."""
-    from taskrl.agents.compiled import _skip_parameter_guards
+    from taskrl.agents.compiled import compile_options
 
-    options = {**torch._inductor.list_mode_options(step.mode), "guard_filter_fn": _skip_parameter_guards, "size_asserts": True}
+    options = {**compile_options(step.mode), "size_asserts": True}
     step.compiled = torch.compile(step.fn, fullgraph=True, dynamic=False, options=options)
 
 
@@ -84,7 +74,8 @@ def compiled_pairs(batch_size: int, hidden: tuple[int, ...]) -> list[str]:
                 agent.update(batch)
             return block
 
-        a, b = _alternating(lambda theirs=theirs: run(theirs), lambda ours=ours: run(ours))
+        ms = alternating_blocks({"a": lambda theirs=theirs: run(theirs), "b": lambda ours=ours: run(ours)}, ROUNDS)
+        a, b = ms["a"], ms["b"]
         new = "stance" if what == "stance" else "without"
         rows.append(_row(f"compiled DQN {list(hidden)} / {batch_size} update, {what}", old, new, a, b))
         print(rows[-1], flush=True)
@@ -92,6 +83,7 @@ def compiled_pairs(batch_size: int, hidden: tuple[int, ...]) -> list[str]:
 
 
 def gather_pairs() -> list[str]:
+    from learner_speed import DQN_EQUAL, bitflip_replay
     from taskrl.replay.batch import Batch
 
     def two_index_gather(replay, episode, step) -> Batch:
@@ -107,8 +99,6 @@ def gather_pairs() -> list[str]:
             step=step,
         )
 
-    from learner_speed import DQN_EQUAL, bitflip_replay
-
     _, _, replay = bitflip_replay(DQN_EQUAL)
     g = torch.Generator().manual_seed(0)
     rows = []
@@ -123,7 +113,10 @@ def gather_pairs() -> list[str]:
                 fn(episode, step)
             return BLOCK
 
-        a, b = _alternating(lambda: run(lambda e, s: two_index_gather(replay, e, s)), lambda: run(replay.gather))
+        ms = alternating_blocks(
+            {"a": lambda: run(lambda e, s: two_index_gather(replay, e, s)), "b": lambda: run(replay.gather)}, ROUNDS
+        )
+        a, b = ms["a"], ms["b"]
         rows.append(_row(f"replay gather, batch {batch_size} (bit flipping n = 15)", "two index tensors", "flat", a, b))
         print(rows[-1], flush=True)
     return rows

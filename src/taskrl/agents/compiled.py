@@ -50,6 +50,19 @@ def _skip_parameter_guards(entries: list[Any]) -> list[bool]:
     return [not (entry.guard_type == "TENSOR_MATCH" and isinstance(entry.value, torch.nn.Parameter)) for entry in entries]
 
 
+#: Dynamo's settings while compiling: autograd.grad inside the graph is traced, not a graph break; every agent
+#: of a class compiles the same code with its own guards, so room for many in one process, and a notice (not
+#: silent eager) past that
+COMPILE_SETTINGS = {"trace_autograd_ops": True, "recompile_limit": 64, "fail_on_recompile_limit_hit": True}
+
+
+def compile_options(mode: str) -> dict[str, Any]:
+    """Inductor's options for ``mode``: the mode's own, the guard filter, and no size asserts (the guards check
+    every argument's shape and strides before a call, and a parameter keeps its own for the agent's life; the
+    asserts' Python check of each input is a tenth of a batch-32 update)."""
+    return {**torch._inductor.list_mode_options(mode), "guard_filter_fn": _skip_parameter_guards, "size_asserts": False}
+
+
 def _graphs_compiled() -> int:
     """Graphs ``torch.compile`` has made in this process so far (its own statistics counter)."""
     return torch._dynamo.utils.counters["stats"]["unique_graphs"]
@@ -77,12 +90,9 @@ class CompiledStep:
     ) -> None:
         one_of(mode, COMPILE_MODES[1:], "compile", "mode")
         self.fn, self.mode, self.say, self.optimizers, self.what = fn, mode, say, optimizers, what
-        # a mode is a set of compiler options; given as options, so the guard filter can join them. No size
-        # asserts: the guards check every argument's shape and strides before a call, and a parameter keeps
-        # its own for the agent's life; the asserts' Python check of each input is a tenth of a batch-32 update
-        options = {**torch._inductor.list_mode_options(mode), "guard_filter_fn": _skip_parameter_guards, "size_asserts": False}
-        # static shapes: the batch size is fixed for a run, and another agent's shapes must not turn this one's dynamic
-        self.compiled: Callable[..., Any] | None = torch.compile(fn, fullgraph=True, dynamic=False, options=options)
+        # a mode is a set of compiler options; given as options, so the guard filter can join them. Static
+        # shapes: the batch size is fixed for a run, and another agent's shapes must not turn this one's dynamic
+        self.compiled: Callable[..., Any] | None = torch.compile(fn, fullgraph=True, dynamic=False, options=compile_options(mode))
         self.calls = 0
         #: seconds of the calls that compiled (tracing, compiling, one update each): the first, and the
         #: first of each further variant (a target refresh every N updates); the cost before compiling pays
@@ -128,7 +138,5 @@ class CompiledStep:
             except RuntimeError as error:
                 if "fail_on_recompile" not in str(error):
                     raise
-        # autograd.grad inside the graph: traced, not a graph break. Every agent of a class compiles the same
-        # code with its own guards: room for many in one process, and a notice (not silent eager) past that.
-        with torch._dynamo.config.patch(trace_autograd_ops=True, recompile_limit=64, fail_on_recompile_limit_hit=True):
+        with torch._dynamo.config.patch(**COMPILE_SETTINGS):
             return self.compiled(*args)
