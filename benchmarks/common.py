@@ -47,9 +47,9 @@ def commit() -> str:
     return head + (" +changes" if dirty.strip() else "")
 
 
-def micro_benchmark_args(doc: str | None):
-    """The command line of a micro-benchmark (``--write``), with one torch thread and a fresh compile cache
-    (so the compile times measured are those of a first run)."""
+def micro_benchmark_args(doc: str | None, choices: tuple[str, ...] = ()):
+    """The command line of a micro-benchmark (``--write``; ``--only`` some of ``choices``), with one torch thread
+    and a fresh compile cache (so the compile times measured are those of a first run)."""
     import argparse
     import os
     import tempfile
@@ -58,6 +58,8 @@ def micro_benchmark_args(doc: str | None):
 
     parser = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--write", action="store_true", help="append the results to benchmarks/RESULTS.md")
+    if choices:
+        parser.add_argument("--only", nargs="+", choices=choices, default=list(choices), help="what to measure (default: all)")
     args = parser.parse_args()
     torch.set_num_threads(1)
     os.environ.setdefault("TORCHINDUCTOR_CACHE_DIR", tempfile.mkdtemp(prefix="taskrl-inductor-"))

@@ -5,14 +5,19 @@ path it replaced, in one process and in alternating blocks (the machine's drift 
   (what ``CompiledStep`` does once a graph exists) against entering Dynamo's compile settings
   (``torch._dynamo.config.patch``) at every call;
 - ``size asserts``: the compiled update without Inductor's size asserts (taskrl's option) against with;
+- ``Adam scalars``: the compiled update with taskrl's Adam step (the step sizes, bias corrections and clip
+  scale computed once into one small buffer) against torch's functional Adam (``capturable=True``), whose
+  compiled kernel recomputes them for every 8 elements;
 - ``gather``: the replay's gather at flat positions (one ``index_select`` per table) against indexing
   each table with the two index tensors ``[episode, step]``.
 
-    cd benchmarks && ../.venv/bin/python per_call_costs.py [--write]
+    cd benchmarks && ../.venv/bin/python per_call_costs.py [--only stance 'size asserts' 'Adam scalars' gather] [--write]
 """
 
 from __future__ import annotations
 
+import contextlib
+import functools
 import statistics
 import types
 
@@ -21,6 +26,8 @@ import torch
 from common import alternating_blocks, append_results, micro_benchmark_args
 
 ROUNDS, BLOCK = 30, 400
+#: what ``--only`` can choose
+PAIRS = ("stance", "size asserts", "Adam scalars", "gather")
 
 
 def _row(what: str, old: str, new: str, a: list[float], b: list[float]) -> str:
@@ -51,32 +58,88 @@ def _with_size_asserts(step) -> None:
     step.compiled = torch.compile(step.fn, fullgraph=True, dynamic=False, options=options)
 
 
-def compiled_pairs(batch_size: int, hidden: tuple[int, ...]) -> list[str]:
+def torch_functional_adam_step(optimizer, loss, clipped, max_grad_norm) -> None:
+    """The compiled Adam step taskrl's ``parts.functional_adam_step`` replaced: torch's functional Adam."""
+    from torch.optim.adam import adam
+
+    group = optimizer.param_groups[0]
+    grads = torch.autograd.grad(loss, group["params"], allow_unused=True)
+    reached = [(p, g) for p, g in zip(group["params"], grads) if g is not None]
+    with torch.no_grad():
+        if max_grad_norm > 0:
+            is_clipped = [any(p is c for c in clipped) for p, _ in reached]
+            norms = torch._foreach_norm([g for (_, g), c in zip(reached, is_clipped) if c])
+            scale = (max_grad_norm / (torch.linalg.vector_norm(torch.stack(norms)) + 1e-6)).clamp(max=1.0)
+            reached = [(p, g * scale if c else g) for (p, g), c in zip(reached, is_clipped)]
+        state = [optimizer.state[p] for p, _ in reached]
+        beta1, beta2 = group["betas"]
+        adam(
+            *([p for p, _ in reached], [g for _, g in reached]),
+            *([s["exp_avg"] for s in state], [s["exp_avg_sq"] for s in state], [], [s["step"] for s in state]),
+            foreach=True,
+            capturable=True,
+            amsgrad=False,
+            beta1=beta1,
+            beta2=beta2,
+            lr=group["lr"],
+            weight_decay=group["weight_decay"],
+            eps=group["eps"],
+            maximize=False,
+        )
+
+
+@contextlib.contextmanager
+def _replaced(module: str, name: str, value):
+    """While open, ``module.name`` is ``value``: compiled steps trace (and their guards expect) the replaced path."""
+    import importlib
+
+    where = importlib.import_module(module)
+    ours = getattr(where, name)
+    setattr(where, name, value)
+    try:
+        yield
+    finally:
+        setattr(where, name, ours)
+
+
+def compiled_pairs(batch_size: int, hidden: tuple[int, ...], only: list[str]) -> list[str]:
     from learner_speed import bitflip_agent_and_batch
 
     rows = []
     for what, old, change in (
         ("stance", "settings every call", _patched_every_call),
         ("size asserts", "with", _with_size_asserts),
+        ("Adam scalars", "torch's functional Adam", ("taskrl.agents.parts", "functional_adam_step", torch_functional_adam_step)),
     ):
+        if what not in only:
+            continue
         ours, batch, _ = bitflip_agent_and_batch(batch_size, hidden, False)
         theirs = bitflip_agent_and_batch(batch_size, hidden, False)[0]
         for agent in (ours, theirs):
             agent.compile("default", say=lambda line: None)
-        change(theirs.step)
-        for agent in (ours, theirs):
-            for _ in range(250):  # both graphs of the target schedule, and a warm start
-                agent.update(batch)
+        replaced = contextlib.nullcontext
+        if isinstance(change, tuple):  # a replaced function: traced, and its guards checked, with it in place
+            replaced = functools.partial(_replaced, *change)
+        else:
+            change(theirs.step)
+        for agent, context in ((ours, contextlib.nullcontext), (theirs, replaced)):
+            with context():
+                for _ in range(250):  # both graphs of the target schedule, and a warm start
+                    agent.update(batch)
         block = BLOCK if batch_size <= 64 else BLOCK // 4
 
-        def run(agent, block=block, batch=batch):
-            for _ in range(block):
-                agent.update(batch)
+        def run(agent, block=block, batch=batch, context=contextlib.nullcontext):
+            with context():
+                for _ in range(block):
+                    agent.update(batch)
             return block
 
-        ms = alternating_blocks({"a": lambda theirs=theirs: run(theirs), "b": lambda ours=ours: run(ours)}, ROUNDS)
+        ms = alternating_blocks(
+            {"a": lambda theirs=theirs, replaced=replaced: run(theirs, context=replaced), "b": lambda ours=ours: run(ours)},
+            ROUNDS,
+        )
         a, b = ms["a"], ms["b"]
-        new = "stance" if what == "stance" else "without"
+        new = {"stance": "stance", "size asserts": "without", "Adam scalars": "taskrl's Adam"}[what]
         rows.append(_row(f"compiled DQN {list(hidden)} / {batch_size} update, {what}", old, new, a, b))
         print(rows[-1], flush=True)
     return rows
@@ -123,8 +186,9 @@ def gather_pairs() -> list[str]:
 
 
 def main() -> None:
-    args = micro_benchmark_args(__doc__)
-    rows = [*compiled_pairs(32, (64, 64)), *compiled_pairs(256, (256, 256)), *gather_pairs()]
+    args = micro_benchmark_args(__doc__, PAIRS)
+    rows = [*compiled_pairs(32, (64, 64), args.only), *compiled_pairs(256, (256, 256), args.only)]
+    rows += gather_pairs() if "gather" in args.only else []
     table = "\n".join(
         [
             f"One torch thread; {ROUNDS} alternating blocks per row; ms per call (median over blocks) of the path "
