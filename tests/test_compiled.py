@@ -115,20 +115,23 @@ def test_a_multitask_sac_update_compiles_to_the_eager_one(same_random_numbers):
         torch.testing.assert_close(b, a, rtol=1e-4, atol=1e-5)
 
 
-def test_the_functional_adam_step_is_torchs_adam_with_the_norm_clip():
+@pytest.mark.parametrize("weight_decay", [0.0, 0.1])
+def test_the_functional_adam_step_is_torchs_adam_with_the_norm_clip(weight_decay):
     torch.manual_seed(0)
-    net = torch.nn.Sequential(torch.nn.Linear(5, 7), torch.nn.Tanh(), torch.nn.Linear(7, 1))
+    net = torch.nn.Sequential(torch.nn.Linear(5, 7), torch.nn.Tanh(), torch.nn.Linear(7, 1), torch.nn.Linear(2, 2))
     twin = copy.deepcopy(net)
-    opt = torch.optim.Adam(net.parameters(), lr=1e-2)
-    opt_twin = torch.optim.Adam(twin.parameters(), lr=1e-2)
+    opt = torch.optim.Adam(net.parameters(), lr=1e-2, weight_decay=weight_decay)
+    opt_twin = torch.optim.Adam(twin.parameters(), lr=1e-2, weight_decay=weight_decay)
     init_adam_state(opt_twin)
     x = torch.randn(32, 5)
     clipped = list(net.parameters())[:2]  # the clip sees only the first layer, as gradient_step's list says
-    for _ in range(5):
-        gradient_step(opt, net(x).square().mean() * 100, clipped, 0.5)
-        functional_adam_step(opt_twin, twin(x).square().mean() * 100, list(twin.parameters())[:2], 0.5)
+    for _ in range(5):  # the last layer is not reached by the loss: left alone, its step count too
+        gradient_step(opt, net[:3](x).square().mean() * 100, clipped, 0.5)
+        functional_adam_step(opt_twin, twin[:3](x).square().mean() * 100, list(twin.parameters())[:2], 0.5)
     for a, b in zip(net.parameters(), twin.parameters()):
         torch.testing.assert_close(b, a, rtol=1e-5, atol=1e-6)
+    unreached = list(twin.parameters())[-1]
+    assert opt_twin.state[unreached]["step"] == 0 and opt_twin.state[list(twin.parameters())[0]]["step"] == 5
 
 
 def test_the_fused_target_update_is_the_polyak_formula():
