@@ -143,8 +143,9 @@ def functional_adam_step(
 ) -> None:
     """The step of :func:`gradient_step` as pure tensor operations (what ``torch.compile`` fuses into one graph):
 
-        g = d loss / d theta (+ weight_decay * theta)               (torch.autograd.grad)
+        g = d loss / d theta                                        (torch.autograd.grad)
         g <- g * min(1, max_grad_norm / (||g_clipped||_2 + 1e-6))   (over ``clipped``' gradients only, as clip_grad_norm_)
+        g <- g + weight_decay * theta                               (Adam's own L2 term, after the clip as in Adam.step)
         t <- t + 1,  m <- m + (1 - beta1) (g - m),  v <- beta2 v + (1 - beta2) g^2
         theta <- theta - lr / (1 - beta1^t) * m / (sqrt(v) / sqrt(1 - beta2^t) + eps)
 
@@ -158,6 +159,8 @@ def functional_adam_step(
     params, grads = [p for p, _ in reached], [g for _, g in reached]
     beta1, beta2 = group["betas"]
     n = len(params)
+    if not n:
+        return
     with torch.no_grad():
         state = [optimizer.state[p] for p in params]
         steps = [s["step"] for s in state]
@@ -173,8 +176,9 @@ def functional_adam_step(
         # code recomputed them (powers, roots, divisions) for every 8 elements. Side by side the whole compiled
         # DQN (256, 256) / 256 update took 0.87x the time (benchmarks/per_call_costs.py)
         scalars = torch.cat(scalars)
-        step_size, inv_sqrt_bias2, clip_scale = scalars[:n], scalars[n : 2 * n], scalars[-1]
-        grads = [g * clip_scale if c else g for g, c in zip(grads, is_clipped)]
+        step_size, inv_sqrt_bias2 = scalars[:n], scalars[n : 2 * n]
+        if any(is_clipped):
+            grads = [g * scalars[2 * n] if c else g for g, c in zip(grads, is_clipped)]
         if group["weight_decay"]:
             grads = torch._foreach_add(grads, params, alpha=group["weight_decay"])
         exp_avgs, exp_avg_sqs = [s["exp_avg"] for s in state], [s["exp_avg_sq"] for s in state]
