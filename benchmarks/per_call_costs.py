@@ -106,10 +106,13 @@ def compiled_pairs(batch_size: int, hidden: tuple[int, ...], only: list[str]) ->
     from learner_speed import bitflip_agent_and_batch
 
     rows = []
-    for what, old, change in (
-        ("stance", "settings every call", _patched_every_call),
-        ("size asserts", "with", _with_size_asserts),
-        ("Adam scalars", "torch's functional Adam", ("taskrl.agents.parts", "functional_adam_step", torch_functional_adam_step)),
+    adam = ("taskrl.agents.parts", "functional_adam_step", torch_functional_adam_step)
+    # (what, the replaced path, taskrl's path, a one-time patch of the replaced agent's step, or a function
+    # swapped in while the replaced agent traces and runs)
+    for what, old, new, patch, swapped in (
+        ("stance", "settings every call", "stance", _patched_every_call, None),
+        ("size asserts", "with", "without", _with_size_asserts, None),
+        ("Adam scalars", "torch's functional Adam", "taskrl's Adam", None, adam),
     ):
         if what not in only:
             continue
@@ -117,11 +120,9 @@ def compiled_pairs(batch_size: int, hidden: tuple[int, ...], only: list[str]) ->
         theirs = bitflip_agent_and_batch(batch_size, hidden, False)[0]
         for agent in (ours, theirs):
             agent.compile("default", say=lambda line: None)
-        replaced = contextlib.nullcontext
-        if isinstance(change, tuple):  # a replaced function: traced, and its guards checked, with it in place
-            replaced = functools.partial(_replaced, *change)
-        else:
-            change(theirs.step)
+        if patch is not None:
+            patch(theirs.step)
+        replaced = functools.partial(_replaced, *swapped) if swapped else contextlib.nullcontext
         for agent, context in ((ours, contextlib.nullcontext), (theirs, replaced)):
             with context():
                 for _ in range(250):  # both graphs of the target schedule, and a warm start
@@ -139,7 +140,6 @@ def compiled_pairs(batch_size: int, hidden: tuple[int, ...], only: list[str]) ->
             ROUNDS,
         )
         a, b = ms["a"], ms["b"]
-        new = {"stance": "stance", "size asserts": "without", "Adam scalars": "taskrl's Adam"}[what]
         rows.append(_row(f"compiled DQN {list(hidden)} / {batch_size} update, {what}", old, new, a, b))
         print(rows[-1], flush=True)
     return rows

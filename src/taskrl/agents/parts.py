@@ -168,7 +168,8 @@ def functional_adam_step(
         t = torch.stack(steps)
         scalars = [group["lr"] / (1 - beta1**t), (1 - beta2**t).rsqrt()]
         is_clipped = [any(p is c for c in clipped) for p in params] if max_grad_norm > 0 else [False] * n
-        if any(is_clipped):
+        clip = any(is_clipped)
+        if clip:
             norm = torch.linalg.vector_norm(torch.stack(torch._foreach_norm([g for g, c in zip(grads, is_clipped) if c])))
             scalars.append((max_grad_norm / (norm + 1e-6)).clamp(max=1.0).view(1))
         # the update's scalars in one buffer (a compiled step's cat is a buffer of its own on CPU): computed once,
@@ -177,7 +178,7 @@ def functional_adam_step(
         # DQN (256, 256) / 256 update took 0.87x the time (benchmarks/per_call_costs.py)
         scalars = torch.cat(scalars)
         step_size, inv_sqrt_bias2 = scalars[:n], scalars[n : 2 * n]
-        if any(is_clipped):
+        if clip:
             grads = [g * scalars[2 * n] if c else g for g, c in zip(grads, is_clipped)]
         if group["weight_decay"]:
             grads = torch._foreach_add(grads, params, alpha=group["weight_decay"])
