@@ -28,6 +28,10 @@ from taskrl.run import build, collector_env, make_evaluator, role_agent
 from taskrl.training.bookkeeping import Bookkeeping, LoopState
 from taskrl.training.offpolicy import batch_sampler
 
+#: tests that start Ray or look for its role processes: one after another in one test worker (``make test`` runs
+#: two), so two local clusters never share the 2 CPUs and a SIGKILL never reaches another test's roles
+ON_RAY = pytest.mark.xdist_group("ray")
+
 # ---------------------------------------------------------------------- pieces, in one process
 
 
@@ -245,6 +249,7 @@ def test_distribution_settings_are_checked():
     assert err.value.field == "ray_address"
 
 
+@ON_RAY
 def test_more_actors_than_the_cluster_can_place_are_refused_not_waited_for(tmp_path):
     with pytest.raises(ConfigError) as err:
         taskrl.train("pointreach-qtopt-her", out=tmp_path / "run", distributed=True, collectors=3, bellman_updaters=1, ray_cpus=2)
@@ -252,6 +257,7 @@ def test_more_actors_than_the_cluster_can_place_are_refused_not_waited_for(tmp_p
     assert not (tmp_path / "run").exists()
 
 
+@ON_RAY
 def test_an_unreachable_cluster_is_one_line_and_exit_2(tmp_path):
     out = tmp_path / "run"
     for address in ("127.0.0.1:9", "auto"):
@@ -307,30 +313,13 @@ def _role_pids(name: str) -> list[int]:
     return pids
 
 
-def test_distributed_qtopt_reaches_the_in_process_success_on_pointreach(tmp_path):
-    # the settings and goal of tests/test_learning.py's in-process run, on 2 collectors and 1 updater
-    common = dict(stop_at_success=0.95, total_steps=40_000, seed=0, threads=1, tensorboard=False, save_replay=False)
-    spread = taskrl.train(
-        "pointreach-qtopt-her",
-        out=tmp_path / "ray",
-        distributed=True,
-        collectors=2,
-        bellman_updaters=1,
-        ray_cpus=2,
-        actor_cpus=0.5,
-        **common,
-    )
-    assert spread.metrics["success_rate"] >= 0.95
-    rows = read_metrics(tmp_path / "ray" / "metrics.csv")
-    for row in rows[1:]:
-        assert row["updates_per_env_step"] == pytest.approx(0.25, rel=0.05)  # the limiter, across processes
-    last = rows[-1]
-    assert last["collector0/env_steps_per_s"] > 0 and last["collector1/env_steps_per_s"] > 0
-    assert last["updater0/targets_per_s"] > 0 and last["queue_depth"] <= 8
-
-
-def test_killed_collector_and_updater_restart_and_the_run_finishes(tmp_path):
-    out = tmp_path / "faults"
+@ON_RAY
+def test_distributed_qtopt_survives_killed_roles_and_reaches_the_in_process_success(tmp_path):
+    """The settings and goal of tests/test_learning.py's in-process run, on 2 collectors and 1 updater, with a
+    collector and the updater SIGKILLed mid-run: they restart, no stored episode is lost, the limiter holds
+    the update-to-data ratio across processes, and the run still reaches the in-process success. (One run
+    for both: each alone took about two minutes of a 2-core machine.)"""
+    out = tmp_path / "ray"
     killed: dict[str, int] = {}
 
     def kill_roles():
@@ -357,24 +346,29 @@ def test_killed_collector_and_updater_restart_and_the_run_finishes(tmp_path):
         actor_cpus=0.5,
         stop_at_success=0.95,
         total_steps=40_000,
-        eval_interval=2_000,
-        seed=1,
+        seed=0,
         threads=1,
         tensorboard=False,
     )
     killer.join(timeout=5)
     assert set(killed) == {"Collector", "BellmanUpdater"}, killed
+    assert run.metrics["success_rate"] >= 0.95
     rows = read_metrics(out / "metrics.csv")
-    assert rows[-1]["collector_restarts"] >= 1 and rows[-1]["updater_restarts"] >= 1
+    for row in rows[1:]:
+        assert row["updates_per_env_step"] == pytest.approx(0.25, rel=0.05)  # the limiter, across processes
+    last = rows[-1]
+    assert last["collector_restarts"] >= 1 and last["updater_restarts"] >= 1
+    assert last["collector0/env_steps_per_s"] > 0 and last["collector1/env_steps_per_s"] > 0
+    assert last["updater0/targets_per_s"] > 0 and last["queue_depth"] <= 8  # the restarted updater works
     stored = [row["stored_episodes"] for row in rows]
     assert stored == sorted(stored) and stored[-1] > stored[0]  # no stored episode is ever lost
-    assert run.metrics["success_rate"] >= 0.95
     # the trainer resumes from its checkpoint (replay included) with more steps
     resumed = taskrl.train(resume=out, total_steps=run.metrics["env_steps"] + 1_000, stop_at_success=0.0, tensorboard=False)
     assert resumed.metrics["env_steps"] >= run.metrics["env_steps"] + 1_000
     assert read_metrics(out / "metrics.csv")[-1]["stored_episodes"] >= stored[-1]
 
 
+@ON_RAY
 def test_dqn_learns_through_ray_collectors_with_its_own_targets(tmp_path):
     # the Ape-X layout on Ray: DQN (epsilon-greedy in each collector) on 8-bit flipping, as in one process
     run = taskrl.train(
