@@ -8,10 +8,12 @@ path it replaced, in one process and in alternating blocks (the machine's drift 
 - ``Adam scalars``: the compiled update with taskrl's Adam step (the step sizes, bias corrections and clip
   scale computed once into one small buffer) against torch's functional Adam (``capturable=True``), whose
   compiled kernel recomputes them for every 8 elements;
+- ``clip norm``: the compiled update with the gradient norms as one ``vector_norm`` per gradient (reductions
+  Inductor generates) against ``torch._foreach_norm`` (a call out of the graph);
 - ``gather``: the replay's gather at flat positions (one ``index_select`` per table) against indexing
   each table with the two index tensors ``[episode, step]``.
 
-    cd benchmarks && ../.venv/bin/python per_call_costs.py [--only stance 'size asserts' 'Adam scalars' gather] [--write]
+    cd benchmarks && ../.venv/bin/python per_call_costs.py [--only stance 'size asserts' 'Adam scalars' 'clip norm' gather] [--write]
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ from common import alternating_blocks, append_results, micro_benchmark_args
 
 ROUNDS, BLOCK = 30, 400
 #: what ``--only`` can choose
-PAIRS = ("stance", "size asserts", "Adam scalars", "gather")
+PAIRS = ("stance", "size asserts", "Adam scalars", "clip norm", "gather")
 
 
 def _row(what: str, old: str, new: str, a: list[float], b: list[float]) -> str:
@@ -113,6 +115,13 @@ def compiled_pairs(batch_size: int, hidden: tuple[int, ...], only: list[str]) ->
         ("stance", "settings every call", "stance", _patched_every_call, None),
         ("size asserts", "with", "without", _with_size_asserts, None),
         ("Adam scalars", "torch's functional Adam", "taskrl's Adam", None, adam),
+        (
+            "clip norm",
+            "_foreach_norm",
+            "a vector_norm each",
+            None,
+            ("taskrl.agents.parts", "gradient_norms", torch._foreach_norm),
+        ),
     ):
         if what not in only:
             continue
