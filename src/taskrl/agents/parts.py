@@ -141,7 +141,8 @@ def set_requires_grad(params: list[torch.Tensor], enabled: bool) -> None:
 def gradient_norms(grads: list[torch.Tensor]) -> list[torch.Tensor]:
     """``||g||_2`` of each gradient, one ``vector_norm`` each: in a compiled step each is a reduction Inductor
     generates (``torch._foreach_norm`` has no lowering and runs as a call out of the graph; side by side, the
-    compiled DQN (64, 64) / 32 update took 0.91x the time with these, ``benchmarks/per_call_costs.py``)."""
+    compiled DQN (64, 64) / 32 update took 0.90x the time with these, (256, 256) / 256 0.96-0.98x,
+    ``benchmarks/per_call_costs.py``)."""
     return [torch.linalg.vector_norm(g) for g in grads]
 
 
