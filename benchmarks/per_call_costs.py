@@ -5,6 +5,8 @@ path it replaced, in one process and in alternating blocks (the machine's drift 
   (what ``CompiledStep`` does once a graph exists) against entering Dynamo's compile settings
   (``torch._dynamo.config.patch``) at every call;
 - ``size asserts``: the compiled update without Inductor's size asserts (taskrl's option) against with;
+- ``C++ wrapper``: the compiled update with the graph's wrapper generated as C++ (taskrl's option on CPU)
+  against Inductor's Python wrapper;
 - ``Adam scalars``: the compiled update with taskrl's Adam step (the step sizes, bias corrections and clip
   scale computed once into one small buffer) against torch's functional Adam (``capturable=True``), whose
   compiled kernel recomputes them for every 8 elements;
@@ -13,7 +15,7 @@ path it replaced, in one process and in alternating blocks (the machine's drift 
 - ``gather``: the replay's gather at flat positions (one ``index_select`` per table) against indexing
   each table with the two index tensors ``[episode, step]``.
 
-    cd benchmarks && ../.venv/bin/python per_call_costs.py [--only stance 'size asserts' 'Adam scalars' 'clip norm' gather] [--write]
+    cd benchmarks && ../.venv/bin/python per_call_costs.py [--only stance 'size asserts' 'C++ wrapper' 'Adam scalars' 'clip norm' gather] [--write]
 """
 
 from __future__ import annotations
@@ -29,7 +31,7 @@ from common import alternating_blocks, append_results, micro_benchmark_args
 
 ROUNDS, BLOCK = 30, 400
 #: what ``--only`` can choose
-PAIRS = ("stance", "size asserts", "Adam scalars", "clip norm", "gather")
+PAIRS = ("stance", "size asserts", "C++ wrapper", "Adam scalars", "clip norm", "gather")
 
 
 def _row(what: str, old: str, new: str, a: list[float], b: list[float]) -> str:
@@ -50,6 +52,14 @@ def _patched_every_call(step) -> None:
             return self.compiled(*args)
 
     step._run = types.MethodType(run, step)
+
+
+def _with_python_wrapper(step) -> None:
+    """Recompile ``step`` with the graph's wrapper in Python (taskrl's CPU option generates it as C++)."""
+    from taskrl.agents.compiled import compile_options
+
+    options = {**compile_options(step.mode), "cpp_wrapper": False}
+    step.compiled = torch.compile(step.fn, fullgraph=True, dynamic=False, options=options)
 
 
 def _with_size_asserts(step) -> None:
@@ -114,6 +124,7 @@ def compiled_pairs(batch_size: int, hidden: tuple[int, ...], only: list[str]) ->
     for what, old, new, patch, swapped in (
         ("stance", "settings every call", "stance", _patched_every_call, None),
         ("size asserts", "with", "without", _with_size_asserts, None),
+        ("C++ wrapper", "Python wrapper", "C++ wrapper", _with_python_wrapper, None),
         ("Adam scalars", "torch's functional Adam", "taskrl's Adam", None, adam),
         (
             "clip norm",
