@@ -12,10 +12,12 @@ path it replaced, in one process and in alternating blocks (the machine's drift 
   compiled kernel recomputes them for every 8 elements;
 - ``clip norm``: the compiled update with the gradient norms as one ``vector_norm`` per gradient (reductions
   Inductor generates) against ``torch._foreach_norm`` (a call out of the graph);
+- ``obs concat``: the compiled update with the integer observation parts cast to float before their concat
+  (Inductor generates the concat as one kernel) against concatenating them first (a call out of the graph);
 - ``gather``: the replay's gather at flat positions (one ``index_select`` per table) against indexing
   each table with the two index tensors ``[episode, step]``.
 
-    cd benchmarks && ../.venv/bin/python per_call_costs.py [--only stance 'size asserts' 'C++ wrapper' 'Adam scalars' 'clip norm' gather] [--write]
+    cd benchmarks && ../.venv/bin/python per_call_costs.py [--only stance 'size asserts' 'C++ wrapper' 'Adam scalars' 'clip norm' 'obs concat' gather] [--write]
 """
 
 from __future__ import annotations
@@ -31,7 +33,7 @@ from common import alternating_blocks, append_results, micro_benchmark_args
 
 ROUNDS, BLOCK = 30, 400
 #: what ``--only`` can choose
-PAIRS = ("stance", "size asserts", "C++ wrapper", "Adam scalars", "clip norm", "gather")
+PAIRS = ("stance", "size asserts", "C++ wrapper", "Adam scalars", "clip norm", "obs concat", "gather")
 
 
 def _row(what: str, old: str, new: str, a: list[float], b: list[float]) -> str:
@@ -70,6 +72,12 @@ def _with_size_asserts(step) -> None:
     step.compiled = torch.compile(step.fn, fullgraph=True, dynamic=False, options=options)
 
 
+def concat_then_cast(self, obs):
+    """The compiled observation concat taskrl's ``nets.ObsConcat`` replaced: the concat, then one cast."""
+    parts = [obs[k].flatten(1) for k in self.keys]
+    return torch.cat(parts, dim=1).float()
+
+
 def torch_functional_adam_step(optimizer, loss, clipped, max_grad_norm) -> None:
     """The compiled Adam step taskrl's ``parts.functional_adam_step`` replaced: torch's functional Adam."""
     from torch.optim.adam import adam
@@ -105,7 +113,11 @@ def _replaced(module: str, name: str, value):
     """While open, ``module.name`` is ``value``: compiled steps trace (and their guards expect) the replaced path."""
     import importlib
 
-    where = importlib.import_module(module)
+    try:
+        where = importlib.import_module(module)
+    except ModuleNotFoundError:  # a class: module.Class
+        module, _, cls = module.rpartition(".")
+        where = getattr(importlib.import_module(module), cls)
     ours = getattr(where, name)
     setattr(where, name, value)
     try:
@@ -133,6 +145,7 @@ def compiled_pairs(batch_size: int, hidden: tuple[int, ...], only: list[str]) ->
             None,
             ("taskrl.agents.parts", "gradient_norms", torch._foreach_norm),
         ),
+        ("obs concat", "concat, then cast", "cast, then concat", None, ("taskrl.nets.ObsConcat", "forward", concat_then_cast)),
     ):
         if what not in only:
             continue

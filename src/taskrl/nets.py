@@ -111,8 +111,10 @@ class ObsConcat(nn.Module):
 
     def forward(self, obs: Obs) -> torch.Tensor:
         parts = [obs[k].flatten(1) for k in self.keys]
-        if len({p.dtype for p in parts}) == 1:  # one cast after the concat: fewer small ops
-            return torch.cat(parts, dim=1).float()
+        if len({p.dtype for p in parts}) == 1 and not torch.compiler.is_compiling():
+            return torch.cat(parts, dim=1).float()  # eager: one cast after the concat, fewer small ops
+        # compiled: each cast feeds the concat, which Inductor then generates as one kernel (a concat of integer
+        # tensors is a call out of the graph on CPU; side by side, ``benchmarks/per_call_costs.py``)
         return torch.cat([p.float() for p in parts], dim=1)
 
 
