@@ -56,20 +56,16 @@ def _patched_every_call(step) -> None:
     step._run = types.MethodType(run, step)
 
 
-def _with_python_wrapper(step) -> None:
-    """Recompile ``step`` with the graph's wrapper in Python (taskrl's CPU option generates it as C++)."""
-    from taskrl.agents.compiled import compile_options
+def _recompiled(**overrides):
+    """A patch that recompiles a step with taskrl's compile options but ``overrides`` (the path an option replaced)."""
 
-    options = {**compile_options(step.mode), "cpp_wrapper": False}
-    step.compiled = torch.compile(step.fn, fullgraph=True, dynamic=False, options=options)
+    def patch(step) -> None:
+        from taskrl.agents.compiled import compile_options
 
+        options = {**compile_options(step.mode), **overrides}
+        step.compiled = torch.compile(step.fn, fullgraph=True, dynamic=False, options=options)
 
-def _with_size_asserts(step) -> None:
-    """Recompile ``step`` with Inductor's size asserts on (taskrl turns them off)."""
-    from taskrl.agents.compiled import compile_options
-
-    options = {**compile_options(step.mode), "size_asserts": True}
-    step.compiled = torch.compile(step.fn, fullgraph=True, dynamic=False, options=options)
+    return patch
 
 
 def concat_then_cast(self, obs):
@@ -135,8 +131,8 @@ def compiled_pairs(batch_size: int, hidden: tuple[int, ...], only: list[str]) ->
     # swapped in while the replaced agent traces and runs)
     for what, old, new, patch, swapped in (
         ("stance", "settings every call", "stance", _patched_every_call, None),
-        ("size asserts", "with", "without", _with_size_asserts, None),
-        ("C++ wrapper", "Python wrapper", "C++ wrapper", _with_python_wrapper, None),
+        ("size asserts", "with", "without", _recompiled(size_asserts=True), None),
+        ("C++ wrapper", "Python wrapper", "C++ wrapper", _recompiled(cpp_wrapper=False), None),
         ("Adam scalars", "torch's functional Adam", "taskrl's Adam", None, adam),
         (
             "clip norm",

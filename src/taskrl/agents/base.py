@@ -179,7 +179,7 @@ class Agent:
             self.__dict__.pop("step_many", None)
             return
         optimizers = [obj for obj in self._parts().values() if isinstance(obj, torch.optim.Optimizer)]
-        kwargs = {"device": self.device} if say is None else {"say": say, "device": self.device}
+        kwargs = {"device": self.device} | ({} if say is None else {"say": say})
         self.step = CompiledStep(self.learn, mode, optimizers, **kwargs)
         self.step_many = CompiledStep(self.learn_many, mode, optimizers, what="updates", **kwargs)
 

@@ -60,7 +60,7 @@ def compile_options(mode: str, device: torch.device | str = "cpu") -> dict[str, 
     """Inductor's options for ``mode`` on ``device``: the mode's own, the guard filter, no size asserts (the guards
     check every argument's shape and strides before a call, and a parameter keeps its own for the agent's life;
     side by side, a batch-32 DQN update took 0.94x the time without them), and on CPU the graph's wrapper (what
-    calls its kernels and matrix products in order) generated as C++ instead of Python (side by side, 0.85x the
+    calls its kernels and matrix products in order) generated as C++ instead of Python (side by side, 0.83x the
     time of a compiled DQN (64, 64) / 32 update; ``benchmarks/per_call_costs.py`` for both)."""
     on_cpu = torch.device(device).type == "cpu"
     return {
