@@ -47,12 +47,25 @@ def commit() -> str:
     return head + (" +changes" if dirty.strip() else "")
 
 
+def fresh_compile_cache() -> str:
+    """Point torch's compile cache at a new empty folder, removed when the process ends (unless
+    ``TORCHINDUCTOR_CACHE_DIR`` is already set): compile times measured are those of a first run, since a
+    later run of the same shapes reuses the on-disk cache and starts faster. Call before the first compile."""
+    import atexit
+    import shutil
+    import tempfile
+
+    if "TORCHINDUCTOR_CACHE_DIR" not in os.environ:
+        folder = tempfile.mkdtemp(prefix="taskrl-inductor-")
+        atexit.register(shutil.rmtree, folder, ignore_errors=True)
+        os.environ["TORCHINDUCTOR_CACHE_DIR"] = folder
+    return os.environ["TORCHINDUCTOR_CACHE_DIR"]
+
+
 def micro_benchmark_args(doc: str | None, choices: tuple[str, ...] = ()):
     """The command line of a micro-benchmark (``--write``; ``--only`` some of ``choices``), with one torch thread
-    and a fresh compile cache (so the compile times measured are those of a first run)."""
+    and a fresh compile cache (:func:`fresh_compile_cache`)."""
     import argparse
-    import os
-    import tempfile
 
     import torch
 
@@ -62,7 +75,7 @@ def micro_benchmark_args(doc: str | None, choices: tuple[str, ...] = ()):
         parser.add_argument("--only", nargs="+", choices=choices, default=list(choices), help="what to measure (default: all)")
     args = parser.parse_args()
     torch.set_num_threads(1)
-    os.environ.setdefault("TORCHINDUCTOR_CACHE_DIR", tempfile.mkdtemp(prefix="taskrl-inductor-"))
+    fresh_compile_cache()
     return args
 
 

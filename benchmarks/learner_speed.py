@@ -39,25 +39,19 @@ distributions over seeds, not row by row (eager runs are compared row by row wit
 
 from __future__ import annotations
 
-import os
-import tempfile
-
-# a fresh compile cache: the compile times measured are those of a first run (a later run of the same
-# shapes reuses torch's on-disk cache and starts faster)
-os.environ.setdefault("TORCHINDUCTOR_CACHE_DIR", tempfile.mkdtemp(prefix="taskrl-inductor-"))
-
 import argparse
 import copy
 import functools
 import json
 import statistics
+import tempfile
 import time
 from pathlib import Path
 
 import torch
 
 import taskrl
-from common import alternating_blocks, append_results, sb3_learn_until, taskrl_learn_until
+from common import alternating_blocks, append_results, fresh_compile_cache, sb3_learn_until, taskrl_learn_until
 from taskrl.run import EVAL_SEED_OFFSET
 from taskrl.training.evaluation import evaluate
 
@@ -648,6 +642,7 @@ def main() -> None:
     )
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
+    fresh_compile_cache()  # before anything compiles: the compile times measured are those of a first run
     table, data = {"equal": equal, "bound": bound, "curves": curves, "loop": loop}[args.mode](args)
     path = args.json or RESULTS_DIR / f"learner_{args.mode}.json"
     path.parent.mkdir(parents=True, exist_ok=True)

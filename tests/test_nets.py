@@ -44,26 +44,49 @@ def test_laid_out_products_give_nn_linears_outputs_and_gradients(rows, n_in, n_o
         torch.testing.assert_close(a, b, rtol=1e-6, atol=1e-6, msg=name)
 
 
-def test_the_layouts_are_taken_where_they_apply(monkeypatch):
-    def traced_ops(layer, n_in):
-        graphs = []
+def _traced(layer: nn.Module, n_in: int, grad: bool = True, input_grad: bool = False) -> tuple[str, list]:
+    """The Dynamo graph of ``layer``'s forward (its node targets, one string) and the products of its
+    backward as AOT autograd traces them (``(first operand's shape, second's)`` of each ``mm``)."""
+    from functorch.compile import make_boxed_func
+    from torch._dynamo.backends.common import aot_autograd
 
-        def backend(gm, example_inputs):
-            graphs.append(gm)
-            return gm.forward
+    graphs, products = [], []
 
-        torch.compile(lambda x: layer(x).sum(), backend=backend, fullgraph=True)(torch.randn(256, n_in))
-        return " ".join(str(node.target) for gm in graphs for node in gm.graph.nodes)
+    def backward(gm, example_inputs):
+        products.extend(
+            tuple(tuple(arg.meta["val"].shape) for arg in node.args[:2])
+            for node in gm.graph.nodes
+            if node.target is torch.ops.aten.mm.default
+        )
+        return make_boxed_func(gm.forward)
 
-    for n_in, n_out, laid_out in ((30, 256, True), (256, 15, True), (256, 256, False)):
-        layer, _ = _pair(n_in, n_out)
-        assert ("autograd_function_apply" in traced_ops(layer, n_in)) is laid_out, (n_in, n_out)
-    padded = []
-    monkeypatch.setattr(nets, "_padded_linear", lambda x, w, b, pad: padded.append(pad) or torch.nn.functional.linear(x, w, b))
-    head, _ = _pair(256, 15)
-    with torch.no_grad():  # acting and targets: the padded product without an autograd.Function
-        head(torch.randn(256, 256))
-    assert padded == [1]
+    def backend(gm, example_inputs):
+        graphs.append(gm)
+        return aot_autograd(fw_compiler=lambda gm, _: make_boxed_func(gm.forward), bw_compiler=backward)(gm, example_inputs)
+
+    with torch.set_grad_enabled(grad):
+        x = torch.randn(256, n_in, requires_grad=input_grad)
+        out = torch.compile(lambda x: layer(x).sum(), backend=backend, fullgraph=True)(x)
+    if grad:
+        out.backward()
+    return " ".join(str(node.target) for gm in graphs for node in gm.graph.nodes), products
+
+
+def test_the_layouts_are_taken_where_they_apply():
+    # a first layer, 30 -> 256: the weight gradient's product is (x^T g), 256 wide (its output [30, 256])
+    ops, products = _traced(_pair(30, 256)[0], 30)
+    assert "contiguous" in ops and products == [((30, 256), (256, 256))], products
+    # a 15-action head: W padded to 16 rows; its backward's products (dW, dx) are the padded ones
+    ops, products = _traced(_pair(256, 15)[0], 256, input_grad=True)
+    assert "pad" in ops and sorted(products) == [((16, 256), (256, 256)), ((256, 16), (16, 256))], products
+    # a square layer: the plain product and torch's own backward
+    ops, products = _traced(_pair(256, 256)[0], 256, input_grad=True)
+    assert "pad" not in ops and "contiguous" not in ops and len(products) == 2
+    # acting and targets (no gradient) pad the head too
+    assert "pad" in _traced(_pair(256, 15)[0], 256, grad=False)[0]
+    # plain tensor operations only: an autograd.Function would keep compiled updates out of torch's compile cache
+    for n_in, n_out in ((30, 256), (256, 15)):
+        assert "autograd_function_apply" not in _traced(_pair(n_in, n_out)[0], n_in)[0]
 
 
 def test_batched_inputs_keep_their_leading_shape():
