@@ -1,8 +1,10 @@
 """Seconds a compiled DQN (256, 256) / 256 update spends compiling, with 1 and with 4 updates per call, on a first
-run (an empty compile cache) and on a later run of the same shapes (the cache the first run left): taskrl's
-``nets.Linear`` (its layouts as plain tensor operations) against the same layouts through an
-``autograd.Function`` (``per_call_costs.function_layouts``), which torch's cache of traced graphs refuses
-(AOT autograd's "Bypassing autograd cache due to: Unsupported call_function target autograd_function_apply").
+run (an empty compile cache) and on a later run of the same shapes (the cache the first run left).
+
+taskrl's ``nets.Linear`` takes its training layouts through an ``autograd.Function``, which torch's cache of
+traced graphs refuses (AOT autograd: "Bypassing autograd cache due to: Unsupported call_function target
+autograd_function_apply"), so a later run traces the update again. It runs side by side with the same layouts
+as plain tensor operations (:func:`plain_operation_layouts`, tried and not kept), which that cache takes.
 
 Each compile runs in a process of its own, and a first run and its later run share one fresh cache folder; the
 seconds are those of both graphs of the target schedule (the update with and without the target refresh).
@@ -24,7 +26,36 @@ from pathlib import Path
 
 from common import append_results
 
-PATHS = {"plain": "plain operations (taskrl)", "function": "autograd.Function"}
+PATHS = {"function": "an autograd.Function (taskrl)", "plain": "plain operations (tried)"}
+
+
+def plain_operation_layouts(self, x):
+    """``nets.Linear``'s compiled layouts with torch's own derivatives: the padded head as ``F.pad`` and a slice,
+    the wide weight gradient through a transposed copy of ``W`` (autograd lays ``dW`` out as the product's
+    weight operand is laid out). The same bits as taskrl's ``autograd.Function`` after 1 and 250 compiled updates
+    of this benchmark's agent, and the same time per update (per_call_costs.py's pair 'layouts' at commit c8adb49:
+    1.004x)."""
+    import torch
+    import torch.nn.functional as F
+
+    from taskrl import nets
+
+    pad = -self.out_features % 16 if self.out_features % 16 >= 13 else 0
+    needs_grad = torch.is_grad_enabled() and (x.requires_grad or self.weight.requires_grad or self.bias.requires_grad)
+    wide_grad = self.in_features < self.out_features and needs_grad
+    if (
+        not (pad or wide_grad)
+        or (needs_grad and not torch.compiler.is_compiling())
+        or x.numel() // self.in_features * self.in_features * self.out_features < nets._LAYOUT_MIN_MACS
+    ):
+        return F.linear(x, self.weight, self.bias)
+    weight, bias = self.weight, self.bias
+    if pad:
+        weight, bias = F.pad(weight, (0, 0, 0, pad)), F.pad(bias, (0, pad))
+    if wide_grad:
+        weight = weight.t().contiguous().t()
+    y = F.linear(x, weight, bias)
+    return y[..., : self.out_features] if pad else y
 
 
 def child(path: str, per_call: int) -> None:
@@ -33,11 +64,10 @@ def child(path: str, per_call: int) -> None:
 
     torch.set_num_threads(1)
     from learner_speed import bitflip_agent_and_batch, schedule_period
-    from per_call_costs import function_layouts
     from taskrl import nets
 
-    if path == "function":
-        nets.Linear.forward = function_layouts
+    if path == "plain":
+        nets.Linear.forward = plain_operation_layouts
     agent, batch, _ = bitflip_agent_and_batch(256, (256, 256), False)
     agent.compile("default", say=lambda line: None)
     for _ in range(-(-(schedule_period(agent) + 1) // per_call)):

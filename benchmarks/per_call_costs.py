@@ -14,13 +14,10 @@ path it replaced, in one process and in alternating blocks (the machine's drift 
   Inductor generates) against ``torch._foreach_norm`` (a call out of the graph);
 - ``obs concat``: the compiled update with the integer observation parts cast to float before their concat
   (Inductor generates the concat as one kernel) against concatenating them first (a call out of the graph);
-- ``layouts``: the compiled update with ``nets.Linear``'s layouts (a padded head, a wide first-layer weight
-  gradient) as plain tensor operations (taskrl's) against the same layouts through an ``autograd.Function``,
-  which keeps a compiled update out of torch's compile cache (``compile_cache.py`` times that);
 - ``gather``: the replay's gather at flat positions (one ``index_select`` per table) against indexing
   each table with the two index tensors ``[episode, step]``.
 
-    cd benchmarks && ../.venv/bin/python per_call_costs.py [--only stance 'size asserts' 'C++ wrapper' 'Adam scalars' 'clip norm' 'obs concat' layouts gather] [--write]
+    cd benchmarks && ../.venv/bin/python per_call_costs.py [--only stance 'size asserts' 'C++ wrapper' 'Adam scalars' 'clip norm' 'obs concat' gather] [--write]
 """
 
 from __future__ import annotations
@@ -33,14 +30,10 @@ import types
 import torch
 
 from common import alternating_blocks, append_results, micro_benchmark_args
-from taskrl import nets
-
-#: taskrl's ``nets.Linear`` forward (while a pair swaps in the path it replaced)
-_LINEAR_FORWARD = nets.Linear.forward
 
 ROUNDS, BLOCK = 30, 400
 #: what ``--only`` can choose
-PAIRS = ("stance", "size asserts", "C++ wrapper", "Adam scalars", "clip norm", "obs concat", "layouts", "gather")
+PAIRS = ("stance", "size asserts", "C++ wrapper", "Adam scalars", "clip norm", "obs concat", "gather")
 
 
 def _row(what: str, old: str, new: str, a: list[float], b: list[float]) -> str:
@@ -111,48 +104,6 @@ def torch_functional_adam_step(optimizer, loss, clipped, max_grad_norm) -> None:
         )
 
 
-class _LaidOutLinear(torch.autograd.Function):
-    """``nets.Linear``'s layouts as they were: ``y = x W^T + b`` with ``W`` padded by ``pad`` zero rows; the
-    backward's plain products of ``g``, ``dW`` as ``(x^T g)^T`` if ``wide_grad``."""
-
-    @staticmethod
-    def forward(x, weight, bias, pad, wide_grad):
-        if not pad:
-            return torch.nn.functional.linear(x, weight, bias)
-        padded = torch.nn.functional.linear(
-            x, torch.nn.functional.pad(weight, (0, 0, 0, pad)), torch.nn.functional.pad(bias, (0, pad))
-        )
-        return padded[:, : weight.shape[0]]
-
-    @staticmethod
-    def setup_context(ctx, inputs, output) -> None:
-        x, weight, _, _, ctx.wide_grad = inputs
-        ctx.save_for_backward(x, weight)
-
-    @staticmethod
-    def backward(ctx, grad):
-        x, weight = ctx.saved_tensors
-        grad_x = grad.mm(weight) if ctx.needs_input_grad[0] else None
-        grad_weight = (x.t().mm(grad).t() if ctx.wide_grad else grad.t().mm(x)) if ctx.needs_input_grad[1] else None
-        return grad_x, grad_weight, grad.sum(0) if ctx.needs_input_grad[2] else None, None, None
-
-
-def function_layouts(self, x):
-    """The compiled ``nets.Linear`` forward taskrl's replaced: its training layouts through :class:`_LaidOutLinear`."""
-    needs_grad = torch.is_grad_enabled() and (x.requires_grad or self.weight.requires_grad)
-    pad = -self.out_features % 16 if self.out_features % 16 >= 13 else 0
-    wide_grad = self.in_features < self.out_features
-    if (
-        not needs_grad
-        or not (pad or wide_grad)
-        or x.numel() // self.in_features * self.in_features * self.out_features < nets._LAYOUT_MIN_MACS
-    ):
-        return _LINEAR_FORWARD(self, x)  # the plain product, or no gradient (acting, targets): then as now
-    flat = x.reshape(-1, self.in_features)
-    y = _LaidOutLinear.apply(flat, self.weight, self.bias, pad, wide_grad)
-    return y.view(*x.shape[:-1], self.out_features)
-
-
 @contextlib.contextmanager
 def _replaced(module: str, name: str, value):
     """While open, ``module.name`` is ``value``: compiled steps trace (and their guards expect) the replaced path."""
@@ -191,7 +142,6 @@ def compiled_pairs(batch_size: int, hidden: tuple[int, ...], only: list[str]) ->
             ("taskrl.agents.parts", "gradient_norms", torch._foreach_norm),
         ),
         ("obs concat", "concat, then cast", "cast, then concat", None, ("taskrl.nets.ObsConcat", "forward", concat_then_cast)),
-        ("layouts", "autograd.Function", "plain operations", None, ("taskrl.nets.Linear", "forward", function_layouts)),
     ):
         if what not in only:
             continue

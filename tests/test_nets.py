@@ -44,49 +44,53 @@ def test_laid_out_products_give_nn_linears_outputs_and_gradients(rows, n_in, n_o
         torch.testing.assert_close(a, b, rtol=1e-6, atol=1e-6, msg=name)
 
 
-def _traced(layer: nn.Module, n_in: int, grad: bool = True, input_grad: bool = False) -> tuple[str, list]:
-    """The Dynamo graph of ``layer``'s forward (its node targets, one string) and the products of its
-    backward as AOT autograd traces them (``(first operand's shape, second's)`` of each ``mm``)."""
+def _traced(layer: nn.Module, n_in: int, input_grad: bool = False) -> tuple[str, list, list]:
+    """``layer``'s forward and backward on 256 rows as torch.compile traces them: the Dynamo graph's node
+    targets (one string), and the matrix products of the forward and of the backward AOT autograd makes
+    (``(first operand's shape, second's)`` of each ``mm`` / ``addmm``)."""
     from functorch.compile import make_boxed_func
     from torch._dynamo.backends.common import aot_autograd
 
-    graphs, products = [], []
+    graphs, products = [], {"forward": [], "backward": []}
 
-    def backward(gm, example_inputs):
-        products.extend(
-            tuple(tuple(arg.meta["val"].shape) for arg in node.args[:2])
-            for node in gm.graph.nodes
-            if node.target is torch.ops.aten.mm.default
-        )
-        return make_boxed_func(gm.forward)
+    def collect(which):
+        def compiler(gm, example_inputs):
+            for node in gm.graph.nodes:
+                if node.target in (torch.ops.aten.mm.default, torch.ops.aten.addmm.default):
+                    operands = node.args[:2] if node.target is torch.ops.aten.mm.default else node.args[1:3]
+                    products[which].append(tuple(tuple(arg.meta["val"].shape) for arg in operands))
+            return make_boxed_func(gm.forward)
+
+        return compiler
 
     def backend(gm, example_inputs):
         graphs.append(gm)
-        return aot_autograd(fw_compiler=lambda gm, _: make_boxed_func(gm.forward), bw_compiler=backward)(gm, example_inputs)
+        return aot_autograd(fw_compiler=collect("forward"), bw_compiler=collect("backward"))(gm, example_inputs)
 
-    with torch.set_grad_enabled(grad):
-        x = torch.randn(256, n_in, requires_grad=input_grad)
-        out = torch.compile(lambda x: layer(x).sum(), backend=backend, fullgraph=True)(x)
-    if grad:
-        out.backward()
-    return " ".join(str(node.target) for gm in graphs for node in gm.graph.nodes), products
+    x = torch.randn(256, n_in, requires_grad=input_grad)
+    torch.compile(lambda x: layer(x).sum(), backend=backend, fullgraph=True)(x).backward()
+    return " ".join(str(node.target) for gm in graphs for node in gm.graph.nodes), products["forward"], products["backward"]
 
 
-def test_the_layouts_are_taken_where_they_apply():
+def test_the_layouts_are_taken_where_they_apply(monkeypatch):
     # a first layer, 30 -> 256: the weight gradient's product is (x^T g), 256 wide (its output [30, 256])
-    ops, products = _traced(_pair(30, 256)[0], 30)
-    assert "contiguous" in ops and products == [((30, 256), (256, 256))], products
-    # a 15-action head: W padded to 16 rows; its backward's products (dW, dx) are the padded ones
-    ops, products = _traced(_pair(256, 15)[0], 256, input_grad=True)
-    assert "pad" in ops and sorted(products) == [((16, 256), (256, 256)), ((256, 16), (16, 256))], products
+    ops, forward, backward = _traced(_pair(30, 256)[0], 30)
+    assert "autograd_function_apply" in ops and backward == [((30, 256), (256, 256))], backward
+    # a 15-action head: W padded to 16 rows forward (its product 16 wide); the backward's products (dW, dx)
+    # are the plain ones
+    ops, forward, backward = _traced(_pair(256, 15)[0], 256, input_grad=True)
+    assert forward == [((256, 256), (256, 16))], forward
+    assert sorted(backward) == [((15, 256), (256, 256)), ((256, 15), (15, 256))], backward
     # a square layer: the plain product and torch's own backward
-    ops, products = _traced(_pair(256, 256)[0], 256, input_grad=True)
-    assert "pad" not in ops and "contiguous" not in ops and len(products) == 2
-    # acting and targets (no gradient) pad the head too
-    assert "pad" in _traced(_pair(256, 15)[0], 256, grad=False)[0]
-    # plain tensor operations only: an autograd.Function would keep compiled updates out of torch's compile cache
-    for n_in, n_out in ((30, 256), (256, 15)):
-        assert "autograd_function_apply" not in _traced(_pair(n_in, n_out)[0], n_in)[0]
+    ops, forward, backward = _traced(_pair(256, 256)[0], 256, input_grad=True)
+    assert "autograd_function_apply" not in ops and forward == [((256, 256), (256, 256))] and len(backward) == 2
+    # acting and targets (no gradient): the padded product without an autograd.Function
+    padded = []
+    monkeypatch.setattr(nets, "_padded_linear", lambda x, w, b, pad: padded.append(pad) or torch.nn.functional.linear(x, w, b))
+    head, _ = _pair(256, 15)
+    with torch.no_grad():
+        head(torch.randn(256, 256))
+    assert padded == [1]
 
 
 def test_batched_inputs_keep_their_leading_shape():

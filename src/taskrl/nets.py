@@ -25,43 +25,68 @@ class Linear(nn.Linear):
     - forward ``y = x W^T + b`` with ``out_features % 16`` in 13..15 (15-bit flipping's 15 actions):
       ``W`` padded with zero rows to a multiple of 16, the extra columns dropped, is 2x faster;
     - the weight gradient ``dW = g^T x`` is ``in_features`` wide; where ``in_features < out_features``
-      (a first layer from 30 inputs to 256 units) ``(x^T g)^T`` is 256 wide and about 2x faster.
-      Autograd lays ``dW`` out as the product's weight operand is laid out, so the product takes a
-      transposed copy of ``W`` (a few thousand numbers) and the gradient comes back through it in the
-      wide layout.
+      (a first layer from 30 inputs to 256 units) ``(x^T g)^T`` is 256 wide and about 2x faster. It
+      needs its own backward (:class:`_LaidOutLinear`), which only compiled updates take: eagerly an
+      ``autograd.Function`` costs more than it saves. (Torch's cache of traced graphs refuses an
+      ``autograd.Function``, so a later run of the same shapes traces the update again; the same layouts as
+      plain tensor operations were cached but compiled slower on a first run: ``benchmarks/compile_cache.py``.)
 
-    Eager training updates take neither (side by side, an eager DQN update with the padded head was no
-    faster); compiled updates and everything without gradients (acting, targets) take both.
-
-    Both are plain tensor operations with torch's own derivatives (no ``autograd.Function``), so a
-    compiled update stays in torch's compile caches and a later run of the same shapes starts in a few
-    seconds. On this machine's MKL both gave the same bits as the plain products at these shapes;
+    On this machine's MKL both gave the same bits as the plain products at these shapes;
     ``tests/test_nets.py`` checks outputs and gradients against ``nn.Linear``. On GPU, for other dtypes,
     without a bias, and for small products it is ``nn.Linear``.
     """
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         pad = -self.out_features % 16 if self.out_features % 16 >= 13 else 0
-        wide_grad = self.in_features < self.out_features
+        transposed_grad = self.in_features < self.out_features
         if self.bias is None or x.device.type != "cpu" or x.dtype != torch.float32:
             return F.linear(x, self.weight, self.bias)
         needs_grad = torch.is_grad_enabled() and (x.requires_grad or self.weight.requires_grad or self.bias.requires_grad)
-        wide_grad = wide_grad and needs_grad
         rows = x.numel() // self.in_features
         if (
-            not (pad or wide_grad)
-            # eager training: the layouts' extra operations cost about what they save
+            not (pad or (transposed_grad and needs_grad))
+            # eagerly a Python autograd.Function costs more than its layouts save
             or (needs_grad and not torch.compiler.is_compiling())
             or rows * self.in_features * self.out_features < _LAYOUT_MIN_MACS
         ):
             return F.linear(x, self.weight, self.bias)
-        weight, bias = self.weight, self.bias
-        if pad:  # zero rows: the extra outputs are dropped, and their gradients are zero
-            weight, bias = F.pad(weight, (0, 0, 0, pad)), F.pad(bias, (0, pad))
-        if wide_grad:  # W^T as its own row-major copy: dW = (x^T g)^T
-            weight = weight.t().contiguous().t()
-        y = F.linear(x, weight, bias)
-        return y[..., : self.out_features] if pad else y
+        flat = x.reshape(-1, self.in_features)
+        if needs_grad:
+            y = _LaidOutLinear.apply(flat, self.weight, self.bias, pad, transposed_grad)
+        else:
+            y = _padded_linear(flat, self.weight, self.bias, pad)
+        return y.view(*x.shape[:-1], self.out_features)
+
+
+def _padded_linear(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor, pad: int) -> torch.Tensor:
+    """``x W^T + b`` with ``W`` padded by ``pad`` zero rows, the extra output columns dropped."""
+    if not pad:
+        return F.linear(x, weight, bias)
+    return F.linear(x, F.pad(weight, (0, 0, 0, pad)), F.pad(bias, (0, pad)))[:, : weight.shape[0]]
+
+
+class _LaidOutLinear(torch.autograd.Function):
+    """``y = x W^T + b`` through :func:`_padded_linear`; its backward takes the plain products of ``g``
+    (not the padded ones: a wider sum adds in another order), ``dW`` as ``(x^T g)^T`` if asked."""
+
+    @staticmethod
+    def forward(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor, pad: int, transposed_grad: bool) -> torch.Tensor:
+        return _padded_linear(x, weight, bias, pad)
+
+    @staticmethod
+    def setup_context(ctx, inputs, output) -> None:
+        x, weight, _, _, ctx.transposed_grad = inputs
+        ctx.save_for_backward(x, weight)
+
+    @staticmethod
+    def backward(ctx, grad: torch.Tensor):
+        x, weight = ctx.saved_tensors
+        grad_x = grad.mm(weight) if ctx.needs_input_grad[0] else None
+        grad_weight = None
+        if ctx.needs_input_grad[1]:
+            grad_weight = x.t().mm(grad).t() if ctx.transposed_grad else grad.t().mm(x)
+        grad_bias = grad.sum(0) if ctx.needs_input_grad[2] else None
+        return grad_x, grad_weight, grad_bias, None, None
 
 
 def mlp(in_dim: int, hidden_sizes: Sequence[int], out_dim: int, activation: type[nn.Module] = nn.ReLU) -> nn.Sequential:
