@@ -65,13 +65,15 @@ def child(path: str, per_call: int) -> None:
     torch.set_num_threads(1)
     from learner_speed import bitflip_agent_and_batch, schedule_period
     from taskrl import nets
+    from taskrl.replay.batch import Batch
 
     if path == "plain":
         nets.Linear.forward = plain_operation_layouts
     agent, batch, _ = bitflip_agent_and_batch(256, (256, 256), False)
+    together = Batch.interleave([batch] * per_call)
     agent.compile("default", say=lambda line: None)
     for _ in range(-(-(schedule_period(agent) + 1) // per_call)):
-        agent.update_many([batch] * per_call) if per_call > 1 else agent.update(batch)
+        agent.update_many(together, per_call) if per_call > 1 else agent.update(batch)
     step = agent.step_many if per_call > 1 else agent.step
     assert step.active, "the update did not compile"
     counters = dict(torch._dynamo.utils.counters["aot_autograd"])

@@ -52,6 +52,7 @@ import torch
 
 import taskrl
 from common import alternating_blocks, append_results, fresh_compile_cache, sb3_learn_until, taskrl_learn_until
+from taskrl.replay.batch import Batch
 from taskrl.run import EVAL_SEED_OFFSET
 from taskrl.training.evaluation import evaluate
 
@@ -334,7 +335,6 @@ def bitflip_agent_and_batch(batch_size: int, hidden: tuple[int, ...], double_q: 
 def sac_agent_and_batch(batch_size: int, hidden: tuple[int, ...], in_dim: int, action_dim: int, tasks: int = 0, preset: str = ""):
     """A SAC agent and a random batch of its shapes (FetchReach's 13 inputs and 4 actions; or an MT10 preset's)."""
     from taskrl.agents.sac import SACAgent, SACConfig
-    from taskrl.replay.batch import Batch
 
     conditioning = None
     if tasks:
@@ -395,15 +395,15 @@ def bound(args) -> tuple[str, dict]:
         warm_seconds = time.perf_counter() - start
         many = copy.deepcopy(agent)
         many.compile("default", say=lambda line: None)
-        batches = [batch] * args.per_call
+        together = Batch.interleave([batch] * args.per_call)  # K batches in one, split inside the step
         for _ in range(-(-(schedule_period(agent) + 1) // args.per_call)):
-            many.update_many(batches)
+            many.update_many(together, args.per_call)
         for _ in range(schedule_period(agent) + 5):
             agent.update(batch)
         paths = {  # path: (call, its argument, updates per call)
             "eager": (agent.update, batch, 1),
             "compiled": (compiled.update, batch, 1),
-            "many": (many.update_many, batches, args.per_call),
+            "many": (functools.partial(many.update_many, k=args.per_call), together, args.per_call),
         }
 
         # side by side: round by round, the matrix-multiply rate and then a block of each path (in turn

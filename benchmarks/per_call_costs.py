@@ -14,10 +14,13 @@ path it replaced, in one process and in alternating blocks (the machine's drift 
   Inductor generates) against ``torch._foreach_norm`` (a call out of the graph);
 - ``obs concat``: the compiled update with the integer observation parts cast to float before their concat
   (Inductor generates the concat as one kernel) against concatenating them first (a call out of the graph);
+- ``split``: 4 updates per call (``agent.update_many(batch, 4)``) with the 4 batches split out of the drawn
+  batch inside the compiled graph (taskrl's path) against split eagerly before the call and passed to the
+  graph as 4 batches;
 - ``gather``: the replay's gather at flat positions (one ``index_select`` per table) against indexing
   each table with the two index tensors ``[episode, step]``.
 
-    cd benchmarks && ../.venv/bin/python per_call_costs.py [--only stance 'size asserts' 'C++ wrapper' 'Adam scalars' 'clip norm' 'obs concat' gather] [--write]
+    cd benchmarks && ../.venv/bin/python per_call_costs.py [--only stance 'size asserts' 'C++ wrapper' 'Adam scalars' 'clip norm' 'obs concat' split gather] [--write]
 """
 
 from __future__ import annotations
@@ -33,7 +36,7 @@ from common import alternating_blocks, append_results, micro_benchmark_args
 
 ROUNDS, BLOCK = 30, 400
 #: what ``--only`` can choose
-PAIRS = ("stance", "size asserts", "C++ wrapper", "Adam scalars", "clip norm", "obs concat", "gather")
+PAIRS = ("stance", "size asserts", "C++ wrapper", "Adam scalars", "clip norm", "obs concat", "split", "gather")
 
 
 def _row(what: str, old: str, new: str, a: list[float], b: list[float]) -> str:
@@ -174,6 +177,44 @@ def compiled_pairs(batch_size: int, hidden: tuple[int, ...], only: list[str]) ->
     return rows
 
 
+def split_before_the_call(agent, batch, k: int) -> list:
+    """The K-updates call taskrl's in-graph split replaced: ``batch`` split eagerly, the K batches passed to a
+    graph of the K updates (``agent.step_each``, made by :func:`split_pairs`)."""
+    flags = tuple(agent.schedule(agent.updates + i + 1) for i in range(k))
+    agent.updates += k
+    return agent.step_each(tuple(batch.split(k)), flags)
+
+
+def split_pairs(batch_size: int, hidden: tuple[int, ...], k: int = 4) -> list[str]:
+    from learner_speed import bitflip_agent_and_batch
+    from taskrl.agents.compiled import CompiledStep
+
+    ours, batch, _ = bitflip_agent_and_batch(k * batch_size, hidden, False)  # one drawn batch of K x B rows
+    theirs = bitflip_agent_and_batch(k * batch_size, hidden, False)[0]
+    ours.compile("default", say=lambda line: None)
+    optimizers = [theirs.optimizer]
+    theirs.step_each = CompiledStep(
+        lambda batches, flags: [theirs.learn(b, *f) for b, f in zip(batches, flags)], "default", optimizers, what="updates"
+    )
+    calls = {"a": lambda: split_before_the_call(theirs, batch, k), "b": lambda: ours.update_many(batch, k)}
+    for _ in range(-(-250 // k)):  # both graphs of the target schedule, and a warm start
+        for call in calls.values():
+            call()
+    assert ours.step_many.active and theirs.step_each.active
+
+    def run(call, block=BLOCK // 4 if batch_size > 64 else BLOCK // k):
+        for _ in range(block):
+            call()
+        return block
+
+    ms = alternating_blocks({name: functools.partial(run, call) for name, call in calls.items()}, ROUNDS)
+    row = _row(
+        f"compiled DQN {list(hidden)} / {batch_size}, {k} updates per call", "split before", "split inside", ms["a"], ms["b"]
+    )
+    print(row, flush=True)
+    return [row]
+
+
 def gather_pairs() -> list[str]:
     from learner_speed import DQN_EQUAL, bitflip_replay
     from taskrl.replay.batch import Batch
@@ -217,6 +258,7 @@ def gather_pairs() -> list[str]:
 def main() -> None:
     args = micro_benchmark_args(__doc__, PAIRS)
     rows = [*compiled_pairs(32, (64, 64), args.only), *compiled_pairs(256, (256, 256), args.only)]
+    rows += [*split_pairs(32, (64, 64)), *split_pairs(256, (256, 256))] if "split" in args.only else []
     rows += gather_pairs() if "gather" in args.only else []
     table = "\n".join(
         [

@@ -209,14 +209,15 @@ def test_k_updates_in_one_call_are_k_updates(name, same_random_numbers):
     torch.manual_seed(0)
     one_by_one, batch = agents()[name]
     batches = [batch.replace(reward=batch.reward + 0.1 * i) for i in range(4)]
+    together = Batch.interleave(batches)
     eager_many, compiled_many = copy.deepcopy(one_by_one), copy.deepcopy(one_by_one)
     compiled_many.compile("default", say=lambda line: None)
     torch.manual_seed(1)
     singles = [one_by_one.update(b) for b in batches]
     torch.manual_seed(1)
-    many = eager_many.update_many(batches)
+    many = eager_many.update_many(together, 4)
     torch.manual_seed(1)
-    many_compiled = compiled_many.update_many(batches)
+    many_compiled = compiled_many.update_many(together, 4)
     assert compiled_many.step_many.active
     assert one_by_one.updates == eager_many.updates == compiled_many.updates == 4
     for single, m, c in zip(singles, many, many_compiled):
@@ -265,7 +266,7 @@ def test_k_batches_drawn_together_are_k_task_balanced_batches():
 
     from taskrl.replay import EpisodeReplay
     from taskrl.replay.sampling import TaskBalancedSampler
-    from taskrl.training.offpolicy import batches_sampler
+    from taskrl.training.offpolicy import batch_sampler
 
     space = gym.spaces.Dict({"observation": gym.spaces.Box(-1, 1, (2,)), "task": gym.spaces.Discrete(4)})
     replay = EpisodeReplay(space, gym.spaces.Discrete(3), 4_000, 10, 4)
@@ -275,8 +276,8 @@ def test_k_batches_drawn_together_are_k_task_balanced_batches():
         replay.start(obs)
         for t in range(10):
             replay.add(torch.zeros(4), -torch.ones(4), torch.zeros(4, dtype=torch.bool), torch.full((4,), t == 9), obs, obs)
-    draw = batches_sampler(replay, None, 32, 4, g, TaskBalancedSampler(replay, 4))
-    batches = draw()
+    draw = batch_sampler(replay, None, 4 * 32, g, TaskBalancedSampler(replay, 4))
+    batches = draw().split(4)
     assert [len(b) for b in batches] == [32] * 4
     for b in batches:  # each of the 4 keeps the balance: 8 rows of every task
         assert torch.bincount(b.obs["task"], minlength=4).tolist() == [8, 8, 8, 8]

@@ -217,3 +217,20 @@ def test_the_memory_estimate_is_what_the_storage_allocates():
             EpisodeReplay.bytes_needed(env.single_observation_space, env.single_action_space, 5_000, env.horizon, env.num_envs)
             == allocated
         )
+
+
+def test_interleaving_batches_is_what_splitting_undoes():
+    from taskrl.replay.batch import Batch
+
+    replay = make_replay()
+    fill(replay, 2, [[3, 5, 4, 5]] * 2, 5)
+    g = torch.Generator().manual_seed(0)
+    batches = [replay.sample(6, g) for _ in range(3)]
+    together = Batch.interleave(batches)
+    assert len(together) == 18
+    assert torch.equal(together.obs["observation"][1::3], batches[1].obs["observation"])  # batch i: rows i, i + 3, ...
+    for part, batch in zip(together.split(3), batches):
+        for name in ("action", "reward", "terminated", "truncated", "episode", "step"):
+            assert torch.equal(getattr(part, name), getattr(batch, name))
+        for key in batch.obs:
+            assert torch.equal(part.obs[key], batch.obs[key]) and torch.equal(part.next_obs[key], batch.next_obs[key])

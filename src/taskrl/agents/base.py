@@ -17,7 +17,7 @@ and gets :meth:`Agent.act`, :meth:`Agent.exploration`, :meth:`Agent.state_dict` 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Mapping
 from typing import Any, ClassVar
 
 import numpy as np
@@ -155,20 +155,21 @@ class Agent:
         self.updates += 1
         return self.step(batch, *self.schedule(self.updates), *args)
 
-    def update_many(self, batches: Sequence[Any]) -> list[dict[str, torch.Tensor]]:
-        """``len(batches)`` updates in one call, one per batch, in order (after :meth:`compile`: one graph
-        for all of them, which saves the per-call overhead K - 1 times); the metrics of each."""
-        flags = tuple(self.schedule(self.updates + i + 1) for i in range(len(batches)))
-        self.updates += len(batches)
-        return self.step_many(tuple(batches), flags)
+    def update_many(self, batch: Any, k: int) -> list[dict[str, torch.Tensor]]:
+        """``k`` updates in one call, one on each of the ``k`` batches ``batch.split(k)`` makes, in order (after
+        :meth:`compile`: one graph for all of them, the split included, which saves the per-call overhead
+        ``k - 1`` times and the split's own small operations); the metrics of each."""
+        flags = tuple(self.schedule(self.updates + i + 1) for i in range(k))
+        self.updates += k
+        return self.step_many(batch, flags)
 
-    def learn_many(self, batches: tuple[Any, ...], flags: tuple[tuple, ...]) -> list[dict[str, torch.Tensor]]:
-        """:meth:`learn` on each batch with its flags."""
-        return [self.learn(batch, *batch_flags) for batch, batch_flags in zip(batches, flags)]
+    def learn_many(self, batch: Any, flags: tuple[tuple, ...]) -> list[dict[str, torch.Tensor]]:
+        """:meth:`learn` on each of the ``len(flags)`` batches ``batch.split(len(flags))`` makes, with its flags."""
+        return [self.learn(part, *part_flags) for part, part_flags in zip(batch.split(len(flags)), flags)]
 
-    def step_many(self, batches: tuple[Any, ...], flags: tuple[tuple, ...]) -> list[dict[str, torch.Tensor]]:
+    def step_many(self, batch: Any, flags: tuple[tuple, ...]) -> list[dict[str, torch.Tensor]]:
         """:meth:`learn_many` eagerly, or compiled after :meth:`compile`."""
-        return self.learn_many(batches, flags)
+        return self.learn_many(batch, flags)
 
     def compile(self, mode: str, say: Callable[[str], None] | None = None) -> None:
         """Run :meth:`learn` as one ``torch.compile`` graph (``mode``: see :mod:`taskrl.agents.compiled`),

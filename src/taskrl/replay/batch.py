@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 
 import torch
 
@@ -50,6 +51,18 @@ class Batch:
 
         fields = {f.name: parts(getattr(self, f.name)) for f in dataclasses.fields(self)}
         return [Batch(**{name: values[i] for name, values in fields.items()}) for i in range(k)]
+
+    @classmethod
+    def interleave(cls, batches: Sequence[Batch]) -> Batch:
+        """The one batch whose :meth:`split` into ``len(batches)`` gives ``batches`` back (rows ``i, i + k, ...``
+        are ``batches[i]``'s): how ``k`` batches of equal size go to ``agent.update_many`` together."""
+
+        def rows(values: list) -> torch.Tensor | Obs:
+            if isinstance(values[0], dict):
+                return {key: rows([v[key] for v in values]) for key in values[0]}
+            return torch.stack(values, dim=1).flatten(0, 1)
+
+        return cls(**{f.name: rows([getattr(b, f.name) for b in batches]) for f in dataclasses.fields(cls)})
 
     def to(self, device: str | torch.device) -> Batch:
         """This batch on ``device`` (itself when already there)."""

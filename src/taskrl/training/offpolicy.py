@@ -30,6 +30,7 @@ class OffPolicyAgent(Protocol):
     ) -> torch.Tensor: ...
     def exploration(self, env_steps: int) -> dict[str, float]: ...
     def update(self, batch: Batch) -> dict[str, torch.Tensor]: ...
+    def update_many(self, batch: Batch, k: int) -> list[dict[str, torch.Tensor]]: ...
 
 
 Relabel = Callable[[Batch, EpisodeReplay, torch.Generator], Batch]
@@ -52,22 +53,6 @@ def batch_sampler(
     return sample_batch
 
 
-def batches_sampler(
-    replay: EpisodeReplay,
-    relabel: Relabel | None,
-    batch_size: int,
-    k: int,
-    generator: torch.Generator,
-    sample: Callable[[int, torch.Generator], Batch] | None = None,
-) -> Callable[[], list[Batch]]:
-    """``() -> [Batch] * k``: ``k`` batches of ``batch_size`` drawn and relabelled as one batch of
-    ``k * batch_size`` (each row drawn independently, so the ``k`` batches are as ``k`` draws are), then
-    split (:meth:`Batch.split`): sampling and relabelling cost about one batch's small tensor operations,
-    not ``k`` times them."""
-    draw_all = batch_sampler(replay, relabel, k * batch_size, generator, sample)
-    return lambda: draw_all().split(k)
-
-
 @dataclasses.dataclass
 class LoopSchedule:
     """When learning happens, in environment steps (evaluation and checkpoints: the Bookkeeping's).
@@ -78,9 +63,11 @@ class LoopSchedule:
         learning_starts: environment steps collected before the first update.
         updates_per_step: gradient updates per environment step (fractions accumulate).
         offline_updates: gradient updates on preloaded data before the first env step.
-        updates_per_call: updates handed to the agent at once, each on its own batch, the batches
-            drawn together (:func:`batches_sampler`) (``agent.update_many``; one compiled graph for
-            all of them under ``--compile``); the update credit waits until it holds that many.
+        updates_per_call: updates handed to the agent at once (``agent.update_many``; one compiled graph
+            for all of them under ``--compile``), each on its own batch: the ``k`` batches are drawn and
+            relabelled as one of ``k * batch_size`` rows (each row drawn independently, so they are as ``k``
+            draws are, for about one batch's small tensor operations) and split by the agent
+            (:meth:`~taskrl.replay.batch.Batch.split`); the update credit waits until it holds that many.
     """
 
     total_steps: int
@@ -119,7 +106,7 @@ class OffPolicyLoop:
     ) -> None:
         self.env, self.agent, self.replay, self.relabel = env, agent, replay, relabel
         self.sample_batch = batch_sampler(replay, relabel, schedule.batch_size, generator, sample)
-        self.sample_batches = batches_sampler(replay, relabel, schedule.batch_size, schedule.updates_per_call, generator, sample)
+        self.sample_batches = batch_sampler(replay, relabel, schedule.batch_size * schedule.updates_per_call, generator, sample)
         self.schedule, self.books, self.generator = schedule, books, generator
 
     def run(self, env_seed: int) -> LoopState:
@@ -152,7 +139,7 @@ class OffPolicyLoop:
                         books.add_update(agent.update(self.sample_batch()))
                 else:
                     for _ in range(n_updates // k):
-                        for metrics in agent.update_many(self.sample_batches()):
+                        for metrics in agent.update_many(self.sample_batches(), k):
                             books.add_update(metrics)
 
             if books.after_step(agent.exploration(acted_at)):  # the level this step explored with
