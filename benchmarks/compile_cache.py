@@ -15,6 +15,7 @@ seconds are those of both graphs of the target schedule (the update with and wit
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import os
 import shutil
@@ -70,10 +71,14 @@ def child(path: str, per_call: int) -> None:
     if path == "plain":
         nets.Linear.forward = plain_operation_layouts
     agent, batch, _ = bitflip_agent_and_batch(256, (256, 256), False)
-    together = Batch.interleave([batch] * per_call)
+    if per_call > 1:
+        together = Batch.interleave([batch] * per_call)
+        update = functools.partial(agent.update_many, together, per_call)
+    else:
+        update = functools.partial(agent.update, batch)
     agent.compile("default", say=lambda line: None)
     for _ in range(-(-(schedule_period(agent) + 1) // per_call)):
-        agent.update_many(together, per_call) if per_call > 1 else agent.update(batch)
+        update()
     step = agent.step_many if per_call > 1 else agent.step
     assert step.active, "the update did not compile"
     counters = dict(torch._dynamo.utils.counters["aot_autograd"])
