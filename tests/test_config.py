@@ -1,5 +1,6 @@
 import dataclasses
 import json
+import pickle
 
 import pytest
 
@@ -80,6 +81,12 @@ def test_validation_names_the_field(changes, field):
     with pytest.raises(ConfigError) as err:
         validate(with_overrides(TrainConfig(), changes))
     assert err.value.field == field
+
+
+def test_a_config_error_crosses_processes_whole():
+    # a Ray role's ConfigError reaches the trainer pickled: the same field and message, not a broken copy
+    error = pickle.loads(pickle.dumps(ConfigError("env_module", "cannot import 'mine'")))
+    assert (type(error), error.field, error.message) == (ConfigError, "env_module", "cannot import 'mine'")
 
 
 def test_a_rule_lives_in_one_place_ppo_may_use_gamma_one_dqn_may_not():

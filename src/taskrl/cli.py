@@ -557,6 +557,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "demos": cmd_demos,
     }
     from taskrl.distributed.loop import RolesLost
+    from taskrl.distributed.pools import RoleCannotStart
     from taskrl.errors import ConfigError
     from taskrl.training.bookkeeping import TrainingDiverged
 
@@ -574,7 +575,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (FileNotFoundError, NotADirectoryError, IsADirectoryError, PermissionError) as e:
         print(f"taskrl {command}: error: {e}", file=sys.stderr)
         return 2
-    except (TrainingDiverged, RolesLost) as e:
+    except (TrainingDiverged, RolesLost, RoleCannotStart) as e:
         print(f"taskrl {command}: error: {e}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:  # a second Ctrl-C: the last complete checkpoint stays

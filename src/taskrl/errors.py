@@ -17,6 +17,9 @@ class ConfigError(ValueError):
         self.field = field
         self.message = message
 
+    def __reduce__(self) -> tuple:
+        return ConfigError, (self.field, self.message)  # whole across processes (a Ray role's error)
+
 
 def require(ok: bool, field: str, message: str) -> None:
     """Raise :class:`ConfigError` for ``field`` with ``message`` unless ``ok``."""

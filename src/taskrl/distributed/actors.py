@@ -14,7 +14,7 @@ import socket
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from taskrl.distributed.pools import RoleDied
+from taskrl.distributed.pools import RoleCannotStart, RoleDied
 from taskrl.distributed.settings import DistributedConfig
 from taskrl.errors import ConfigError, reason, require
 
@@ -99,6 +99,12 @@ class _Fetch:
         return _ray().get(self.ref)
 
 
+def _last_line(error: BaseException) -> str:
+    """The last line of a remote error's text: the role's own exception, after Ray's traceback."""
+    lines = [line.strip() for line in str(error).splitlines() if line.strip()]
+    return lines[-1][:200] if lines else type(error).__name__
+
+
 class RayPool:
     """Role objects as Ray actors (one process each).
 
@@ -114,7 +120,23 @@ class RayPool:
         self.ray = ray
         remote = ray.remote(role).options(num_cpus=num_cpus, max_restarts=max_restarts, max_task_retries=0)
         self.handles = [remote.remote(*a) for a in args]
-        self.size = len(self.handles)
+        self.size, self.name = len(self.handles), role.__name__
+
+    def wait_started(self, timeout: float) -> None:
+        # the first calls then all start together: no role's process start-up counts as collection
+        refs = [handle.pid.remote() for handle in self.handles]
+        done, _ = self.ray.wait(refs, num_returns=len(refs), timeout=timeout)
+        for i, ref in enumerate(refs):
+            if ref not in done:
+                raise RoleCannotStart(f"{self.name} {i} did not start within {timeout:g} s (is its node gone?)")
+            try:
+                self.ray.get(ref)
+            except self.ray.exceptions.RayActorError as error:
+                if error.actor_init_failed:
+                    raise RoleCannotStart(f"{self.name} {i} could not start: {_last_line(error)}") from None
+                # else its process died while starting: Ray restarts it and the loop re-sends its work
+            except self.ray.exceptions.RayError as error:  # e.g. a role's exception this process cannot unpickle
+                raise RoleCannotStart(f"{self.name} {i} could not start: {_last_line(error)}") from None
 
     def submit(self, index: int, method: str, *args: Any) -> Any:
         return getattr(self.handles[index], method).remote(*args)
@@ -133,6 +155,8 @@ class RayPool:
         try:
             return self.ray.get(handle)
         except self.ray.exceptions.RayActorError as error:
+            if error.actor_init_failed:  # Ray never restarts a role whose constructor raised
+                raise RoleCannotStart(f"a {self.name} could not start: {_last_line(error)}") from None
             raise RoleDied(reason(error)) from None
 
     def publish(self, value: Any) -> Callable[[], Any]:

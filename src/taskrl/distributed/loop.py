@@ -14,7 +14,9 @@ had in hand, never a stored episode. Each turn of the loop
 5. runs the bookkeeping (evaluation, metric rows with per-role figures, checkpoints).
 
 Roles are called through a :class:`~taskrl.distributed.pools.Pool`: Ray actors, or the same role
-objects in this process.
+objects in this process. The loop starts once every role is up, so all collectors' first calls
+leave together; a role whose constructor raises stops the run with its reason
+(:class:`~taskrl.distributed.pools.RoleCannotStart`) instead of being re-sent work forever.
 """
 
 from __future__ import annotations
@@ -41,6 +43,8 @@ UPDATE_BURST = 32
 CALLS_PER_COLLECTOR = 2
 #: seconds the trainer waits for any role when it has nothing to do
 IDLE_WAIT = 0.05
+#: seconds the trainer waits for every role's process to start (import, env, agent) before it fails
+ROLE_START_WAIT = 600.0
 #: seconds a finishing run waits for the collect calls in flight and the collectors' running episodes
 FINISH_WAIT = 60.0
 
@@ -339,6 +343,9 @@ class DistributedLoop:
         books, state = self.books, self.books.state
         books.on_finish = self.finish
         books.row_metrics.append(self.row_metrics)
+        for pool in (self.collectors, self.updaters):
+            if pool is not None:
+                pool.wait_started(ROLE_START_WAIT)
         self.publish()
         while True:
             if self.collect_calls:

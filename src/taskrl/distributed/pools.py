@@ -7,17 +7,25 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from typing import Any, Protocol
 
-__all__ = ["LocalPool", "Pool", "RoleDied"]
+__all__ = ["LocalPool", "Pool", "RoleCannotStart", "RoleDied"]
 
 
 class RoleDied(RuntimeError):
     """The process of a role died during a call (it restarts if restarts are left)."""
 
 
+class RoleCannotStart(RuntimeError):
+    """A role's constructor raised (an env or module its process cannot build or import) or it never
+    started: no restart helps, so the run stops with the reason."""
+
+
 class Pool(Protocol):
     """Roles ``0 .. size - 1`` of one kind."""
 
     size: int
+
+    def wait_started(self, timeout: float) -> None:
+        """Wait up to ``timeout`` s until every role is constructed; :class:`RoleCannotStart` if one cannot be."""
 
     def submit(self, index: int, method: str, *args: Any) -> Any:
         """Start ``role[index].method(*args)``; a handle to its result."""
@@ -52,6 +60,9 @@ class LocalPool:
 
     def __init__(self, roles: Sequence[Any]) -> None:
         self.roles, self.size = list(roles), len(roles)
+
+    def wait_started(self, timeout: float) -> None:
+        pass  # constructed in this process already
 
     def submit(self, index: int, method: str, *args: Any) -> _Done:
         try:
