@@ -131,11 +131,9 @@ class RayPool:
                 raise RoleCannotStart(f"{self.name} {i} did not start within {timeout:g} s (is its node gone?)")
             try:
                 self.ray.get(ref)
-            except self.ray.exceptions.RayActorError as error:
-                if error.actor_init_failed:
-                    raise RoleCannotStart(f"{self.name} {i} could not start: {_last_line(error)}") from None
-                # else its process died while starting: Ray restarts it and the loop re-sends its work
-            except self.ray.exceptions.RayError as error:  # e.g. a role's exception this process cannot unpickle
+            except self.ray.exceptions.RayError as error:  # its constructor raised, or its exception cannot be unpickled here
+                if isinstance(error, self.ray.exceptions.RayActorError) and not error.actor_init_failed:
+                    continue  # its process died while starting: Ray restarts it and the loop re-sends its work
                 raise RoleCannotStart(f"{self.name} {i} could not start: {_last_line(error)}") from None
 
     def submit(self, index: int, method: str, *args: Any) -> Any:

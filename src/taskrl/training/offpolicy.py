@@ -106,7 +106,9 @@ class OffPolicyLoop:
     ) -> None:
         self.env, self.agent, self.replay, self.relabel = env, agent, replay, relabel
         self.sample_batch = batch_sampler(replay, relabel, schedule.batch_size, generator, sample)
-        self.sample_batches = batch_sampler(replay, relabel, schedule.batch_size * schedule.updates_per_call, generator, sample)
+        self.sample_k_batches = batch_sampler(  # one batch of k x batch_size rows, split by the agent
+            replay, relabel, schedule.batch_size * schedule.updates_per_call, generator, sample
+        )
         self.schedule, self.books, self.generator = schedule, books, generator
 
     def run(self, env_seed: int) -> LoopState:
@@ -139,7 +141,7 @@ class OffPolicyLoop:
                         books.add_update(agent.update(self.sample_batch()))
                 else:
                     for _ in range(n_updates // k):
-                        for metrics in agent.update_many(self.sample_batches(), k):
+                        for metrics in agent.update_many(self.sample_k_batches(), k):
                             books.add_update(metrics)
 
             if books.after_step(agent.exploration(acted_at)):  # the level this step explored with
