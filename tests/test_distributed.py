@@ -10,6 +10,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -288,6 +289,9 @@ def test_a_role_that_cannot_start_stops_the_run_with_its_reason(tmp_path, monkey
 @ON_RAY
 def test_an_unreachable_cluster_is_one_line_and_exit_2(tmp_path):
     out = tmp_path / "run"
+    deadline = time.monotonic() + 60  # "auto" joins any Ray head still running: an earlier test's, on its way out
+    while _pids(lambda word: Path(word).name == "gcs_server") and time.monotonic() < deadline:
+        time.sleep(0.5)
     for address in ("127.0.0.1:9", "auto"):
         done = subprocess.run(
             [sys.executable, "-m", "taskrl.cli", "train", "pointreach-qtopt-her", "--distributed", "--ray-address", address]
@@ -328,17 +332,22 @@ def test_offline_data_from_another_run_then_online(tmp_path):
 # ---------------------------------------------------------------------- on Ray (2 CPUs)
 
 
-def _role_pids(name: str) -> list[int]:
-    """Processes whose title is ``ray::<name>`` (what Ray names an actor's process)."""
+def _pids(program: Callable[[str], bool]) -> list[int]:
+    """Processes whose first command-line word passes ``program``."""
     pids = []
     for entry in Path("/proc").iterdir():
         if entry.name.isdigit():
             try:
-                if (entry / "cmdline").read_bytes().split(b"\0")[0].decode(errors="replace").startswith(f"ray::{name}"):
+                if program((entry / "cmdline").read_bytes().split(b"\0")[0].decode(errors="replace")):
                     pids.append(int(entry.name))
             except OSError:
                 continue
     return pids
+
+
+def _role_pids(name: str) -> list[int]:
+    """Processes whose title is ``ray::<name>`` (what Ray names an actor's process)."""
+    return _pids(lambda word: word.startswith(f"ray::{name}"))
 
 
 @ON_RAY
