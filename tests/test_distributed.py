@@ -221,10 +221,15 @@ def test_sac_learns_through_collectors_with_its_own_targets(tmp_path):
 
 def test_data_sharing_runs_through_collectors(tmp_path):
     """The trainer samples with the run's TaskSharing: the grid's low-data task is learnt from the
-    other tasks' data that collectors send, and the shares are logged."""
+    other tasks' data that collectors send, and the shares are logged.
+
+    The low-data task's success swings between evaluations (20 episodes each; 0.3 to 0.8 one row apart) and
+    with the floating-point rounding of the machine's matrix products, so the test reads the last two
+    evaluations of a 12,000-step run: their mean was 0.75 to 0.95 over seeds 0-9 on one machine; a random
+    policy reaches about 0.05."""
     config = with_overrides(
         preset_config("grid-sharing-dqn"),
-        {"collectors": 2, "bellman_updaters": 0, "total_steps": 8_000, "threads": 1, "seed": 0},
+        {"collectors": 2, "bellman_updaters": 0, "total_steps": 12_000, "threads": 1, "seed": 0},
     )  # not --distributed: that would start a local Ray; the roles here are plain objects
     loop, rows, parts = _local_loop(tmp_path, config, updaters=0, evaluated=True)
     names = list(parts.env.task_set.names)
@@ -235,7 +240,8 @@ def test_data_sharing_runs_through_collectors(tmp_path):
         parts.close()
     assert parts.sharing is not None and parts.sampler is parts.sharing
     assert rows[-1]["shared/top-left-avoid"] == pytest.approx(0.5, abs=0.03)
-    assert rows[-1]["success/top-left-avoid"] >= 0.7, [r["success/top-left-avoid"] for r in rows]
+    last_two = [r["success/top-left-avoid"] for r in rows[-2:]]
+    assert sum(last_two) / 2 >= 0.7, [r["success/top-left-avoid"] for r in rows]
 
 
 def test_distribution_settings_are_checked():
