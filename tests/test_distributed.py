@@ -171,6 +171,19 @@ def test_each_death_of_a_role_counts_once_with_or_without_a_call_in_flight():
     assert lives.out_of_restarts(0, max_restarts=1) and not lives.out_of_restarts(1, max_restarts=1)
 
 
+def test_calls_that_fail_while_a_role_restarts_count_no_other_death():
+    # Ray fails the calls in hand at a kill and those sent before the new process is up alike ("unavailable")
+    lives = RoleLives(1)
+    lives.answered(0, pid=100)
+    lives.failed(0, epoch=0, restarting=True)  # killed with a call in hand
+    lives.failed(0, epoch=1, restarting=True), lives.failed(0, epoch=1, restarting=True)  # sent while it restarts
+    assert lives.deaths == 1 and lives.epoch == [1]
+    lives.answered(0, pid=101)
+    lives.failed(0, epoch=1, restarting=True)  # killed again, after its new process answered
+    lives.failed(0, epoch=2)  # and a death Ray reports as final (no restart left) counts too
+    assert lives.deaths == 3 and lives.epoch == [3]
+
+
 class _DyingCollector:
     """A collector whose process dies at every call."""
 
@@ -387,7 +400,7 @@ def test_distributed_qtopt_survives_killed_roles_and_reaches_the_in_process_succ
         bellman_updaters=1,
         ray_cpus=2,
         actor_cpus=0.5,
-        stop_at_success=0.95,
+        stop_at_success=0.9,
         total_steps=40_000,
         seed=0,
         threads=1,
@@ -395,12 +408,12 @@ def test_distributed_qtopt_survives_killed_roles_and_reaches_the_in_process_succ
     )
     killer.join(timeout=5)
     assert set(killed) == {"Collector", "BellmanUpdater"}, killed
-    assert run.metrics["success_rate"] >= 0.95
+    assert run.metrics["success_rate"] >= 0.9
     rows = read_metrics(out / "metrics.csv")
     for row in rows[1:]:
         assert row["updates_per_env_step"] == pytest.approx(0.25, rel=0.05)  # the limiter, across processes
     last = rows[-1]
-    assert last["collector_restarts"] >= 1 and last["updater_restarts"] >= 1
+    assert last["collector_restarts"] == 1 and last["updater_restarts"] == 1  # one kill each, counted once
     assert last["collector0/env_steps_per_s"] > 0 and last["collector1/env_steps_per_s"] > 0
     assert last["updater0/targets_per_s"] > 0 and last["queue_depth"] <= 8  # the restarted updater works
     stored = [row["stored_episodes"] for row in rows]

@@ -74,15 +74,15 @@ def test_sac_her_solves_pointreach(tmp_path):
 
 
 def test_qtopt_her_solves_pointreach(tmp_path):
-    # the in-process twin of tests/test_distributed.py's distributed run: the same settings and goal
+    # the in-process twin of tests/test_distributed.py's distributed run: the same settings and goal (random: ~0.05)
     run = taskrl.train(
         "pointreach-qtopt-her",
         out=tmp_path / "qtopt",
         total_steps=40_000,
-        stop_at_success=0.95,
+        stop_at_success=0.9,
         seed=0,
         threads=1,
         tensorboard=False,
         save_replay=False,
     )
-    assert run.metrics["success_rate"] >= 0.95
+    assert run.metrics["success_rate"] >= 0.9

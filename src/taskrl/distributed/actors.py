@@ -14,7 +14,7 @@ import socket
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from taskrl.distributed.pools import RoleCannotStart, RoleDied
+from taskrl.distributed.pools import RoleCannotStart, RoleDied, RoleRestarting
 from taskrl.distributed.settings import DistributedConfig
 from taskrl.errors import ConfigError, reason, require
 
@@ -155,6 +155,8 @@ class RayPool:
         except self.ray.exceptions.RayActorError as error:
             if error.actor_init_failed:  # Ray never restarts a role whose constructor raised
                 raise RoleCannotStart(f"a {self.name} could not start: {_last_line(error)}") from None
+            if isinstance(error, self.ray.exceptions.ActorUnavailableError):  # Ray is restarting its process
+                raise RoleRestarting(reason(error)) from None
             raise RoleDied(reason(error)) from None
 
     def publish(self, value: Any) -> Callable[[], Any]:

@@ -28,7 +28,7 @@ from typing import Any
 import torch
 
 from taskrl.distributed.limiter import UpdateToDataLimiter
-from taskrl.distributed.pools import Pool, RoleDied
+from taskrl.distributed.pools import Pool, RoleDied, RoleRestarting
 from taskrl.distributed.roles import Collected, Labelled
 from taskrl.distributed.settings import DistributedConfig
 from taskrl.replay.batch import Batch
@@ -66,7 +66,9 @@ class RoleLives:
 
     A role's death shows either as a failed call (the first of its life to fail) or, when it died with
     no call in flight, as a result from a new process. ``epoch[i]`` counts role i's deaths; calls carry
-    the epoch they were sent in, so the other failed calls of the same life add nothing.
+    the epoch they were sent in, so the other failed calls of the same life add nothing. Calls sent
+    after a counted death fail too while the new process starts (``restarting``: Ray's "unavailable");
+    they add nothing until the new process has answered.
     """
 
     def __init__(self, size: int) -> None:
@@ -75,8 +77,8 @@ class RoleLives:
         self.counted = [False] * size  # a death counted whose new process has not answered yet
         self.deaths = 0
 
-    def failed(self, i: int, epoch: int) -> None:
-        if epoch == self.epoch[i]:
+    def failed(self, i: int, epoch: int, restarting: bool = False) -> None:
+        if epoch == self.epoch[i] and not (restarting and self.counted[i]):
             self._death(i)
             self.counted[i] = True
 
@@ -226,8 +228,8 @@ class DistributedLoop:
             i, epoch = self.collect_calls.pop(handle)
             try:
                 got: Collected = self.collectors.result(handle)
-            except RoleDied:
-                self.collector_lives.failed(i, epoch)
+            except RoleDied as error:
+                self.collector_lives.failed(i, epoch, isinstance(error, RoleRestarting))
                 self.collector_lost(i)
                 continue
             self.collector_lives.answered(i, got.pid)
@@ -279,8 +281,8 @@ class DistributedLoop:
             j, epoch = self.label_calls.pop(handle)
             try:
                 labelled: list[Labelled] = self.updaters.result(handle)
-            except RoleDied:
-                self.updater_lives.failed(j, epoch)
+            except RoleDied as error:
+                self.updater_lives.failed(j, epoch, isinstance(error, RoleRestarting))
                 self.updater_lost(j)
                 continue
             if labelled:

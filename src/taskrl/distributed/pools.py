@@ -14,6 +14,11 @@ class RoleDied(RuntimeError):
     """The process of a role died during a call (it restarts if restarts are left)."""
 
 
+class RoleRestarting(RoleDied):
+    """A call failed because the role's process is being restarted: the one that died with it in hand, or
+    one sent since, before the new process is up. The death it shows may be one already counted."""
+
+
 class RoleCannotStart(RuntimeError):
     """A role's constructor raised (an env or module its process cannot build or import) or it never
     started: no restart helps, so the run stops with the reason."""
