@@ -230,9 +230,10 @@ def test_k_updates_in_one_call_are_k_updates(name, same_random_numbers):
         torch.testing.assert_close(c, a, rtol=1e-4, atol=1e-5)
 
 
-def test_a_compiled_run_with_four_updates_per_call_learns_bit_flipping(tmp_path, capsys):
+def test_a_compiled_run_with_several_updates_per_call_learns_bit_flipping(tmp_path, capsys):
     import taskrl
 
+    # 2 per call: the path of any K > 1 (4 is the documented choice), at half the compile time of 4
     run = taskrl.train(
         "bitflip-her",
         out=tmp_path / "run",
@@ -240,13 +241,13 @@ def test_a_compiled_run_with_four_updates_per_call_learns_bit_flipping(tmp_path,
         total_steps=3_000,
         eval_interval=3_000,
         updates_per_step=0.25,
-        updates_per_call=4,
+        updates_per_call=2,
         compile="default",
         tensorboard=False,
     )
     assert run.agent.step_many.active
-    assert run.metrics["updates"] == pytest.approx(0.25 * (3_000 - run.config.learning_starts), abs=4 + 32)
-    assert run.metrics["updates"] % 4 == 0
+    assert run.metrics["updates"] == pytest.approx(0.25 * (3_000 - run.config.learning_starts), abs=2 + 32)
+    assert run.metrics["updates"] % 2 == 0
     assert run.metrics["success_rate"] >= 0.9  # a random policy: about 0.1 on 6 bits
     assert "compiled the updates (default) in" in capsys.readouterr().err
 
