@@ -325,6 +325,24 @@ def test_an_unreachable_cluster_is_one_line_and_exit_2(tmp_path):
         assert not out.exists()  # nothing left behind
 
 
+def test_auto_that_finds_a_gone_clusters_address_is_one_error_not_a_wait(monkeypatch):
+    # processes left over from a cluster that is gone still name its address; Ray's core would try it for 60 s
+    # and abort the process
+    import ray
+    import ray._private.services
+
+    from taskrl.distributed.actors import start_ray
+    from taskrl.distributed.settings import DistributedConfig
+
+    monkeypatch.setattr(ray, "is_initialized", lambda: False)
+    monkeypatch.setattr(ray._private.services, "canonicalize_bootstrap_address", lambda address: "127.0.0.1:9")
+    started = time.monotonic()
+    with pytest.raises(ConfigError) as err:
+        start_ray(DistributedConfig(ray_address="auto"), actors=2)
+    assert err.value.field == "ray_address" and "127.0.0.1:9" in err.value.message and "found by 'auto'" in err.value.message
+    assert time.monotonic() - started < 10
+
+
 def test_offline_data_from_another_run_then_online(tmp_path):
     # a run that only acts at random (no update: learning never starts) leaves its replay ...
     random = dict(random_action_prob=1.0, random_action_prob_end=1.0)

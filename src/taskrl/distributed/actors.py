@@ -45,14 +45,21 @@ def start_ray(settings: DistributedConfig, actors: int) -> bool:
         ray.init(num_cpus=settings.ray_cpus or max(1, math.ceil(actors * settings.actor_cpus)), **quiet)
         _checked(settings, actors)
         return True
+    if address == "auto":
+        address = _auto_address()
     if address != "auto":
         host, _, port = address.removeprefix("ray://").rpartition(":")
         try:
             socket.create_connection((host, int(port)), timeout=5).close()
         except OSError as error:
+            found = (
+                ""
+                if address == settings.ray_address
+                else " (found by 'auto': RAY_ADDRESS, the last `ray start` or a Ray process)"
+            )
             raise ConfigError(
                 "ray_address",
-                f"no Ray cluster answers at {address} ({reason(error)}); start one with `ray start --head` "
+                f"no Ray cluster answers at {address}{found} ({reason(error)}); start one with `ray start --head` "
                 f"or leave --ray-address empty for a local Ray",
             ) from None
     try:
@@ -65,6 +72,28 @@ def start_ray(settings: DistributedConfig, actors: int) -> bool:
         ) from None
     _checked(settings, actors)
     return False
+
+
+def _auto_address() -> str:
+    """The address ``ray.init(address="auto")`` would join, by Ray's own lookup (``RAY_ADDRESS``, the last
+    ``ray start``, then any local process started with a ``--gcs-address``), so that it can be checked first:
+    processes left over from a cluster that is gone still name its address, and Ray's core aborts the
+    process after 60 s of trying to join it. ``"auto"`` itself where the lookup is not at hand."""
+    try:
+        from ray._private.services import canonicalize_bootstrap_address
+    except ImportError:  # a Ray without it: ray.init looks itself
+        return "auto"
+    try:
+        found = canonicalize_bootstrap_address("auto")
+    except (ConnectionError, ValueError):
+        found = None
+    if not found:
+        raise ConfigError(
+            "ray_address",
+            "cannot join the Ray cluster at 'auto': no running Ray cluster was found; start one with `ray start --head` "
+            "or leave it empty for a local Ray",
+        )
+    return found
 
 
 def check_capacity(settings: DistributedConfig, actors: int) -> None:
