@@ -78,22 +78,16 @@ def _auto_address() -> str:
     """The address ``ray.init(address="auto")`` would join, by Ray's own lookup (``RAY_ADDRESS``, the last
     ``ray start``, then any local process started with a ``--gcs-address``), so that it can be checked first:
     processes left over from a cluster that is gone still name its address, and Ray's core aborts the
-    process after 60 s of trying to join it. ``"auto"`` itself where the lookup is not at hand."""
+    process after 60 s of trying to join it. ``"auto"`` itself where nothing is found or the lookup is not at
+    hand: ``ray.init`` then looks itself (and finds no cluster, or finds one its own way)."""
     try:
         from ray._private.services import canonicalize_bootstrap_address
-    except ImportError:  # a Ray without it: ray.init looks itself
+    except ImportError:
         return "auto"
     try:
-        found = canonicalize_bootstrap_address("auto")
+        return canonicalize_bootstrap_address("auto") or "auto"
     except (ConnectionError, ValueError):
-        found = None
-    if not found:
-        raise ConfigError(
-            "ray_address",
-            "cannot join the Ray cluster at 'auto': no running Ray cluster was found; start one with `ray start --head` "
-            "or leave it empty for a local Ray",
-        )
-    return found
+        return "auto"
 
 
 def check_capacity(settings: DistributedConfig, actors: int) -> None:
