@@ -273,7 +273,9 @@ def test_distribution_settings_are_checked():
 
 
 @ON_RAY
-def test_more_actors_than_the_cluster_can_place_are_refused_not_waited_for(tmp_path):
+def test_more_actors_than_the_cluster_can_place_are_refused_not_waited_for(tmp_path, monkeypatch):
+    # no --ray-address is a local Ray of the run's own, whatever cluster RAY_ADDRESS (or a `ray start`) names
+    monkeypatch.setenv("RAY_ADDRESS", "127.0.0.1:9")
     with pytest.raises(ConfigError) as err:
         taskrl.train("pointreach-qtopt-her", out=tmp_path / "run", distributed=True, collectors=3, bellman_updaters=1, ray_cpus=2)
     assert err.value.field == "actor_cpus" and "need 4 CPUs" in err.value.message
@@ -305,24 +307,40 @@ def test_a_role_that_cannot_start_stops_the_run_with_its_reason(tmp_path, monkey
     assert not ray.is_initialized()  # the run's Ray is shut down on the way out
 
 
-@ON_RAY
 def test_an_unreachable_cluster_is_one_line_and_exit_2(tmp_path):
     out = tmp_path / "run"
-    deadline = time.monotonic() + 60  # "auto" joins any Ray head still running: an earlier test's, on its way out
-    while _pids(lambda word: Path(word).name == "gcs_server") and time.monotonic() < deadline:
-        time.sleep(0.5)
-    for address in ("127.0.0.1:9", "auto"):
-        done = subprocess.run(
-            [sys.executable, "-m", "taskrl.cli", "train", "pointreach-qtopt-her", "--distributed", "--ray-address", address]
-            + ["--out", str(out)],
-            capture_output=True,
-            text=True,
-            timeout=120,
-            env={**os.environ, "RAY_ADDRESS": ""},
-        )
-        assert done.returncode == 2, done.stderr
-        assert done.stderr.count("\n") == 1 and "--ray-address" in done.stderr
-        assert not out.exists()  # nothing left behind
+    done = subprocess.run(
+        [sys.executable, "-m", "taskrl.cli", "train", "pointreach-qtopt-her", "--distributed", "--ray-address", "127.0.0.1:9"]
+        + ["--out", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={**os.environ, "RAY_ADDRESS": ""},
+    )
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.count("\n") == 1 and "--ray-address" in done.stderr
+    assert not out.exists()  # nothing left behind
+
+
+def test_auto_that_finds_no_cluster_is_one_error_not_a_wait(monkeypatch):
+    # Ray's own lookup, made to find nothing (a subprocess running the real one would join whatever Ray is
+    # up on the machine at the time: another run's, or one still shutting down)
+    import ray
+    import ray._private.services as services
+
+    from taskrl.distributed.actors import start_ray
+    from taskrl.distributed.settings import DistributedConfig
+
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    monkeypatch.setattr(services, "_find_address_from_flag", lambda flag: set())
+    monkeypatch.setattr(services, "find_bootstrap_address", lambda temp_dir: None)
+    services.find_gcs_addresses.cache_clear()
+    started = time.monotonic()
+    with pytest.raises(ConfigError) as err:
+        start_ray(DistributedConfig(ray_address="auto"), actors=2)
+    assert err.value.field == "ray_address" and "no running Ray cluster was found" in err.value.message
+    assert "\n" not in err.value.message and time.monotonic() - started < 10
+    assert not ray.is_initialized()
 
 
 def test_auto_that_finds_a_gone_clusters_address_is_one_error_not_a_wait(monkeypatch):
@@ -370,16 +388,26 @@ def test_offline_data_from_another_run_then_online(tmp_path):
 
 
 def _pids(program: Callable[[str], bool]) -> list[int]:
-    """Processes whose first command-line word passes ``program``."""
-    pids = []
+    """Processes started by this one (a local Ray's, whose workers are the raylet's children) whose first
+    command-line word passes ``program``: never another program's Ray on the same machine."""
+    words, parents = {}, {}
     for entry in Path("/proc").iterdir():
         if entry.name.isdigit():
             try:
-                if program((entry / "cmdline").read_bytes().split(b"\0")[0].decode(errors="replace")):
-                    pids.append(int(entry.name))
+                stat = (entry / "stat").read_text()
+                words[int(entry.name)] = (entry / "cmdline").read_bytes().split(b"\0")[0].decode(errors="replace")
             except OSError:
                 continue
-    return pids
+            parents[int(entry.name)] = int(stat[stat.rindex(")") + 2 :].split()[1])  # after "pid (name) state"
+
+    def descends(pid: int) -> bool:
+        while pid in parents and pid > 1:
+            pid = parents[pid]
+            if pid == os.getpid():
+                return True
+        return False
+
+    return [pid for pid, word in words.items() if program(word) and descends(pid)]
 
 
 def _role_pids(name: str) -> list[int]:

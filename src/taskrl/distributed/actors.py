@@ -42,7 +42,9 @@ def start_ray(settings: DistributedConfig, actors: int) -> bool:
     address = settings.ray_address
     quiet = {"include_dashboard": False, "logging_level": logging.ERROR, "log_to_driver": False}
     if not address:
-        ray.init(num_cpus=settings.ray_cpus or max(1, math.ceil(actors * settings.actor_cpus)), **quiet)
+        # "local": a new Ray of this run's own, never the last `ray start` cluster or RAY_ADDRESS as ray.init()
+        # with no address would join
+        ray.init(address="local", num_cpus=settings.ray_cpus or max(1, math.ceil(actors * settings.actor_cpus)), **quiet)
         _checked(settings, actors)
         return True
     if address == "auto":
