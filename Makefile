@@ -28,7 +28,7 @@ lint: $(STAMP)
 
 # the suite in TEST_WORKERS processes (tests that start Ray share one: tests/test_distributed.py's ON_RAY)
 test: lint
-	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadgroup
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadgroup --durations=15
 
 clean:
 	rm -rf $(VENV) runs .pytest_cache
