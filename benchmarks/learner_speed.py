@@ -26,9 +26,13 @@ eager and compiled, with the compile step's own cost and the run length from whi
     .venv/bin/python benchmarks/learner_speed.py equal --seeds 0 1 2 --write
     .venv/bin/python benchmarks/learner_speed.py curves --seeds 0 1 2 --write
     .venv/bin/python benchmarks/learner_speed.py loop --write
+    .venv/bin/python benchmarks/learner_speed.py kernels --write
 
 ``loop``: each piece of the off-policy loop (update, sample + relabel, act, env step, store) timed inside a real
 DQN + HER run at the equal-work settings, eager and compiled, at both network sizes.
+
+``kernels``: where the time of the compiled DQN (256, 256) / 256 update goes (matrix products, the Adam step,
+the other generated kernels, the wrapper and guards), from Inductor's kernel profile, against its bound.
 
 ``curves``: each compiling algorithm's small preset trained eagerly and with ``--compile default`` on the
 same seeds: the evaluation curves (mean over seeds, in ``figures/learner_curves.png``) and final success.
@@ -539,6 +543,93 @@ def curves(args) -> tuple[str, dict]:
     return "\n".join(lines) + f"\n\nCurves: `benchmarks/figures/{figure.name}`.", out
 
 
+# ----------------------------------------------------------------------------- where a compiled update's time goes
+def _kernel_group(name: str) -> str | None:
+    """The part of a compiled update a profiler event belongs to (None: counted inside another event)."""
+    if name in ("aten::addmm", "aten::mm"):
+        return "matrix products"
+    if name == "aten::copy_":
+        return "bias copies into the products' outputs"
+    if name.startswith("graph_") and "_foreach_" in name:
+        return "Adam step + clip norms (one generated kernel)"
+    if name.startswith("graph_"):
+        return "other generated kernels (ReLU and its backward, loss, gathers)"
+    if name.startswith("## Call CompiledFxGraph") or name.startswith("Torch-Compiled Region"):
+        return "graph wrapper (Python here; C++ in the shipped path)"
+    if name in ("TorchDynamo Cache Lookup", "AOTDispatcher Runtime Wrapper Prologue", "Pregraph bytecode"):
+        return "guards and call prologue"
+    return None
+
+
+def kernels(args) -> tuple[str, dict]:
+    """Where the time of the compiled DQN (256, 256) / 256 update goes: Inductor's kernel profile of the update
+    (its generated kernels and the library's matrix products as events of their own), against its FLOP bound.
+    The graph's wrapper is generated as Python here (the profile cannot see inside a C++ one); the update as
+    shipped (C++ wrapper) is timed beside it."""
+    import torch._inductor.config as inductor_config
+    from torch.profiler import ProfilerActivity, profile
+
+    import taskrl.agents.compiled as compiled_module
+
+    shipped_options = compiled_module.compile_options
+    agent, batch, _ = bitflip_agent_and_batch(256, (256, 256), False)
+    flops = update_flops(agent, batch)
+    shipped = copy.deepcopy(agent)
+    shipped.compile("default", say=lambda line: None)
+    try:  # the profiled twin: Python wrapper, kernels recorded
+        compiled_module.compile_options = lambda mode, device="cpu": {**shipped_options(mode, device), "cpp_wrapper": False}
+        with inductor_config.patch({"cpp.enable_kernel_profile": True}):
+            agent.compile("default", say=lambda line: None)
+            for twin in (agent, shipped):
+                for _ in range(schedule_period(agent) * 2 + 1):
+                    twin.update(batch)
+            n, rounds, parts, rates, ms = 300, 3, {}, [], {"profiled": [], "shipped": []}
+            for r in range(rounds):
+                rates.append(matmul_rate())
+                for key, twin in (("profiled", agent), ("shipped", shipped)):
+                    start = time.perf_counter()
+                    for _ in range(n):
+                        twin.update(batch)
+                    ms[key].append((time.perf_counter() - start) / n * 1e3)
+                with profile(activities=[ProfilerActivity.CPU]) as prof:
+                    for _ in range(n):
+                        agent.update(batch)
+                for event in prof.key_averages():
+                    group = _kernel_group(event.key)
+                    if group:
+                        parts.setdefault(group, [0.0] * rounds)[r] += event.self_cpu_time_total / n / 1e3
+    finally:
+        compiled_module.compile_options = shipped_options
+    rate = statistics.median(rates)
+    bound_ms = flops / rate * 1e3
+    median_parts = {g: statistics.median(v) for g, v in parts.items()}  # each round: the sum of the group's self times
+    profiled, shipped_ms = statistics.median(ms["profiled"]), statistics.median(ms["shipped"])
+    rows = [f"| {g} | {t:.3f} | {t / bound_ms:.2f} |" for g, t in sorted(median_parts.items(), key=lambda kv: -kv[1])]
+    accounted = sum(median_parts.values())
+    table = "\n".join(
+        [
+            f"DQN (256, 256) / 256 as SB3's, compiled (default), {flops / 1e6:.0f} MFLOP: the bound is {bound_ms:.2f} ms at "
+            f"{rate / 1e9:.1f} GFLOP/s (median of {rounds} rounds of the matrix-multiply rate). One update took "
+            f"{shipped_ms:.2f} ms as shipped (C++ wrapper; {shipped_ms / bound_ms:.2f}x the bound) and {profiled:.2f} ms with the "
+            f"Python wrapper profiled here ({profiled / bound_ms:.2f}x). ms per update by part, from the profile (self "
+            f"times; median of {rounds} rounds of {n} updates). The parts sum to {accounted:.2f} ms against {profiled:.2f} ms "
+            "timed without the profiler: the profiler's own cost is in them, most in the small parts.",
+            "",
+            "| part | ms per update | x bound |",
+            "|---|---|---|",
+            *rows,
+        ]
+    )
+    data = {
+        "mflop": flops / 1e6,
+        "matmul_gflops": [r / 1e9 for r in rates],
+        "bound_ms": bound_ms,
+        "update_ms": ms,
+        "parts_ms": parts,
+    }
+    return table, data
+
+
 # ----------------------------------------------------------------------------- where a run's time goes
 class _Clock:
     """Seconds and calls of wrapped functions, leaving out each one's first ``skip`` calls."""
@@ -621,7 +712,7 @@ def loop(args) -> tuple[str, dict]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("mode", choices=["equal", "bound", "curves", "loop"])
+    parser.add_argument("mode", choices=["equal", "bound", "curves", "loop", "kernels"])
     parser.add_argument("--loop-steps", type=int, default=8_000, help="loop: env steps of each timed run")
     parser.add_argument("--curve-cases", nargs="+", default=list(CURVE_CASES), choices=list(CURVE_CASES))
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
@@ -643,7 +734,7 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     fresh_compile_cache()  # before anything compiles: the compile times measured are those of a first run
-    table, data = {"equal": equal, "bound": bound, "curves": curves, "loop": loop}[args.mode](args)
+    table, data = {"equal": equal, "bound": bound, "curves": curves, "loop": loop, "kernels": kernels}[args.mode](args)
     path = args.json or RESULTS_DIR / f"learner_{args.mode}.json"
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(data, indent=2))
@@ -654,6 +745,7 @@ def main() -> None:
             "bound": "Learner speed against the FLOP bound",
             "curves": "Learning with compiled updates against eager ones",
             "loop": "Where the time of a training run goes: the off-policy loop's pieces",
+            "kernels": "Where the time of a compiled DQN update goes: kernels against the bound",
         }
         append_results(
             titles[args.mode],
