@@ -20,7 +20,7 @@ import taskrl
 from taskrl.config import ConfigError, with_overrides
 from taskrl.distributed.limiter import UpdateToDataLimiter
 from taskrl.distributed.loop import DistributedLoop, RoleLives, RolesLost
-from taskrl.distributed.pools import LocalPool, RoleCannotStart, RoleDied
+from taskrl.distributed.pools import LocalPool, RoleCannotStart, RoleDied, RoleRestarting
 from taskrl.distributed.roles import BellmanUpdater, Collector
 from taskrl.logger import read_metrics
 from taskrl.presets import preset_config
@@ -182,6 +182,47 @@ def test_calls_that_fail_while_a_role_restarts_count_no_other_death():
     lives.failed(0, epoch=1, restarting=True)  # killed again, after its new process answered
     lives.failed(0, epoch=2)  # and a death Ray reports as final (no restart left) counts too
     assert lives.deaths == 3 and lives.epoch == [3]
+
+
+def test_a_died_call_is_a_restart_while_ray_still_restarts_the_role():
+    # a call that reaches the dead process before Ray marks it restarting fails as "died", not "unavailable":
+    # Ray's actor table decides (a second count of one kill was seen on a loaded machine)
+    from types import SimpleNamespace
+
+    from taskrl.distributed.actors import RayPool
+
+    class ActorError(Exception):
+        actor_init_failed = False
+        actor_id = "a1"
+
+    class Unavailable(ActorError):
+        pass
+
+    def pool_seeing(state):
+        def actors(actor_id):
+            if state is None:
+                raise RuntimeError("no table")
+            return {"State": state}
+
+        def get(ref):
+            raise ActorError("The actor died unexpectedly before finishing this task.")
+
+        ray = SimpleNamespace(
+            get=get,
+            exceptions=SimpleNamespace(RayActorError=ActorError, ActorUnavailableError=Unavailable),
+            _private=SimpleNamespace(state=SimpleNamespace(actors=actors)),
+        )
+        pool = RayPool.__new__(RayPool)
+        pool.ray, pool.name = ray, "BellmanUpdater"
+        return pool
+
+    for state in ("RESTARTING", "ALIVE"):  # ALIVE: Ray's table not yet told
+        with pytest.raises(RoleRestarting):
+            pool_seeing(state).result(None)
+    for state in ("DEAD", None):  # no restart left, or no table to read: a death
+        with pytest.raises(RoleDied) as err:
+            pool_seeing(state).result(None)
+        assert not isinstance(err.value, RoleRestarting)
 
 
 class _DyingCollector:

@@ -180,9 +180,18 @@ class RayPool:
         except self.ray.exceptions.RayActorError as error:
             if error.actor_init_failed:  # Ray never restarts a role whose constructor raised
                 raise RoleCannotStart(f"a {self.name} could not start: {_last_line(error)}") from None
-            if isinstance(error, self.ray.exceptions.ActorUnavailableError):  # Ray is restarting its process
+            if isinstance(error, self.ray.exceptions.ActorUnavailableError) or self._restarting(error):
                 raise RoleRestarting(reason(error)) from None
             raise RoleDied(reason(error)) from None
+
+    def _restarting(self, error: Any) -> bool:
+        """Whether the actor of a failed call is still Ray's to restart (not DEAD in Ray's actor table): calls
+        that reach a dead process before Ray has marked it restarting fail as "died", not "unavailable", and
+        must not count as deaths of their own. Where the table cannot be read, the call counts as a death."""
+        try:
+            return self.ray._private.state.actors(error.actor_id)["State"] != "DEAD"
+        except Exception:  # a private table: any failure to read it is "no"
+            return False
 
     def publish(self, value: Any) -> Callable[[], Any]:
         return _Fetch(self.ray.put(value))
