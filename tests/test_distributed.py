@@ -10,7 +10,6 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -428,15 +427,15 @@ def test_offline_data_from_another_run_then_online(tmp_path):
 # ---------------------------------------------------------------------- on Ray (2 CPUs)
 
 
-def _pids(program: Callable[[str], bool]) -> list[int]:
-    """Processes started by this one (a local Ray's, whose workers are the raylet's children) whose first
-    command-line word passes ``program``: never another program's Ray on the same machine."""
-    words, parents = {}, {}
+def _role_pids(name: str) -> list[int]:
+    """Processes whose title is ``ray::<name>`` (what Ray names an actor's process) started by this one (a local
+    Ray's workers are its raylet's children): never a role of another program's Ray on the same machine."""
+    titles, parents = {}, {}
     for entry in Path("/proc").iterdir():
         if entry.name.isdigit():
             try:
                 stat = (entry / "stat").read_text()
-                words[int(entry.name)] = (entry / "cmdline").read_bytes().split(b"\0")[0].decode(errors="replace")
+                titles[int(entry.name)] = (entry / "cmdline").read_bytes().split(b"\0")[0].decode(errors="replace")
             except OSError:
                 continue
             parents[int(entry.name)] = int(stat[stat.rindex(")") + 2 :].split()[1])  # after "pid (name) state"
@@ -448,12 +447,7 @@ def _pids(program: Callable[[str], bool]) -> list[int]:
                 return True
         return False
 
-    return [pid for pid, word in words.items() if program(word) and descends(pid)]
-
-
-def _role_pids(name: str) -> list[int]:
-    """Processes whose title is ``ray::<name>`` (what Ray names an actor's process)."""
-    return _pids(lambda word: word.startswith(f"ray::{name}"))
+    return [pid for pid, title in titles.items() if title.startswith(f"ray::{name}") and descends(pid)]
 
 
 @ON_RAY
