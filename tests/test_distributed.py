@@ -163,9 +163,10 @@ def test_each_death_of_a_role_counts_once_with_or_without_a_call_in_flight():
     lives.answered(0, pid=100), lives.answered(0, pid=100)
     lives.answered(0, pid=101)  # killed while idle: only its new process shows it
     assert lives.deaths == 1 and lives.epoch == [1, 0]
-    lives.failed(0, epoch=1), lives.failed(0, epoch=1)  # two calls of one life fail
+    sent = lives.life[0]
+    lives.failed(0, sent), lives.failed(0, sent)  # two calls of one life fail
     lives.answered(0, pid=102)  # ... and its next process answers: the same death
-    lives.failed(1, epoch=0)
+    lives.failed(1, lives.life[1])
     assert lives.deaths == 3 and lives.epoch == [2, 1]
     assert lives.out_of_restarts(0, max_restarts=1) and not lives.out_of_restarts(1, max_restarts=1)
 
@@ -174,12 +175,15 @@ def test_calls_that_fail_while_a_role_restarts_count_no_other_death():
     # Ray fails the calls in hand at a kill and those sent before the new process is up alike ("unavailable")
     lives = RoleLives(1)
     lives.answered(0, pid=100)
-    lives.failed(0, epoch=0, restarting=True)  # killed with a call in hand
-    lives.failed(0, epoch=1, restarting=True), lives.failed(0, epoch=1, restarting=True)  # sent while it restarts
+    lives.failed(0, lives.life[0], restarting=True)  # killed with a call in hand
+    while_restarting = lives.life[0]
+    lives.failed(0, while_restarting, restarting=True), lives.failed(0, while_restarting, restarting=True)
     assert lives.deaths == 1 and lives.epoch == [1]
     lives.answered(0, pid=101)
-    lives.failed(0, epoch=1, restarting=True)  # killed again, after its new process answered
-    lives.failed(0, epoch=2)  # and a death Ray reports as final (no restart left) counts too
+    lives.failed(0, while_restarting, restarting=True)  # sent while it restarted, failing after its new process answered
+    assert lives.deaths == 1
+    lives.failed(0, lives.life[0], restarting=True)  # killed again, after its new process answered
+    lives.failed(0, lives.life[0])  # and a death Ray reports as final (no restart left) counts too
     assert lives.deaths == 3 and lives.epoch == [3]
 
 

@@ -65,20 +65,22 @@ class RoleLives:
     """Deaths of each role of one kind, each counted once.
 
     A role's death shows either as a failed call (the first of its life to fail) or, when it died with
-    no call in flight, as a result from a new process. ``epoch[i]`` counts role i's deaths; calls carry
-    the epoch they were sent in, so the other failed calls of the same life add nothing. Calls sent
-    after a counted death fail too while the new process starts (``restarting``: Ray's "unavailable");
-    they add nothing until the new process has answered.
+    no call in flight, as a result from a new process. ``epoch[i]`` counts role i's deaths. Calls carry
+    the ``life[i]`` they were sent in, which moves on at each counted death and again when the new process
+    first answers, so the other failed calls of a life add nothing. Calls sent after a counted death fail too
+    while the new process starts (``restarting``: Ray's "unavailable"); they add nothing, also when they
+    fail only after the new process has answered.
     """
 
     def __init__(self, size: int) -> None:
         self.epoch = [0] * size
+        self.life = [0] * size
         self.pid: list[int | None] = [None] * size
         self.counted = [False] * size  # a death counted whose new process has not answered yet
         self.deaths = 0
 
-    def failed(self, i: int, epoch: int, restarting: bool = False) -> None:
-        if epoch == self.epoch[i] and not (restarting and self.counted[i]):
+    def failed(self, i: int, life: int, restarting: bool = False) -> None:
+        if life == self.life[i] and not (restarting and self.counted[i]):
             self._death(i)
             self.counted[i] = True
 
@@ -87,10 +89,12 @@ class RoleLives:
             if not self.counted[i]:
                 self._death(i)
             self.counted[i] = False
+            self.life[i] += 1  # calls sent while it restarted belong to no life that can still die
         self.pid[i] = pid
 
     def _death(self, i: int) -> None:
         self.epoch[i] += 1
+        self.life[i] += 1
         self.deaths += 1
 
     def out_of_restarts(self, i: int, max_restarts: int) -> bool:
@@ -180,11 +184,11 @@ class DistributedLoop:
         self.collector_lives = RoleLives(collectors.size)
         self.updater_lives = RoleLives(updaters.size if updaters else 0)
         self.meters = RoleMeters(self.collector_lives, self.updater_lives)
-        self.collect_calls: dict[Any, tuple[int, int]] = {}  # handle -> (collector, its epoch when sent)
+        self.collect_calls: dict[Any, tuple[int, int]] = {}  # handle -> (collector, its life when sent)
         # a free call slot of each collector; first back, first sent again
         self.idle = collections.deque(i for _ in range(CALLS_PER_COLLECTOR) for i in range(collectors.size))
         self.dead_collectors: set[int] = set()
-        self.label_calls: dict[Any, tuple[int, int]] = {}  # handle -> (updater, its epoch when sent)
+        self.label_calls: dict[Any, tuple[int, int]] = {}  # handle -> (updater, its life when sent)
         self.labelled: collections.deque[Labelled] = collections.deque()
         self.live_updaters = list(range(updaters.size)) if updaters else []
         self._next_updater = 0
@@ -216,20 +220,25 @@ class DistributedLoop:
             if ahead >= self.total_steps or not self.limiter.may_collect(state.updates, ahead + self.call_steps):
                 return
             i = self.idle.popleft()
-            epoch = self.collector_lives.epoch[i]
             handle = self.collectors.submit(
-                i, "collect", self.settings.collector_steps, self.version, self.acting_fetch, state.env_steps, epoch
+                i,
+                "collect",
+                self.settings.collector_steps,
+                self.version,
+                self.acting_fetch,
+                state.env_steps,
+                self.collector_lives.epoch[i],
             )
-            self.collect_calls[handle] = (i, epoch)
+            self.collect_calls[handle] = (i, self.collector_lives.life[i])
 
     def harvest(self, handles: list[Any]) -> None:
         """Store what came back."""
         for handle in handles:
-            i, epoch = self.collect_calls.pop(handle)
+            i, life = self.collect_calls.pop(handle)
             try:
                 got: Collected = self.collectors.result(handle)
             except RoleDied as error:
-                self.collector_lives.failed(i, epoch, isinstance(error, RoleRestarting))
+                self.collector_lives.failed(i, life, isinstance(error, RoleRestarting))
                 self.collector_lost(i)
                 continue
             self.collector_lives.answered(i, got.pid)
@@ -270,7 +279,7 @@ class DistributedLoop:
             self._next_updater += 1
             batches = [self.sample_batch().to("cpu") for _ in range(per_call)]
             handle = self.updaters.submit(j, "label_all", batches, self.version, self.target_fetch)
-            self.label_calls[handle] = (j, self.updater_lives.epoch[j])
+            self.label_calls[handle] = (j, self.updater_lives.life[j])
 
     def queued(self) -> int:
         """Batches labelled and waiting, or being labelled."""
@@ -278,11 +287,11 @@ class DistributedLoop:
 
     def take_labels(self, timeout: float) -> None:
         for handle in self.updaters.ready(list(self.label_calls), timeout):
-            j, epoch = self.label_calls.pop(handle)
+            j, life = self.label_calls.pop(handle)
             try:
                 labelled: list[Labelled] = self.updaters.result(handle)
             except RoleDied as error:
-                self.updater_lives.failed(j, epoch, isinstance(error, RoleRestarting))
+                self.updater_lives.failed(j, life, isinstance(error, RoleRestarting))
                 self.updater_lost(j)
                 continue
             if labelled:
