@@ -18,9 +18,12 @@ path it replaced, in one process and in alternating blocks (the machine's drift 
   batch inside the compiled graph (taskrl's path) against split eagerly before the call and passed to the
   graph as 4 batches;
 - ``gather``: the replay's gather at flat positions (one ``index_select`` per table) against indexing
-  each table with the two index tensors ``[episode, step]``.
+  each table with the two index tensors ``[episode, step]``;
+- ``CARE encoders``: the ``mt10-sac-care`` preset's SAC update (batch 1280, 10 tasks, random data), eager and
+  compiled, with CARE's k encoders run one at a time (``CAREEncoder.encoding``, taskrl's path) against all k as
+  one batched matmul per layer mixed by an ``einsum``.
 
-    cd benchmarks && ../.venv/bin/python per_call_costs.py [--only stance 'size asserts' 'C++ wrapper' 'Adam scalars' 'clip norm' 'obs concat' split gather] [--write]
+    cd benchmarks && ../.venv/bin/python per_call_costs.py [--only stance 'size asserts' 'C++ wrapper' 'Adam scalars' 'clip norm' 'obs concat' split gather 'CARE encoders'] [--write]
 """
 
 from __future__ import annotations
@@ -36,7 +39,7 @@ from common import alternating_blocks, append_results, micro_benchmark_args
 
 ROUNDS, BLOCK = 30, 400
 #: what ``--only`` can choose
-PAIRS = ("stance", "size asserts", "C++ wrapper", "Adam scalars", "clip norm", "obs concat", "split", "gather")
+PAIRS = ("stance", "size asserts", "C++ wrapper", "Adam scalars", "clip norm", "obs concat", "split", "gather", "CARE encoders")
 
 
 def _row(what: str, old: str, new: str, a: list[float], b: list[float]) -> str:
@@ -255,14 +258,63 @@ def gather_pairs() -> list[str]:
     return rows
 
 
+def batched_care_forward(self, state, context, return_weights=False):
+    """The CARE mixture taskrl's one-encoder-at-a-time ``CAREEncoder.forward`` replaced: the k encoders as one
+    batched matmul per layer (``[k, B, hidden]`` activations), mixed by an ``einsum``."""
+    weights = self.attention_weights(context)
+    mixed = torch.einsum("kbd,bk->bd", self.encodings(state), weights)
+    out = torch.cat([mixed, context], dim=-1)
+    return (out, weights) if return_weights else out
+
+
+def care_pairs(rounds: int = 10, block: int = 2) -> list[str]:
+    from learner_speed import sac_agent_and_batch
+
+    def agent_and_batch():
+        return sac_agent_and_batch(1280, (400, 400, 400), 39, 4, tasks=10, preset="mt10-sac-care")[:2]
+
+    (ours, batch), (theirs, _) = agent_and_batch(), agent_and_batch()
+    replaced = functools.partial(_replaced, "taskrl.conditioning.care.CAREEncoder", "forward", batched_care_forward)
+    with torch.no_grad():  # the same encodings either way, on the same parameters
+        theirs.load_state_dict(ours.state_dict())
+        mixture = next(m for m in ours.actor.modules() if type(m).__name__ == "CAREEncoder")
+        state, context = torch.randn(1280, mixture.state_dim), torch.randn(1280, mixture.context_dim)
+        with replaced():
+            before = mixture(state, context)
+        torch.testing.assert_close(mixture(state, context), before)
+    rows = []
+    for mode in ("off", "default"):
+        for agent in (ours, theirs):
+            agent.compile(mode, say=lambda line: None)
+        for agent, context in ((ours, contextlib.nullcontext), (theirs, replaced)):
+            with context():
+                for _ in range(3):  # a compile, and a warm start
+                    agent.update(batch)
+
+        def run(agent, context=contextlib.nullcontext):
+            with context():
+                for _ in range(block):
+                    agent.update(batch)
+            return block
+
+        ms = alternating_blocks({"a": lambda: run(theirs, replaced), "b": lambda: run(ours)}, rounds)
+        what = "eager" if mode == "off" else "compiled"
+        rows.append(
+            _row(f"{what} MT10 SAC CARE update (k = 4, batch 1280)", "k encoders batched", "one at a time", ms["a"], ms["b"])
+        )
+        print(rows[-1], flush=True)
+    return rows
+
+
 def main() -> None:
     args = micro_benchmark_args(__doc__, PAIRS)
     rows = [*compiled_pairs(32, (64, 64), args.only), *compiled_pairs(256, (256, 256), args.only)]
     rows += [*split_pairs(32, (64, 64)), *split_pairs(256, (256, 256))] if "split" in args.only else []
     rows += gather_pairs() if "gather" in args.only else []
+    rows += care_pairs() if "CARE encoders" in args.only else []
     table = "\n".join(
         [
-            f"One torch thread; {ROUNDS} alternating blocks per row; ms per call (median over blocks) of the path "
+            f"One torch thread; {ROUNDS} alternating blocks per row (CARE: 10 blocks of 2 updates); ms per call (median over blocks) of the path "
             "replaced and of taskrl's, and the median ratio of taskrl's to it per pair of blocks (quartiles in brackets).",
             "",
             "| what | replaced path, ms | taskrl's path, ms | taskrl / replaced |",

@@ -137,6 +137,9 @@ def test_care_mixture_equals_the_weighted_sum_of_separate_encoders():
             h = layer(h) if not hasattr(layer, "weight") else h @ layer.weight[j] + layer.bias[j]
         expected += w[:, j : j + 1] * h
     torch.testing.assert_close(out[:, :4], expected)
+    # the encoders run one at a time in forward, together as one batched matmul per layer in encodings()
+    torch.testing.assert_close(out[:, :4], torch.einsum("kbd,bk->bd", care.encodings(state), w))
+    torch.testing.assert_close(care.encoding(state, 1), care.encodings(state)[1])
 
 
 def test_care_attention_changes_with_the_context():

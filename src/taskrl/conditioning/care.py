@@ -8,7 +8,10 @@ sentence embedding of the task description):
     z      = sum_j w_j(c) z_j(s)                      the mixed encoding
     out    = [z, c]                                   fed to SAC's actor and critics
 
-The k encoders run as one batched matmul per layer (weights ``[k, in, out]``), not a Python loop.
+Each encoder layer holds the k members' weights as one ``[k, in, out]`` parameter (``ParallelLinear``).
+The mixture runs the encoders one at a time (``CAREEncoder.encoding``): at MT10's scale (batch 1280,
+width 400) one encoder's activations are 2 MB, which stay in cache through its layers, where the k run
+as one batched matmul (8 MB at k = 4) did not (``benchmarks/per_call_costs.py``, "CARE encoders").
 """
 
 from __future__ import annotations
@@ -44,6 +47,10 @@ class ParallelLinear(nn.Module):
         if x.dim() == 2:
             return torch.matmul(x, self.weight) + self.bias  # [B, in] @ [k, in, out] -> [k, B, out]
         return torch.baddbmm(self.bias, x, self.weight)
+
+    def member(self, x: torch.Tensor, j: int) -> torch.Tensor:
+        """Member ``j`` alone: ``[B, in] -> [B, out]``, ``x W_j + b_j`` as one product with its bias."""
+        return torch.addmm(self.bias[j], x, self.weight[j])
 
     def extra_repr(self) -> str:
         return f"k={self.k}, in_dim={self.in_dim}, out_dim={self.out_dim}"
@@ -99,14 +106,23 @@ class CAREEncoder(nn.Module):
         return torch.softmax(self.attention(context) / self.temperature, dim=-1)
 
     def encodings(self, state: torch.Tensor) -> torch.Tensor:
-        """All k encodings ``z_j(s)``: ``[k, B, output_dim]``."""
+        """All k encodings ``z_j(s)``: ``[k, B, output_dim]`` (as one batched matmul per layer)."""
         return self.encoders(state)
+
+    def encoding(self, state: torch.Tensor, j: int) -> torch.Tensor:
+        """Encoding ``z_j(s)`` of encoder ``j`` alone: ``[B, output_dim]``."""
+        h = state
+        for layer in self.encoders:
+            h = layer.member(h, j) if isinstance(layer, ParallelLinear) else layer(h)
+        return h
 
     def forward(self, state: torch.Tensor, context: torch.Tensor, return_weights: bool = False):
         """``[z, c]`` of shape ``[B, output_dim + context_dim]``; with ``return_weights``, also ``w [B, k]``."""
         if state.shape[0] != context.shape[0]:
             raise ValueError(f"state and context: batch sizes differ ({state.shape[0]} vs {context.shape[0]})")
         weights = self.attention_weights(context)
-        mixed = torch.einsum("kbd,bk->bd", self.encodings(state), weights)
+        mixed = weights[:, :1] * self.encoding(state, 0)  # z = sum_j w_j z_j, one encoder at a time (module docstring)
+        for j in range(1, self.num_encoders):
+            mixed = mixed + weights[:, j : j + 1] * self.encoding(state, j)
         out = torch.cat([mixed, context], dim=-1)
         return (out, weights) if return_weights else out
