@@ -4,9 +4,7 @@ Times ``QTOptAgent.bellman_target`` for a batch of 256 states (20-d state input,
 FetchPush-sized) against the FLOP bound of the same work, for the paper's CEM (64 samples x
 2 rounds, 6 elites), a cheaper first round, a warm start from the previous argmax, and smaller
 Q-networks. The FLOP bound divides the multiply-adds of every network row by the machine's
-measured matrix-multiply rate. Then, side by side (alternating blocks in one process), the same
-targets with the CPU chunks ``StateActionQ.score_actions`` takes by default (2 MiB of the widest
-layer's activations) against 2048-row chunks at every width (the rule before).
+measured matrix-multiply rate.
 
     .venv/bin/python benchmarks/qtopt_cem.py --write
 """
@@ -15,12 +13,11 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import statistics
 import time
 
 import torch
 
-from common import alternating_blocks, append_results
+from common import append_results
 from taskrl.agents.cem import CEMConfig
 from taskrl.agents.qtopt import QTOptAgent, QTOptConfig
 from taskrl.replay.batch import Batch
@@ -85,41 +82,19 @@ def main() -> None:
         "| variant | Q-network | ms per target batch (256 states) | FLOP bound (ms) | ratio to bound | targets/s |",
         "|---|---|---|---|---|---|",
     ]
-
-    def make_agent(hidden, cem=None):
-        return QTOptAgent(
+    for name, hidden, cem, warm, rounds in cases:
+        agent = QTOptAgent(
             ("observation", "desired_goal"),
             STATE_DIM,
             low_high,
-            dataclasses.replace(QTOptConfig(), hidden_sizes=hidden, cem=cem or CEMConfig(), normalize_inputs=False),
+            dataclasses.replace(QTOptConfig(), hidden_sizes=hidden, cem=cem, normalize_inputs=False),
         )
-
-    for name, hidden, cem, warm, rounds in cases:
-        agent = make_agent(hidden, cem)
         previous = agent.bellman_target(batch, return_action=True)[1] if warm else None
         seconds = timed(lambda agent=agent, previous=previous: agent.bellman_target(batch, warm_start=previous))
         rows = BATCH * sum(rounds) + BATCH  # CEM rows, plus the second target network at a*
         bound = network_flops(rows, hidden) / (gflops * 1e9)
         lines.append(
             f"| {name} | {hidden} | {seconds * 1e3:.1f} | {bound * 1e3:.1f} | {seconds / bound:.2f}x | {1 / seconds:.0f} |"
-        )
-        print(lines[-1], flush=True)
-    lines += ["", "| Q-network | rows per chunk | ms per target batch, 2048-row chunks | ms, by width | by width / 2048 rows |"]
-    lines.append("|---|---|---|---|---|")
-    for hidden in ((64, 64), (128, 128)):
-        ours, theirs = make_agent(hidden), make_agent(hidden)
-        theirs.q_target1.chunk_rows = 2048
-
-        def block(agent, calls=10):
-            for _ in range(calls):
-                agent.bellman_target(batch)
-            return calls
-
-        ms = alternating_blocks({"a": lambda theirs=theirs: block(theirs), "b": lambda ours=ours: block(ours)}, 15)
-        ratios = sorted(b / a for a, b in zip(ms["a"], ms["b"]))
-        lines.append(
-            f"| {hidden} | {ours.q_target1.chunk_rows} | {statistics.median(ms['a']):.2f} | {statistics.median(ms['b']):.2f} | "
-            f"{statistics.median(ratios):.3f} ({ratios[len(ratios) // 4]:.3f}-{ratios[3 * len(ratios) // 4]:.3f}) |"
         )
         print(lines[-1], flush=True)
     table = "\n".join(lines)

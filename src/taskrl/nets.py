@@ -132,8 +132,6 @@ class StateActionQ(nn.Module):
         super().__init__()
         self.in_dim = in_dim
         self.body = mlp(in_dim + action_dim, hidden_sizes, 1)
-        #: CPU rows per chunk and torch thread in score_actions: 2 MiB of float32 activations of the widest layer
-        self.chunk_rows = max(1, (2 << 20) // (4 * max(hidden_sizes, default=1)))
 
     def forward(self, x: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
         """x [B, D], action [B, A] -> [B]."""
@@ -142,16 +140,15 @@ class StateActionQ(nn.Module):
     def score_actions(self, x: torch.Tensor, actions: torch.Tensor, chunk_rows: int | None = None) -> torch.Tensor:
         """x [B, D], actions [B, N, A] -> [B, N]: Q(x_b, a_bn) for all B * N pairs, for ``no_grad`` use (CEM).
 
-        On CPU the rows go through the network in chunks of about ``chunk_rows`` per torch thread
-        (default: 2 MiB of the widest layer's activations, 2048 rows at width 256, 8192 at 64): a
-        chunk's activations stay in cache between layers, which measured 2x faster (one thread, width
-        256) than one pass over all 16384 rows of a 256-state, 64-sample CEM round, and at width 64
-        0.9x the time of 2048-row chunks. On GPU, in a compiled step (or with ``chunk_rows=0``) it is one
-        pass. Rows stay 2-D (a 3-D input makes ``Linear`` ~35% slower on CPU) and ReLUs run in place.
+        On CPU the rows go through the network in chunks of about ``chunk_rows`` (default 2048 per
+        torch thread): a chunk's activations (2048 x 256 floats = 2 MiB) stay in cache between
+        layers, which measured 2x faster (one thread) than one pass over all 16384 rows of a
+        256-state, 64-sample CEM round. On GPU, in a compiled step (or with ``chunk_rows=0``) it is one pass. Rows
+        stay 2-D (a 3-D input makes ``Linear`` ~35% slower on CPU) and ReLUs run in place.
         """
         b, n, _ = actions.shape
         if chunk_rows is None:
-            chunk_rows = 0 if x.is_cuda or torch.compiler.is_compiling() else self.chunk_rows * torch.get_num_threads()
+            chunk_rows = 0 if x.is_cuda or torch.compiler.is_compiling() else 2048 * torch.get_num_threads()
         per_chunk = b if chunk_rows <= 0 else max(1, chunk_rows // n)
         if per_chunk >= b:
             return self._score(x, actions)
