@@ -21,9 +21,11 @@ path it replaced, in one process and in alternating blocks (the machine's drift 
   each table with the two index tensors ``[episode, step]``;
 - ``CARE encoders``: the ``mt10-sac-care`` preset's SAC update (batch 1280, 10 tasks, random data), eager and
   compiled, with CARE's k encoders run one at a time (``CAREEncoder.encoding``, taskrl's path) against all k as
-  one batched matmul per layer mixed by an ``einsum``.
+  one batched matmul per layer mixed by an ``einsum``;
+- ``ReLU in place``: the ``mt10-sac-onehot`` and ``mt10-sac-care`` presets' eager SAC updates with the networks'
+  ReLUs in place (``nets.activation_after``, taskrl's) against out of place.
 
-    cd benchmarks && ../.venv/bin/python per_call_costs.py [--only stance 'size asserts' 'C++ wrapper' 'Adam scalars' 'clip norm' 'obs concat' split gather 'CARE encoders'] [--write]
+    cd benchmarks && ../.venv/bin/python per_call_costs.py [--only stance 'size asserts' 'C++ wrapper' 'Adam scalars' 'clip norm' 'obs concat' split gather 'CARE encoders' 'ReLU in place'] [--write]
 """
 
 from __future__ import annotations
@@ -39,7 +41,7 @@ from common import alternating_blocks, append_results, micro_benchmark_args
 
 ROUNDS, BLOCK = 30, 400
 #: what ``--only`` can choose
-PAIRS = ("stance", "size asserts", "C++ wrapper", "Adam scalars", "clip norm", "obs concat", "split", "gather", "CARE encoders")
+PAIRS = ("stance", "size asserts", "C++ wrapper", "Adam scalars", "clip norm", "obs concat", "split", "gather", "CARE encoders", "ReLU in place")
 
 
 def _row(what: str, old: str, new: str, a: list[float], b: list[float]) -> str:
@@ -306,15 +308,47 @@ def care_pairs(rounds: int = 10, block: int = 2) -> list[str]:
     return rows
 
 
+def relu_pairs(rounds: int = 10, block: int = 2) -> list[str]:
+    from learner_speed import sac_agent_and_batch
+
+    rows = []
+    for preset in ("mt10-sac-onehot", "mt10-sac-care"):
+        (ours, batch, _), (theirs, _, _) = (
+            sac_agent_and_batch(1280, (400, 400, 400), 39, 4, tasks=10, preset=preset) for _ in range(2)
+        )
+        theirs.load_state_dict(ours.state_dict())
+        relus = [m for net in (theirs.actor, theirs.critics, theirs.critics_target) for m in net.modules()]
+        for m in relus:
+            if isinstance(m, torch.nn.ReLU):
+                m.inplace = False
+        torch.manual_seed(0)
+        first = ours.update(batch)
+        torch.manual_seed(0)
+        second = theirs.update(batch)
+        assert all(torch.equal(v, second[k]) for k, v in first.items())  # the same update, to the bit
+        assert all(torch.equal(a, b) for a, b in zip(ours.actor.parameters(), theirs.actor.parameters()))
+
+        def run(agent):
+            for _ in range(block):
+                agent.update(batch)
+            return block
+
+        ms = alternating_blocks({"a": lambda theirs=theirs: run(theirs), "b": lambda ours=ours: run(ours)}, rounds)
+        rows.append(_row(f"eager {preset} SAC update (batch 1280)", "out of place", "in place", ms["a"], ms["b"]))
+        print(rows[-1], flush=True)
+    return rows
+
+
 def main() -> None:
     args = micro_benchmark_args(__doc__, PAIRS)
     rows = [*compiled_pairs(32, (64, 64), args.only), *compiled_pairs(256, (256, 256), args.only)]
     rows += [*split_pairs(32, (64, 64)), *split_pairs(256, (256, 256))] if "split" in args.only else []
     rows += gather_pairs() if "gather" in args.only else []
     rows += care_pairs() if "CARE encoders" in args.only else []
+    rows += relu_pairs() if "ReLU in place" in args.only else []
     table = "\n".join(
         [
-            f"One torch thread; {ROUNDS} alternating blocks per row (CARE: 10 blocks of 2 updates); ms per call (median over blocks) of the path "
+            f"One torch thread; {ROUNDS} alternating blocks per row (MT10 rows: 10 blocks of 2 updates); ms per call (median over blocks) of the path "
             "replaced and of taskrl's, and the median ratio of taskrl's to it per pair of blocks (quartiles in brackets).",
             "",
             "| what | replaced path, ms | taskrl's path, ms | taskrl / replaced |",

@@ -113,3 +113,18 @@ def test_the_observation_concat_is_the_same_compiled_and_eager():
     expected = torch.cat([obs["observation"].float(), obs["desired_goal"].float()], dim=1)
     assert eager.dtype == compiled.dtype == torch.float32
     assert torch.equal(eager, expected) and torch.equal(compiled, expected)
+
+
+def test_mlp_relus_run_in_place_after_a_product_that_is_not_a_view():
+    torch.manual_seed(0)
+    net = nets.mlp(8, (32, 15, 64), 3)  # the 15-unit layer pads its product: its output is a view, its ReLU not in place
+    assert [m.inplace for m in net if isinstance(m, nn.ReLU)] == [True, False, True]
+    plain = nn.Sequential(*[nn.ReLU() if isinstance(m, nn.ReLU) else m for m in net])  # the same parameters
+    x = torch.randn(64, 8)
+    out, expected = net(x), plain(x)
+    assert torch.equal(out, expected)
+    grads = torch.autograd.grad(out.square().sum(), list(net.parameters()))
+    for g, e in zip(grads, torch.autograd.grad(expected.square().sum(), list(plain.parameters()))):
+        assert torch.equal(g, e)
+    with torch.no_grad():
+        assert torch.equal(net(x), expected)

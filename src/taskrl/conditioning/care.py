@@ -22,7 +22,7 @@ from collections.abc import Sequence
 import torch
 from torch import nn
 
-from taskrl.nets import mlp
+from taskrl.nets import activation_after, mlp
 
 __all__ = ["CAREEncoder", "ParallelLinear"]
 
@@ -95,7 +95,8 @@ class CAREEncoder(nn.Module):
         layers: list[nn.Module] = []
         in_dim = state_dim
         for size in encoder_hidden:
-            layers += [ParallelLinear(num_encoders, in_dim, size), activation()]
+            layer = ParallelLinear(num_encoders, in_dim, size)
+            layers += [layer, activation_after(layer, activation)]
             in_dim = size
         layers.append(ParallelLinear(num_encoders, in_dim, output_dim))
         self.encoders = nn.Sequential(*layers)
