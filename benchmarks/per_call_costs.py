@@ -328,7 +328,7 @@ def relu_pairs(rounds: int = 10, block: int = 2) -> list[str]:
         assert all(torch.equal(v, second[k]) for k, v in first.items())  # the same update, to the bit
         assert all(torch.equal(a, b) for a, b in zip(ours.actor.parameters(), theirs.actor.parameters()))
 
-        def run(agent):
+        def run(agent, batch=batch):
             for _ in range(block):
                 agent.update(batch)
             return block
