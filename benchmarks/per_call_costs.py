@@ -41,7 +41,18 @@ from common import alternating_blocks, append_results, micro_benchmark_args
 
 ROUNDS, BLOCK = 30, 400
 #: what ``--only`` can choose
-PAIRS = ("stance", "size asserts", "C++ wrapper", "Adam scalars", "clip norm", "obs concat", "split", "gather", "CARE encoders", "ReLU in place")
+PAIRS = (
+    "stance",
+    "size asserts",
+    "C++ wrapper",
+    "Adam scalars",
+    "clip norm",
+    "obs concat",
+    "split",
+    "gather",
+    "CARE encoders",
+    "ReLU in place",
+)
 
 
 def _row(what: str, old: str, new: str, a: list[float], b: list[float]) -> str:
