@@ -128,3 +128,23 @@ def test_mlp_relus_run_in_place_after_a_product_that_is_not_a_view():
         assert torch.equal(g, e)
     with torch.no_grad():
         assert torch.equal(net(x), expected)
+
+
+def test_in_place_relus_trace_after_the_laid_out_products():
+    # traced as a compiled update is: a 30-input first layer (its own backward) and a padded 15-unit hidden layer
+    torch.manual_seed(0)
+    net = nets.mlp(30, (256, 15, 64), 15)
+    plain = nn.Sequential(*[nn.ReLU() if isinstance(m, nn.ReLU) else m for m in net])
+    x = torch.randn(256, 30)
+
+    def loss_and_grads(module):
+        def step(x):
+            y = module(x)
+            return (y.detach(), *torch.autograd.grad(y.square().sum(), list(module.parameters())))
+
+        return step
+
+    with torch._dynamo.config.patch(trace_autograd_ops=True):
+        got = torch.compile(loss_and_grads(net), backend="aot_eager", fullgraph=True)(x)
+    for a, b in zip(got, loss_and_grads(plain)(x)):
+        torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-5)
