@@ -22,7 +22,7 @@ path it replaced, in one process and in alternating blocks (the machine's drift 
 - ``CARE encoders``: the ``mt10-sac-care`` preset's SAC update (batch 1280, 10 tasks, random data), eager and
   compiled, with CARE's k encoders run one at a time (``CAREEncoder.encoding``, taskrl's path) against all k as
   one batched matmul per layer mixed by an ``einsum``;
-- ``ReLU in place``: the ``mt10-sac-onehot`` and ``mt10-sac-care`` presets' eager SAC updates with the networks'
+- ``ReLU in place``: the ``mt10-sac-onehot``, ``mt10-sac-care`` and ``mt10-sac-film-language`` presets' eager SAC updates with the networks'
   ReLUs in place (``nets.activation_after``, taskrl's) against out of place.
 
     cd benchmarks && ../.venv/bin/python per_call_costs.py [--only stance 'size asserts' 'C++ wrapper' 'Adam scalars' 'clip norm' 'obs concat' split gather 'CARE encoders' 'ReLU in place'] [--write]
@@ -323,7 +323,7 @@ def relu_pairs(rounds: int = 10, block: int = 2) -> list[str]:
     from learner_speed import sac_agent_and_batch
 
     rows = []
-    for preset in ("mt10-sac-onehot", "mt10-sac-care"):
+    for preset in ("mt10-sac-onehot", "mt10-sac-care", "mt10-sac-film-language"):
         (ours, batch, _), (theirs, _, _) = (
             sac_agent_and_batch(1280, (400, 400, 400), 39, 4, tasks=10, preset=preset) for _ in range(2)
         )

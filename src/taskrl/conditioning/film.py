@@ -20,6 +20,8 @@ from collections.abc import Sequence
 import torch
 from torch import nn
 
+from taskrl.nets import activation_after
+
 __all__ = ["FiLM", "FiLMMLP"]
 
 
@@ -78,7 +80,8 @@ class FiLMMLP(nn.Module):
             self.linears.append(nn.Linear(in_dim, size))
             self.films.append(FiLM(context_dim, size))
             in_dim = size
-        self.activation = activation()
+        # after FiLM's fresh output (its backward does not need it): a ReLU in place, as nets.mlp's
+        self.activation = activation_after(self.films[-1], activation) if self.films else activation()
         self.out = nn.Linear(in_dim, out_dim)
         self.context_dim, self.out_dim = int(context_dim), int(out_dim)
 
