@@ -372,6 +372,11 @@ def sac_agent_and_batch(batch_size: int, hidden: tuple[int, ...], in_dim: int, a
     return agent, batch, 0.0
 
 
+def mt10_agent_and_batch(preset: str):
+    """An MT10 preset's SAC agent (batch 1280, 39 inputs, 4 actions, 10 tasks) and a random batch of its shapes."""
+    return sac_agent_and_batch(1280, (), 39, 4, 10, preset)
+
+
 def bound(args) -> tuple[str, dict]:
     # The machine's speed drifts by 20-30% over minutes: the paths of a case are timed side by side, each
     # block against the matrix-multiply rate of its own round.
@@ -382,8 +387,8 @@ def bound(args) -> tuple[str, dict]:
         "DQN (256, 256) / 256, double-Q": lambda: bitflip_agent_and_batch(256, (256, 256), True),
         "SAC (256, 256) / 256, FetchReach shapes": lambda: sac_agent_and_batch(256, (256, 256), 13, 4),
         "SAC (64, 64) / 256, FetchReach shapes": lambda: sac_agent_and_batch(256, (64, 64), 13, 4),
-        "MT10 SAC one-hot (400, 400, 400) / 1280": lambda: sac_agent_and_batch(1280, (), 39, 4, 10, "mt10-sac-onehot"),
-        "MT10 SAC CARE (400, 400, 400) / 1280": lambda: sac_agent_and_batch(1280, (), 39, 4, 10, "mt10-sac-care"),
+        "MT10 SAC one-hot (400, 400, 400) / 1280": lambda: mt10_agent_and_batch("mt10-sac-onehot"),
+        "MT10 SAC CARE (400, 400, 400) / 1280": lambda: mt10_agent_and_batch("mt10-sac-care"),
     }
     rows, out = [], {"matmul_gflops": rate / 1e9, "cases": []}
     for name, make in cases.items():

@@ -280,16 +280,19 @@ def batched_care_forward(self, state, context, return_weights=False):
     return (out, weights) if return_weights else out
 
 
+def _mt10_twins(preset: str):
+    """Two agents of an MT10 preset with the same parameters, and a random batch of their shapes."""
+    from learner_speed import mt10_agent_and_batch
+
+    (ours, batch, _), (theirs, _, _) = mt10_agent_and_batch(preset), mt10_agent_and_batch(preset)
+    theirs.load_state_dict(ours.state_dict())
+    return ours, theirs, batch
+
+
 def care_pairs(rounds: int = 10, block: int = 2) -> list[str]:
-    from learner_speed import sac_agent_and_batch
-
-    def agent_and_batch():
-        return sac_agent_and_batch(1280, (400, 400, 400), 39, 4, tasks=10, preset="mt10-sac-care")[:2]
-
-    (ours, batch), (theirs, _) = agent_and_batch(), agent_and_batch()
+    ours, theirs, batch = _mt10_twins("mt10-sac-care")
     replaced = functools.partial(_replaced, "taskrl.conditioning.care.CAREEncoder", "forward", batched_care_forward)
     with torch.no_grad():  # the same encodings either way, on the same parameters
-        theirs.load_state_dict(ours.state_dict())
         mixture = next(m for m in ours.actor.modules() if type(m).__name__ == "CAREEncoder")
         state, context = torch.randn(1280, mixture.state_dim), torch.randn(1280, mixture.context_dim)
         with replaced():
@@ -320,14 +323,9 @@ def care_pairs(rounds: int = 10, block: int = 2) -> list[str]:
 
 
 def relu_pairs(rounds: int = 10, block: int = 2) -> list[str]:
-    from learner_speed import sac_agent_and_batch
-
     rows = []
     for preset in ("mt10-sac-onehot", "mt10-sac-care", "mt10-sac-film-language"):
-        (ours, batch, _), (theirs, _, _) = (
-            sac_agent_and_batch(1280, (400, 400, 400), 39, 4, tasks=10, preset=preset) for _ in range(2)
-        )
-        theirs.load_state_dict(ours.state_dict())
+        ours, theirs, batch = _mt10_twins(preset)
         relus = [m for net in (theirs.actor, theirs.critics, theirs.critics_target) for m in net.modules()]
         for m in relus:
             if isinstance(m, torch.nn.ReLU):
