@@ -7,6 +7,7 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from taskrl.errors import ConfigError
 from taskrl.replay import EpisodeReplay, HindsightRelabeler
 
 # Synthetic goal data where every achieved goal says where it came from: (env, episode, step).
@@ -72,7 +73,13 @@ def fill(replay: EpisodeReplay, num_envs: int, lengths_per_env: list[list[int]],
 
 
 def make_replay(num_envs=2, horizon=5, capacity=200):
-    return EpisodeReplay(SPACE, ACTIONS, capacity=capacity, horizon=horizon, num_envs=num_envs)
+    return EpisodeReplay(SPACE, ACTIONS, capacity=capacity, num_envs=num_envs, horizon=horizon)
+
+
+def stored_ids(replay: EpisodeReplay) -> list[tuple[int, int]]:
+    """(env, episode) of every stored episode, oldest first, read from its first observation."""
+    first = replay.observation_at("observation", replay.stored_episodes(), 0)
+    return [(int(e), int(k)) for e, k, _ in first.tolist()]
 
 
 def test_only_finished_episodes_are_stored_and_transitions_are_exact():
@@ -92,20 +99,25 @@ def test_only_finished_episodes_are_stored_and_transitions_are_exact():
 def test_terminated_and_truncated_are_kept_apart():
     replay = make_replay(num_envs=1, horizon=4)
     fill(replay, 1, [[2, 4]], horizon=4)
-    lengths = replay.length[: replay.num_episodes].tolist()
-    assert lengths[:2] == [2, 4]
-    assert replay.storage["terminated"][0, :2].tolist() == [False, True]
-    assert replay.storage["truncated"][1, :4].tolist() == [False, False, False, True]
-    assert not replay.storage["terminated"][1, :4].any()
+    episodes = replay.episodes()
+    assert episodes.lengths.tolist()[:2] == [2, 4]
+    assert episodes.terminated[:6].tolist() == [False, True, False, False, False, False]
+    assert episodes.truncated[:6].tolist() == [False, False, False, False, False, True]
 
 
-def test_ring_overwrites_whole_episodes():
-    replay = make_replay(num_envs=1, horizon=4, capacity=8)  # room for 2 episodes
-    fill(replay, 1, [[4, 3, 2]], horizon=4)
-    assert replay.num_episodes == 2
-    stored = sorted(int(replay.storage["obs/observation"][e, 0, 1]) for e in range(2))
-    assert stored == [1, 2]  # episode 0 was replaced whole by episode 2
-    assert sorted(replay.length.tolist()) == [2, 3]
+def test_the_oldest_whole_episodes_make_room_and_are_counted():
+    replay = make_replay(num_envs=1, horizon=4, capacity=8)
+    fill(replay, 1, [[4, 3, 2]], horizon=4)  # 9 transitions: the first episode goes
+    assert stored_ids(replay) == [(0, 1), (0, 2)]
+    assert replay.num_transitions == 5 and replay.evicted_transitions == 4 and replay.evicted_episodes == 1
+    assert replay.metrics() == {"replay_transitions": 5, "replay_episodes": 2, "replay_evicted": 4}
+
+
+def test_short_episodes_fill_the_capacity_in_transitions():
+    replay = make_replay(num_envs=1, horizon=50, capacity=100)  # the old layout held 2 episodes of 50 rows
+    fill(replay, 1, [[2] * 50], horizon=50)
+    assert replay.num_episodes == 50 and replay.num_transitions == 100 and replay.evicted_transitions == 0
+    assert replay.episode_slots >= 50  # the episode slots grew past the horizon's guess
 
 
 def test_sampling_is_uniform_over_transitions_not_episodes():
@@ -121,9 +133,75 @@ def test_sampling_an_empty_replay_is_a_clear_error():
         make_replay().sample(4)
 
 
-def test_capacity_too_small_for_parallel_envs_is_rejected():
-    with pytest.raises(ValueError, match="at least 2 \\* num_envs"):
-        EpisodeReplay(SPACE, ACTIONS, capacity=10, horizon=5, num_envs=4)
+def test_an_episode_longer_than_the_capacity_names_buffer_size():
+    replay = make_replay(num_envs=1, horizon=None, capacity=6)
+    with pytest.raises(ConfigError, match="buffer_size"):
+        fill(replay, 1, [[10]], horizon=100)
+
+
+def test_episodes_without_a_horizon_grow_their_staging():
+    replay = make_replay(num_envs=2, horizon=None, capacity=1000)
+    fill(replay, 2, [[150, 3], [2, 200]], horizon=10_000)  # past the staging's first 64 steps
+    assert sorted(replay.length[replay.stored_episodes()].tolist()) == [2, 3, 150, 200]
+    b = replay.gather(*replay.episode_steps(replay.stored_episodes()))
+    assert torch.equal(b.obs["observation"][:, 2] + 1, b.next_obs["observation"][:, 2])
+
+
+def reference_fifo(lengths_per_env: list[list[int]], capacity: int) -> tuple[list[tuple[int, int, int]], int, int]:
+    """A plain-Python replay: episodes in the order they end (env order within a step), the oldest
+    dropped while more than ``capacity`` transitions are kept. ``(env, episode, length)`` of those kept,
+    and the episodes and transitions dropped."""
+    ends = []
+    for env, lengths in enumerate(lengths_per_env):
+        t = 0
+        for k, n in enumerate(lengths):
+            t += n
+            ends.append((t, env, k, n))
+    kept, dropped_episodes, dropped = [], 0, 0
+    for _, env, k, n in sorted(ends):
+        kept.append((env, k, n))
+        while sum(e[2] for e in kept) > capacity:
+            dropped_episodes, dropped = dropped_episodes + 1, dropped + kept.pop(0)[2]
+    return kept, dropped_episodes, dropped
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.integers(1, 4), st.data(), st.booleans())
+def test_stores_and_evicts_what_a_fifo_of_episodes_counted_in_transitions_does(num_envs, data, declared):
+    lengths = [data.draw(st.lists(st.integers(1, 9), min_size=1, max_size=6)) for _ in range(num_envs)]
+    total = max(sum(x) for x in lengths)
+    lengths = [x + ([total - sum(x)] if sum(x) < total else []) for x in lengths]  # every env steps to the end
+    longest = max(max(x) for x in lengths)
+    capacity = data.draw(st.integers(longest, 3 * longest + 10))
+    replay = make_replay(num_envs, horizon=data.draw(st.integers(1, 12)) if declared else None, capacity=capacity)
+    fill(replay, num_envs, lengths, horizon=longest + 1)
+
+    kept, dropped_episodes, dropped = reference_fifo(lengths, capacity)
+    assert stored_ids(replay) == [(env, k) for env, k, _ in kept]
+    assert replay.length[replay.stored_episodes()].tolist() == [n for _, _, n in kept]
+    assert replay.num_transitions == sum(n for _, _, n in kept) <= capacity
+    assert (replay.evicted_episodes, replay.evicted_transitions) == (dropped_episodes, dropped)
+    assert replay.transitions_added == sum(map(sum, lengths)) == replay.num_transitions + dropped
+    # every stored step, read back: its own episode, consecutive observations
+    batch = replay.gather(*replay.episode_steps(replay.stored_episodes()))
+    obs, nxt = batch.obs["observation"], batch.next_obs["observation"]
+    assert torch.equal(obs[:, :2], nxt[:, :2]) and torch.equal(obs[:, 2], batch.step.float())
+    assert torch.equal(nxt[:, 2], batch.step.float() + 1)
+
+
+def test_sampling_is_uniform_over_stored_transitions_chi_square():
+    from scipy.stats import chisquare
+
+    replay = make_replay(num_envs=3, horizon=None, capacity=40)
+    lengths = [[1, 2, 9, 3, 1, 1, 7, 2], [5, 5, 1, 1, 1, 1, 12], [2, 2, 2, 2, 2, 2, 2, 12]]
+    fill(replay, 3, lengths, horizon=100)  # the ring wrapped, the episode slots grew
+    assert replay.evicted_transitions > 0 and replay.layout > 0
+    n = 60_000
+    batch = replay.sample(n, torch.Generator().manual_seed(3))
+    key = batch.obs["observation"] @ torch.tensor([10_000.0, 100.0, 1.0])  # (env, episode, step) as one number
+    _, counts = torch.unique(key, return_counts=True)
+    assert counts.numel() == replay.num_transitions  # every stored transition is drawn, nothing else
+    assert chisquare(counts.numpy()).pvalue > 1e-3
 
 
 episode_data = st.tuples(
@@ -192,31 +270,56 @@ def test_unknown_strategy_is_rejected_with_the_allowed_names():
 
 
 def test_state_round_trip_into_a_different_capacity_keeps_the_newest_episodes():
-    replay = make_replay(num_envs=1, horizon=4, capacity=16)  # 4 episodes
-    fill(replay, 1, [[4, 3, 2, 1, 4, 2]], horizon=4)  # 6 episodes: the ring wrapped
-    newest = [4, 5]  # episode ids by their stored observation
+    replay = make_replay(num_envs=1, horizon=4, capacity=10)
+    fill(replay, 1, [[4, 3, 2, 1, 4, 2]], horizon=4)  # 16 transitions: the ring wrapped
+    assert stored_ids(replay) == [(0, 2), (0, 3), (0, 4), (0, 5)]
 
-    smaller = make_replay(num_envs=1, horizon=4, capacity=8)  # 2 episodes
+    smaller = make_replay(num_envs=1, horizon=4, capacity=6)
     smaller.load_state_dict(replay.state_dict())
-    ids = [int(smaller.storage["obs/observation"][e, 0, 1]) for e in range(2)]
-    assert ids == newest and smaller.length.tolist() == [4, 2]
+    assert stored_ids(smaller) == [(0, 4), (0, 5)] and smaller.length[smaller.stored_episodes()].tolist() == [4, 2]
+    assert smaller.episodes_added == 6 and smaller.evicted_transitions == replay.evicted_transitions + 3
 
     larger = make_replay(num_envs=1, horizon=4, capacity=40)
     larger.load_state_dict(replay.state_dict())
-    assert larger.num_episodes == 4 and larger.num_transitions == replay.num_transitions
-    assert [int(larger.storage["obs/observation"][e, 0, 1]) for e in range(4)] == [2, 3, 4, 5]
+    assert stored_ids(larger) == [(0, 2), (0, 3), (0, 4), (0, 5)] and larger.num_transitions == replay.num_transitions
+    for key in SPACE.spaces:
+        assert torch.equal(larger.episodes().obs[key], replay.episodes().obs[key])
+
+
+def test_checkpoints_of_the_horizon_row_layout_still_load():
+    """A replay saved before capacity counted transitions: ``[episodes, horizon (+ 1)]`` rows."""
+    lengths = torch.tensor([2, 3, 1])
+    h = 3
+    obs = torch.arange(3 * (h + 1) * 3, dtype=torch.float32).view(3, h + 1, 3)
+    state = {f"storage/obs/{k}": obs for k in SPACE.spaces}
+    state.update(
+        {
+            "storage/action": torch.zeros(3, h, dtype=torch.long),
+            "storage/reward": torch.arange(9, dtype=torch.float32).view(3, h),
+            "storage/terminated": torch.zeros(3, h, dtype=torch.bool),
+            "storage/truncated": torch.zeros(3, h, dtype=torch.bool),
+            "length": lengths,
+            "counters": torch.tensor([1, 3, 7]),  # next slot 1: slot 1 is the oldest
+        }
+    )
+    replay = make_replay(num_envs=1, horizon=None, capacity=20)
+    replay.load_state_dict(state)
+    assert replay.length[replay.stored_episodes()].tolist() == [3, 1, 2]
+    assert replay.episodes().reward.tolist() == [3.0, 4.0, 5.0, 6.0, 0.0, 1.0]
+    assert replay.episodes().obs["observation"][:, 0].tolist() == [12.0, 15.0, 18.0, 21.0, 24.0, 27.0, 0.0, 3.0, 6.0]
 
 
 def test_the_memory_estimate_is_what_the_storage_allocates():
     from taskrl.envs import BitFlip, PointReach
 
     for env in (BitFlip(7, num_envs=4), PointReach(num_envs=3)):
-        replay = EpisodeReplay(env.single_observation_space, env.single_action_space, 5_000, env.horizon, env.num_envs)
-        allocated = sum(t.nbytes for table in (replay.storage, replay.staging) for t in table.values())
-        assert (
-            EpisodeReplay.bytes_needed(env.single_observation_space, env.single_action_space, 5_000, env.horizon, env.num_envs)
-            == allocated
-        )
+        space, actions = env.single_observation_space, env.single_action_space
+        replay = EpisodeReplay(space, actions, 5_000, env.num_envs, horizon=env.horizon)
+        replay.start(env.reset(seed=0))
+        tables = [replay.obs, replay.steps, replay._staging.obs, replay._staging.steps]
+        allocated = sum(t.nbytes for table in tables for t in table.values())
+        allocated += sum(t.nbytes for t in (replay.step_episode, replay.episode_step_start, replay.episode_obs_start, replay.length))
+        assert EpisodeReplay.bytes_needed(space, actions, 5_000, env.num_envs, env.horizon) == allocated
 
 
 def test_interleaving_batches_is_what_splitting_undoes():

@@ -53,6 +53,7 @@ from taskrl.logger import RunLogger
 from taskrl.plots import plot_learning_curve
 from taskrl.presets import preset_config
 from taskrl.replay import EpisodeReplay, HindsightRelabeler, RecentMixSampler, TaskBalancedSampler
+from taskrl.replay.storage import saved_episodes
 from taskrl.rundir import RunLock, atomic_write_text, check_new_run_dir
 from taskrl.sharing import TaskSharing, collect_task_datasets
 from taskrl.sharing.strategies import task_functions
@@ -269,15 +270,16 @@ def build(config: TrainConfig, source: Any = None) -> RunParts:
         parts = RunParts(config, family, device, env, eval_env, agent, generator, source=source)
         if algorithm(config.algo).loop == "off_policy":
             capacity = min(config.buffer_size, replay_needs(config, env))
+            horizon = getattr(env, "horizon", None)
             check_replay_memory(
                 EpisodeReplay.bytes_needed(
-                    env.single_observation_space, env.single_action_space, capacity, env.horizon, env.num_envs
+                    env.single_observation_space, env.single_action_space, capacity, env.num_envs, horizon
                 ),
                 capacity,
                 device,
             )
             parts.replay = EpisodeReplay(
-                env.single_observation_space, env.single_action_space, capacity, env.horizon, env.num_envs, device
+                env.single_observation_space, env.single_action_space, capacity, env.num_envs, device, horizon
             )
             parts.relabel = make_relabeler(config, env)
             if config.sampling == "task_balanced":
@@ -331,11 +333,25 @@ def _dataset_copies(steps: int) -> int:
 
 
 def dataset_steps(config: TrainConfig, env: Any) -> int:
-    """Transitions of the env's offline datasets (``--dataset-quality``): 0 without any."""
+    """Transitions of the env's offline datasets (``--dataset-quality``): 0 without any. Each task's
+    ``dataset_steps`` is rounded up to a multiple of its env copies (all copies step together)."""
     settings = config.env_settings
     if not getattr(settings, "dataset_quality", ""):
         return 0
-    return len(env.task_set) * (settings.dataset_steps + _dataset_copies(settings.dataset_steps))
+    copies = _dataset_copies(settings.dataset_steps)
+    return len(env.task_set) * -(-settings.dataset_steps // copies) * copies
+
+
+def check_preload_fits(replay: EpisodeReplay, transitions: int, what: str) -> None:
+    """A :class:`ConfigError` on ``buffer_size`` when ``transitions`` more would evict stored data: a
+    preload is never cut silently."""
+    needed = replay.num_transitions + transitions
+    require(
+        needed <= replay.capacity,
+        "buffer_size",
+        f"{what} holds {transitions:,} transitions; the replay holds {replay.capacity:,}: "
+        f"use --buffer-size {needed:,} or more",
+    )
 
 
 def preload_datasets(parts: RunParts) -> int:
@@ -354,28 +370,29 @@ def preload_datasets(parts: RunParts) -> int:
             "dataset_quality",
             f"{config.env!r} has no scripted expert to make datasets with; allowed envs: gridtasks, pointtasks",
         )
-        tables, lengths = collect_task_datasets(maker, qualities, settings.dataset_steps, config.seed)
+        check_preload_fits(parts.replay, dataset_steps(config, env), "--dataset-quality's datasets")
+        episodes = collect_task_datasets(maker, qualities, settings.dataset_steps, config.seed)
     finally:
         maker.close()
-    parts.replay.add_episodes(tables, lengths)
-    return int(lengths.sum())
+    check_preload_fits(parts.replay, episodes.num_transitions, "--dataset-quality's datasets")
+    parts.replay.add_episodes(episodes)
+    return episodes.num_transitions
 
 
 def replay_needs(config: TrainConfig, env: BatchedEnv) -> int:
-    """Transitions a run can store: its env steps and the episodes running at its end (with
-    ``--offline-data``, also the other run's: everything up to ``buffer_size``)."""
+    """Transitions a run can store: its datasets and env steps, the last step of every copy past
+    ``total_steps`` included (with ``--offline-data``, also the other run's: everything up to ``buffer_size``).
+    The episodes running at the end are stored cut (their steps are env steps already counted)."""
     if config.offline_data:
         return config.buffer_size
-    stored = dataset_steps(config, env) + 2 * env.num_envs * env.horizon
+    stored = dataset_steps(config, env)
     if config.offline:
-        return stored
+        return max(stored, 1)
     cluster = config.cluster
-    if cluster.distributed:  # collect calls in flight may pass total_steps, and each collector's running episodes
+    if cluster.distributed:  # collect calls in flight may pass total_steps
         each = cluster.envs_each(config.num_envs)
-        stored = dataset_steps(config, env) + cluster.collectors * each * (
-            CALLS_PER_COLLECTOR * cluster.collector_steps + 2 * env.horizon
-        )
-    return config.total_steps + stored
+        return config.total_steps + stored + cluster.collectors * each * CALLS_PER_COLLECTOR * cluster.collector_steps
+    return config.total_steps + stored + env.num_envs
 
 
 def _dataset_sampler(config: TrainConfig, env: Any, agent: Any, device: torch.device) -> Any:
@@ -411,7 +428,12 @@ def preload_replay(parts: RunParts, run_dir: str | Path) -> int:
     if "replay" not in saved:
         raise ConfigError("offline_data", f"the last checkpoint of {run_dir} holds no replay; train it with --save-replay")
     try:
-        parts.replay.load_state_dict(saved["replay"])
+        episodes, _ = saved_episodes(saved["replay"])
+    except (KeyError, RuntimeError, ValueError, IndexError) as error:
+        raise ConfigError("offline_data", f"the replay of {run_dir} cannot be read: {reason(error)}") from None
+    check_preload_fits(parts.replay, episodes.num_transitions, f"--offline-data {run_dir}")
+    try:
+        parts.replay.add_episodes(episodes.to(parts.device))
     except (KeyError, RuntimeError, ValueError, IndexError) as error:
         raise ConfigError("offline_data", f"the replay of {run_dir} does not fit this run's env: {reason(error)}") from None
     return parts.replay.num_episodes
@@ -815,6 +837,8 @@ def train(
             else:
                 make_loop = _stored_data_loop if config.offline else LOOPS[algorithm(config.algo).loop]
             loop = make_loop(parts, books)
+            if parts.replay is not None:  # what the replay holds and has dropped
+                books.row_metrics.append(lambda elapsed: parts.replay.metrics())
             if parts.sharing is not None:  # how much of each task's rows came from which task
                 sharing, names = parts.sharing, list(parts.env.task_set.names)
                 books.row_metrics.append(lambda elapsed: sharing.metrics(names))

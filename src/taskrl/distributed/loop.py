@@ -32,7 +32,7 @@ from taskrl.distributed.pools import Pool, RoleDied, RoleRestarting
 from taskrl.distributed.roles import Collected, Labelled
 from taskrl.distributed.settings import DistributedConfig
 from taskrl.replay.batch import Batch
-from taskrl.replay.episodes import EpisodeReplay
+from taskrl.replay.storage import EpisodeReplay
 from taskrl.training.bookkeeping import Bookkeeping, LoopState
 
 __all__ = ["DistributedLoop", "RoleMeters", "RolesLost"]
@@ -250,7 +250,7 @@ class DistributedLoop:
             self.meters.lag_samples += 1
 
     def store(self, got: Collected) -> None:
-        self.replay.add_episodes(got.tables, got.lengths)
+        self.replay.add_episodes(got.episodes)
         self.books.add_steps(got.steps)
         self.books.add_episodes(torch.tensor(got.ended), torch.tensor(got.succeeded))
 

@@ -18,7 +18,7 @@ from typing import Any
 import torch
 
 from taskrl.replay.batch import Batch
-from taskrl.replay.episodes import EpisodeRecorder
+from taskrl.replay.episodes import EpisodeRecorder, Episodes
 
 __all__ = ["BellmanUpdater", "Collected", "Collector", "Labelled", "pull_weights"]
 
@@ -37,7 +37,7 @@ class Collected:
     """What one collect call returns.
 
     Attributes:
-        tables, lengths: the episodes that finished (as :meth:`EpisodeRecorder.drain` gives them).
+        episodes: the episodes that finished (as :meth:`EpisodeRecorder.drain` gives them).
         steps: env steps taken (all copies).
         ended, succeeded: training episodes that finished, and how many of them succeeded.
         seconds: wall-clock of the call.
@@ -45,8 +45,7 @@ class Collected:
         pid: the collector's process (a new one after a restart).
     """
 
-    tables: dict[str, torch.Tensor]
-    lengths: torch.Tensor
+    episodes: Episodes
     steps: int
     ended: int
     succeeded: int
@@ -91,7 +90,7 @@ class Collector:
         self.env = make_env(seed)
         self.agent = make_agent(self.env)
         self.recorder = EpisodeRecorder(
-            self.env.single_observation_space, self.env.single_action_space, self.env.horizon, self.env.num_envs
+            self.env.single_observation_space, self.env.single_action_space, self.env.num_envs, horizon=self.env.horizon
         )
         self.generator = torch.Generator()
         self.version = -1
@@ -135,16 +134,14 @@ class Collector:
             succeeded += int((done & info["is_success"]).sum())
             obs = next_obs
         self.obs = obs
-        tables, lengths = recorder.drain()
-        return Collected(tables, lengths, steps * env.num_envs, ended, succeeded, time.perf_counter() - started, self.version)
+        return Collected(recorder.drain(), steps * env.num_envs, ended, succeeded, time.perf_counter() - started, self.version)
 
     def flush(self) -> Collected:
         """The episodes still running, stored as cut at their last step (``truncated`` there): what a
         run that stops keeps of them."""
         started = time.perf_counter()
         self.recorder.cut_running()
-        tables, lengths = self.recorder.drain()
-        return Collected(tables, lengths, 0, 0, 0, time.perf_counter() - started, self.version)
+        return Collected(self.recorder.drain(), 0, 0, 0, time.perf_counter() - started, self.version)
 
     def close(self) -> None:
         self.env.close()

@@ -23,14 +23,14 @@ StepResult = tuple[Obs, torch.Tensor, torch.Tensor, torch.Tensor, dict[str, Any]
 class BatchedEnv:
     """Base class of native batched environments.
 
-    Subclasses set ``num_envs``, ``device``, ``horizon`` (maximum episode length),
-    ``single_observation_space`` (a gymnasium ``Dict``) and ``single_action_space``, and implement
+    Subclasses set ``num_envs``, ``device``, ``horizon`` (maximum episode length; None for an env
+    that ends its own episodes and declares no limit), ``single_observation_space`` (a gymnasium ``Dict``) and ``single_action_space``, and implement
     ``reset`` and ``step``.
     """
 
     num_envs: int
     device: torch.device
-    horizon: int
+    horizon: int | None
     single_observation_space: gym.spaces.Dict
     single_action_space: gym.spaces.Space
 

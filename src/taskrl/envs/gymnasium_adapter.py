@@ -118,7 +118,7 @@ class GymnasiumVectorEnv(BatchedEnv):
             ``"success"`` for Meta-World); ``"auto"``: whichever of those the info has (always
             False if neither); ``None`` reports no success (always False).
         max_episode_steps: time limit; default the env spec's ``max_episode_steps``. It is
-            also ``horizon``.
+            also ``horizon`` (None where neither is given: the env ends its own episodes).
         observation_dtype: floating observation keys are converted to this dtype (``None``
             keeps the env's, e.g. float64 for Fetch).
         env_kwargs: keyword arguments of ``gymnasium.make`` (only with a registered id).
@@ -207,9 +207,8 @@ class GymnasiumVectorEnv(BatchedEnv):
             self._check_env(self.vector_env.single_observation_space, self.first_env)
             if self.vector_env.metadata.get("autoreset_mode") != autoreset.SAME_STEP:
                 raise RuntimeError(f"the vector env does not use same-step autoreset: {self.vector_env.metadata!r}")
+            # None: the env ends its own episodes (the replay discovers their lengths)
             self.horizon = max_episode_steps if max_episode_steps is not None else self._spec_steps(first)
-            if self.horizon is None:
-                raise ValueError(f"env {self.env_id!r} has no max_episode_steps in its spec; pass max_episode_steps")
         except Exception:
             self.close()
             raise

@@ -15,7 +15,7 @@ from typing import Any, Literal
 import torch
 
 from taskrl.replay.batch import Batch
-from taskrl.replay.episodes import EpisodeReplay
+from taskrl.replay.storage import EpisodeReplay
 
 GoalFn = Callable[[torch.Tensor, torch.Tensor, Any], torch.Tensor]
 STRATEGIES = ("future", "final", "episode", "random")

@@ -7,7 +7,7 @@ episodes, a uniform task draw that happened to favour them) dominate the gradien
 on Meta-World samples ``batch_size / T`` transitions of every task instead. Episodes carry one
 task each (the task of their first observation), so a task's transitions are the transitions of
 its episodes; all tasks are drawn in one vectorised pass (a batched binary search over per-task
-cumulative episode lengths), no Python loop over tasks.
+cumulative episode lengths, the episodes ordered by task), no Python loop over tasks.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from __future__ import annotations
 import torch
 
 from taskrl.replay.batch import Batch
-from taskrl.replay.episodes import EpisodeReplay, draw_transitions
+from taskrl.replay.storage import EpisodeReplay, draw_transitions
 
 __all__ = ["RecentMixSampler", "TaskBalancedSampler"]
 
@@ -27,6 +27,9 @@ class TaskBalancedSampler:
     transition yet (early in a run, with tasks drawn at random) gets transitions drawn uniformly from
     all stored data instead, so the batch size never changes.
 
+    The stored episodes are ordered by task once per change of the replay (``replay.version``); every
+    batch is then one batched binary search over their cumulative lengths.
+
     Args:
         replay: the episode storage (observations must carry ``task_key``).
         num_tasks: T.
@@ -34,28 +37,49 @@ class TaskBalancedSampler:
     """
 
     def __init__(self, replay: EpisodeReplay, num_tasks: int, task_key: str = "task") -> None:
-        if f"obs/{task_key}" not in replay.storage:
+        if task_key not in replay.obs_keys:
             raise ValueError(f"task-balanced sampling needs observations with a {task_key!r} key; found {replay.obs_keys}")
         if num_tasks < 1:
             raise ValueError(f"num_tasks: must be >= 1 (got {num_tasks})")
         self.replay, self.num_tasks, self.task_key = replay, int(num_tasks), task_key
         self._tasks = torch.arange(num_tasks, device=replay.device)
+        self._version = -1
+        self._by_task: tuple[torch.Tensor, ...] = ()
+
+    def by_task(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """``(episodes, lengths, cumulative, first, totals)``: the stored episodes ordered by task (oldest
+        first within a task), their lengths and cumulative lengths, and per task where its transitions
+        start in that order and how many it has (``[T]``)."""
+        r = self.replay
+        if self._version != r.version:
+            episodes = r.stored_episodes()
+            task = r.observation_at(self.task_key, episodes, 0).long()
+            order = torch.argsort(task, stable=True)
+            episodes, task = episodes[order], task[order]
+            lengths = r.length.index_select(0, episodes)
+            totals = torch.zeros(self.num_tasks + 1, dtype=torch.long, device=r.device)
+            totals.index_add_(0, task.clamp(0, self.num_tasks), lengths)  # out-of-range tasks: a last bin
+            totals = totals[: self.num_tasks]
+            first = torch.cumsum(totals, 0) - totals
+            self._by_task = (episodes, lengths, torch.cumsum(lengths, 0), first, totals)
+            self._version = r.version
+        return self._by_task
 
     def indices(self, batch_size: int, generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """``(episode, step)`` index tensors, task-major: rows of task 0 first, then task 1, ..."""
         r, T = self.replay, self.num_tasks
-        episode_task = r.storage[f"obs/{self.task_key}"][:, 0].long()  # [E]
-        per_task_length = r.length * (episode_task == self._tasks[:, None])  # [T, E]
-        cumulative = torch.cat([per_task_length, r.length[None]]).cumsum(1)  # [T + 1, E]; last row: all tasks
-        totals = cumulative[:, -1]
         if r.num_episodes == 0:  # a count on the host: no device sync per batch
             raise RuntimeError("cannot sample from an empty replay: no episode has finished yet")
-        rows = torch.where(totals[:T] > 0, self._tasks, T)  # empty task -> all data
+        episodes, lengths, cumulative, first, totals = self.by_task()
+        empty = totals == 0  # empty task -> all data
+        first = first.masked_fill(empty, 0)
+        totals = torch.where(empty, r.num_transitions, totals)
         per = -(-batch_size // T)  # ceil
         u = torch.rand((T, per), generator=generator, device=r.device)
-        target = (u * totals[rows, None]).long().minimum(totals[rows, None] - 1)  # [T, per] positions
-        episode = torch.searchsorted(cumulative[rows], target, right=True)  # batched binary search
-        step = target - (cumulative[rows[:, None], episode] - r.length[episode])
+        target = first[:, None] + (u * totals[:, None]).long().minimum(totals[:, None] - 1)  # [T, per] positions
+        at = torch.searchsorted(cumulative, target, right=True)
+        step = target - (cumulative[at] - lengths[at])
+        episode = episodes[at]
         # exactly batch_size rows: cut in step-major order (the remainder falls on the lowest task
         # indices), then back to task-major order
         flat = torch.arange(T * per, device=r.device).view(T, per).t().reshape(-1)[:batch_size].sort().values
@@ -90,10 +114,10 @@ class RecentMixSampler:
 
     def recent_indices(self, n: int, generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """``n`` transitions uniform over the window's transitions."""
-        slots = self.replay.recent_slots(self.recent_episodes)
-        lengths = self.replay.length[slots]
+        episodes = self.replay.newest_episodes(self.recent_episodes)
+        lengths = self.replay.length[episodes]
         at, step = draw_transitions(lengths.cumsum(0), lengths, n, generator)
-        return slots[at], step
+        return episodes[at], step
 
     def indices(self, batch_size: int, generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         if self.replay.num_episodes == 0:

@@ -12,7 +12,7 @@ from collections.abc import Mapping
 import gymnasium as gym
 import torch
 
-from taskrl.replay.episodes import EpisodeRecorder
+from taskrl.replay.episodes import EpisodeRecorder, Episodes
 
 __all__ = ["RANDOM_SHARE", "collect_task_datasets", "random_actions"]
 
@@ -31,8 +31,8 @@ def random_actions(space: gym.spaces.Space, n: int, generator: torch.Generator, 
 
 def collect_task_datasets(
     env, qualities: Mapping[str, str], steps_per_task: int, seed: int
-) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
-    """``(tables, lengths)`` of whole episodes, ``steps_per_task`` transitions of every task.
+) -> Episodes:
+    """Whole episodes, ``steps_per_task`` transitions of every task (the running ones cut at the end).
 
     Args:
         env: a multi-task env with fixed tasks per copy (``slot_tasks``, copy ``i`` on task ``i % T``),
@@ -46,7 +46,7 @@ def collect_task_datasets(
     per_task = env.num_envs // len(names)
     generator = torch.Generator(device=env.device)
     generator.manual_seed(seed)
-    recorder = EpisodeRecorder(env.single_observation_space, env.single_action_space, env.horizon, env.num_envs, env.device)
+    recorder = EpisodeRecorder(env.single_observation_space, env.single_action_space, env.num_envs, env.device, env.horizon)
     obs = env.reset(seed=seed)
     recorder.start(obs)
     for _ in range(-(-steps_per_task // per_task)):

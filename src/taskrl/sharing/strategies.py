@@ -36,7 +36,7 @@ from typing import Any
 import torch
 
 from taskrl.replay.batch import Batch
-from taskrl.replay.episodes import EpisodeReplay
+from taskrl.replay.storage import EpisodeReplay
 from taskrl.sharing.settings import SharingConfig
 from taskrl.types import Obs
 
@@ -53,7 +53,8 @@ def task_functions(env: Any) -> bool:
 
 class EpisodeScores:
     """Per stored episode and task: whether some ``s'`` passes the task's success test, and the return
-    under its reward. Scored once per episode, when it is first seen (a ring slot rewritten is new).
+    under its reward. Scored once per episode, when it is first seen (all again when the replay lays its
+    episodes out anew).
 
     Args:
         replay: the episode storage.
@@ -63,34 +64,32 @@ class EpisodeScores:
 
     def __init__(self, replay: EpisodeReplay, env: Any, num_tasks: int) -> None:
         self.replay, self.env, self.num_tasks = replay, env, num_tasks
-        self.success = torch.zeros(replay.max_episodes, num_tasks, dtype=torch.bool, device=replay.device)
-        self.returns = torch.zeros(replay.max_episodes, num_tasks, device=replay.device)
-        self.seen = 0
+        self.seen, self.layout = 0, -1
 
     def refresh(self) -> None:
         r = self.replay
+        if self.layout != r.layout:  # new episode ids: score every stored episode
+            self.success = torch.zeros(r.episode_slots, self.num_tasks, dtype=torch.bool, device=r.device)
+            self.returns = torch.zeros(r.episode_slots, self.num_tasks, device=r.device)
+            self.layout, self.seen = r.layout, r.episodes_added - r.num_episodes
         new = min(r.episodes_added - self.seen, r.num_episodes)
         self.seen = r.episodes_added
         if new <= 0:
             return
-        slots = r.recent_slots(new)
-        for chunk in slots.split(SCORE_CHUNK):
+        for chunk in r.newest_episodes(new).split(SCORE_CHUNK):
             self._score(chunk)
 
-    def _score(self, slots: torch.Tensor) -> None:
-        r, h = self.replay, self.replay.horizon
-        n = slots.numel()
-        steps = torch.arange(h, device=r.device)
-        valid = steps < r.length[slots, None]  # [n, h]
-        obs = {k: r.storage[f"obs/{k}"][slots, :h].flatten(0, 1) for k in r.obs_keys}
-        next_obs = {k: r.storage[f"obs/{k}"][slots, 1:].flatten(0, 1) for k in r.obs_keys}
-        action = r.storage["action"][slots].flatten(0, 1)
+    def _score(self, episodes: torch.Tensor) -> None:
+        r = self.replay
+        episode, step = r.episode_steps(episodes)
+        batch = r.gather(episode, step)
+        row = torch.arange(episodes.numel(), device=r.device).repeat_interleave(r.length[episodes])
         for j in range(self.num_tasks):
-            task = torch.full((n * h,), j, dtype=torch.long, device=r.device)
-            success = self.env.task_success(next_obs, task).view(n, h) & valid
-            reward = self.env.task_reward(obs, action, next_obs, task).view(n, h) * valid
-            self.success[slots, j] = success.any(1)
-            self.returns[slots, j] = reward.sum(1)
+            task = torch.full_like(episode, j)
+            success = self.env.task_success(batch.next_obs, task).float()
+            reward = self.env.task_reward(batch.obs, batch.action, batch.next_obs, task).float()
+            self.success[episodes, j] = torch.zeros(episodes.numel(), device=r.device).index_add_(0, row, success) > 0
+            self.returns[episodes, j] = torch.zeros(episodes.numel(), device=r.device).index_add_(0, row, reward)
 
 
 class TaskSharing:
@@ -179,7 +178,7 @@ class TaskSharing:
             raise RuntimeError("cannot sample from an empty replay: no episode has finished yet")
         per = -(-batch_size // T)
         length = r.length.float()
-        source = r.storage[f"obs/{self.task_key}"][:, 0].long()  # [E]
+        source = r.first_observations(self.task_key).long().masked_fill(r.length == 0, 0)  # [E]
         own = length * (source[None] == self.tasks[:, None])  # [T, E]
         shared = length * self.shared_weights(source, generator) if s.sharing != "none" else torch.zeros_like(own)
         has_own, has_shared = own.sum(1) > 0, shared.sum(1) > 0

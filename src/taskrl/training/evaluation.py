@@ -9,6 +9,10 @@ import torch
 
 from taskrl.envs.base import BatchedEnv, Obs
 
+#: steps an evaluation episode may take on an env that declares no horizon; one still running then
+#: counts as not successful
+UNLIMITED_EPISODE_STEPS = 100_000
+
 
 class ActingPolicy:
     """``obs -> actions`` of an agent (greedy unless ``explore``), told when episodes end, so a policy with
@@ -37,7 +41,8 @@ def evaluate(policy: Callable[[Obs], torch.Tensor], env: BatchedEnv, seed: int, 
 
     The same ``seed`` gives the same start states and goals every time, so successive
     evaluations of a run are comparable. Success is ``info["is_success"]`` at the step the
-    episode ends.
+    episode ends (on an env without a horizon, an episode still running after
+    ``UNLIMITED_EPISODE_STEPS`` is not a success).
 
     Returns:
         ``success_rate``, ``eval_return`` (mean undiscounted) and ``eval_length`` (mean steps); with
@@ -50,7 +55,7 @@ def evaluate(policy: Callable[[Obs], torch.Tensor], env: BatchedEnv, seed: int, 
     success = torch.zeros(n, dtype=torch.bool, device=env.device)
     returns = torch.zeros(n, device=env.device)
     lengths = torch.zeros(n, device=env.device)
-    for _ in range(env.horizon):
+    for _ in range(env.horizon or UNLIMITED_EPISODE_STEPS):
         obs, reward, terminated, truncated, info = env.step(policy(obs))
         active = ~finished
         returns += reward * active

@@ -17,7 +17,7 @@ import torch
 
 from taskrl.envs.base import BatchedEnv
 from taskrl.replay.batch import Batch
-from taskrl.replay.episodes import EpisodeReplay
+from taskrl.replay.storage import EpisodeReplay
 from taskrl.training.bookkeeping import Bookkeeping, LoopState
 from taskrl.types import Obs
 

@@ -18,7 +18,7 @@ import torch
 
 from taskrl.envs.base import BatchedEnv
 from taskrl.tasks import TaskSet
-from taskrl.training.evaluation import episodes_ended
+from taskrl.training.evaluation import UNLIMITED_EPISODE_STEPS, episodes_ended
 from taskrl.types import Obs
 
 __all__ = ["evaluate_per_task"]
@@ -120,7 +120,7 @@ def _evaluate_per_task(policy, env, n, seed, task_set, save_to, max_steps, crite
             pinned = True
     if max_steps is None:
         rounds = math.ceil(n * num_tasks / num_envs) if quotas is None else int(quotas.max())
-        max_steps = env.horizon * (rounds + 1) * (1 if quotas is not None else 20)
+        max_steps = (env.horizon or UNLIMITED_EPISODE_STEPS) * (rounds + 1) * (1 if quotas is not None else 20)
 
     successes = torch.zeros(num_tasks, dtype=torch.long)
     episodes = torch.zeros(num_tasks, dtype=torch.long)
