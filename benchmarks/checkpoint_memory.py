@@ -24,7 +24,7 @@ def main() -> None:
     parser.add_argument("--write", action="store_true")
     args = parser.parse_args()
     env = BitFlip(40, num_envs=64)
-    replay = EpisodeReplay(env.single_observation_space, env.single_action_space, args.capacity, env.horizon, 64)
+    replay = EpisodeReplay(env.single_observation_space, env.single_action_space, args.capacity, num_envs=64, horizon=env.horizon)
     for table in replay.storage.values():
         table.fill_(1)
     size = sum(t.nbytes for t in replay.storage.values()) / 2**20

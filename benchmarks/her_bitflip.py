@@ -104,7 +104,7 @@ def updates_per_second(batch_size: int, hidden: tuple[int, ...], n_bits: int = 1
     )
     env = make_env(cfg, "cpu", num_envs=16, seed=0)
     agent, relabel = make_agent(cfg, env, torch.device("cpu")), make_relabeler(cfg, env)
-    replay = EpisodeReplay(env.single_observation_space, env.single_action_space, 100_000, env.horizon, 16)
+    replay = EpisodeReplay(env.single_observation_space, env.single_action_space, 100_000, num_envs=16, horizon=env.horizon)
     obs = env.reset(seed=0)
     replay.start(obs)
     for _ in range(3_000 // 16):

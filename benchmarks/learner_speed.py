@@ -309,7 +309,7 @@ def bitflip_replay(settings: dict, steps: int = 4_000):
 
     cfg = with_overrides(preset_config("bitflip-her"), settings)
     env = make_env(cfg, "cpu", num_envs=16, seed=0)
-    replay = EpisodeReplay(env.single_observation_space, env.single_action_space, 100_000, env.horizon, 16)
+    replay = EpisodeReplay(env.single_observation_space, env.single_action_space, 100_000, num_envs=16, horizon=env.horizon)
     replay.start(env.reset(seed=0))
     for _ in range(steps // 16):
         action = torch.randint(0, cfg.env_settings.n_bits, (16,))

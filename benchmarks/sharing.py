@@ -140,7 +140,7 @@ def sampler_costs(transitions: int, batch_size: int, calls: int) -> str:
 
     torch.set_num_threads(1)
     env = GridTasks(num_envs=64, seed=0)
-    replay = EpisodeReplay(env.single_observation_space, env.single_action_space, transitions * 2, env.horizon, 64)
+    replay = EpisodeReplay(env.single_observation_space, env.single_action_space, transitions * 2, num_envs=64, horizon=env.horizon)
     generator = torch.Generator().manual_seed(0)
     obs = env.reset(seed=0)
     replay.start(obs)

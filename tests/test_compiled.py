@@ -271,7 +271,7 @@ def test_k_batches_drawn_together_are_k_task_balanced_batches():
     from taskrl.training.offpolicy import batch_sampler
 
     space = gym.spaces.Dict({"observation": gym.spaces.Box(-1, 1, (2,)), "task": gym.spaces.Discrete(4)})
-    replay = EpisodeReplay(space, gym.spaces.Discrete(3), 4_000, 10, 4)
+    replay = EpisodeReplay(space, gym.spaces.Discrete(3), 4_000, num_envs=4, horizon=10)
     g = torch.Generator().manual_seed(0)
     for _ in range(20):  # episodes of every task, task i in env i
         obs = {"observation": torch.rand(4, 2, generator=g), "task": torch.arange(4)}

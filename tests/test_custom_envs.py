@@ -53,6 +53,20 @@ class Slider(gym.Env):
         return obs, reward, False, False, {"is_success": reward == 0.0}
 
 
+class SliderThatEnds(Slider):
+    """The slider ending its own episodes: at the goal (``terminated``) or after its own 25 steps
+    (``truncated``), with no ``max_episode_steps`` registered: the replay discovers the lengths."""
+
+    def reset(self, *, seed=None, options=None):
+        self.t = 0
+        return super().reset(seed=seed, options=options)
+
+    def step(self, action):
+        obs, reward, _, _, info = super().step(action)
+        self.t += 1
+        return obs, reward, reward == 0.0, self.t >= 25, info
+
+
 class SlideTo(gym.Env):
     """The block to a fixed ``target``; a plain Box observation (the position) and a dense reward."""
 
@@ -107,6 +121,8 @@ for env_id, entry, steps in (
 ):
     if env_id not in gym.registry:
         gym.register(env_id, entry_point=entry, max_episode_steps=steps)
+if "testenvs/SliderThatEnds-v0" not in gym.registry:  # no time limit declared
+    gym.register("testenvs/SliderThatEnds-v0", entry_point=SliderThatEnds)
 
 SMALL = dict(total_steps=3000, eval_interval=1500, eval_episodes=50, learning_starts=500, tensorboard=False)
 
@@ -189,6 +205,41 @@ def test_api_trains_on_a_factory_and_needs_it_again_to_resume_and_load(tmp_path)
     assert isinstance(actions, np.ndarray) and actions.shape == (4, 1)
     vec.step(actions)
     vec.close()
+
+
+def test_a_goal_env_without_max_episode_steps_trains_from_the_command_line_and_from_python(tmp_path):
+    assert gym.spec("testenvs/SliderThatEnds-v0").max_episode_steps is None
+    out = tmp_path / "ends-cli"
+    done = cli(
+        "train",
+        "pointreach-sac-her",
+        "--env-id",
+        "testenvs/SliderThatEnds-v0",
+        "--out",
+        str(out),
+        "--total-steps",
+        "3000",
+        "--eval-interval",
+        "1500",
+        "--eval-episodes",
+        "50",
+        "--learning-starts",
+        "500",
+        "--env-module",
+        "test_custom_envs",
+        "--no-progress",
+        "--no-tensorboard",
+        cwd=tmp_path,
+    )
+    assert done.returncode == 0, done.stderr
+    assert successes(out)[-1] >= 0.9
+
+    run = taskrl.train("pointreach-sac-her", env=SliderThatEnds, out=tmp_path / "ends-api", **SMALL)
+    rows = list(csv.DictReader(open(run.run_dir / "metrics.csv")))
+    assert successes(run.run_dir)[-1] >= 0.9
+    # episodes of their own lengths, every completed step kept (the run never filled its replay)
+    assert 1 < float(rows[-1]["eval_length"]) < 25
+    assert int(rows[-1]["replay_evicted"]) == 0 and 2000 < int(rows[-1]["replay_transitions"]) <= 3000
 
 
 def test_a_plain_discrete_env_trains_with_dqn_and_bad_input_is_one_line(tmp_path):

@@ -66,9 +66,9 @@ def test_a_collectors_episodes_equal_those_an_in_process_replay_stores():
     env = collector_env(config, None, 4, seed=3)
     agent = role_agent(config, env)
     space, action_space = env.single_observation_space, env.single_action_space
-    recorder = EpisodeRecorder(space, action_space, env.horizon, 4)
-    direct = EpisodeReplay(space, action_space, 10_000, env.horizon, 4)
-    via = EpisodeReplay(space, action_space, 10_000, env.horizon, 4)
+    recorder = EpisodeRecorder(space, action_space, 4, horizon=env.horizon)
+    direct = EpisodeReplay(space, action_space, 10_000, num_envs=4, horizon=env.horizon)
+    via = EpisodeReplay(space, action_space, 10_000, num_envs=4, horizon=env.horizon)
     obs = env.reset(seed=3)
     recorder.start(obs), direct.start(obs)
     g = torch.Generator().manual_seed(0)
@@ -77,24 +77,27 @@ def test_a_collectors_episodes_equal_those_an_in_process_replay_stores():
         obs, reward, terminated, truncated, info = env.step(action)
         for r in (recorder, direct):
             r.add(action, reward, terminated, truncated, info["final_obs"], obs)
-    via.add_episodes(*recorder.drain())
+    via.add_episodes(recorder.drain())
     assert via.num_episodes == direct.num_episodes == via.episodes_added > 0
-    for key in direct.storage:
-        assert torch.equal(via.storage[key], direct.storage[key]), key
-    assert recorder.drain()[1].numel() == 0  # drained once
+    got, expected = via.episodes(), direct.episodes()
+    for key in ("action", "reward", "terminated", "truncated", "lengths"):
+        assert torch.equal(getattr(got, key), getattr(expected, key)), key
+    for key in expected.obs:
+        assert torch.equal(got.obs[key], expected.obs[key]), key
+    assert recorder.drain().num_episodes == 0  # drained once
 
 
 def test_recent_mix_draws_its_share_from_the_newest_episodes():
     config = _config(num_envs=2)
     env = collector_env(config, None, 2, seed=0)
-    replay = EpisodeReplay(env.single_observation_space, env.single_action_space, 50 * 40, env.horizon, 2)
+    replay = EpisodeReplay(env.single_observation_space, env.single_action_space, 50 * 40, num_envs=2, horizon=env.horizon)
     obs = env.reset(seed=0)
     replay.start(obs)
     for _ in range(env.horizon * 10):  # 20 episodes
         action = torch.rand(2, 2) * 2 - 1
         obs, reward, terminated, truncated, info = env.step(action)
         replay.add(action, reward, terminated, truncated, info["final_obs"], obs)
-    newest = set(replay.recent_slots(4).tolist())
+    newest = set(replay.newest_episodes(4).tolist())
     sampler = RecentMixSampler(replay, recent_fraction=0.25, recent_episodes=4)
     batch = sampler(400, torch.Generator().manual_seed(0))
     assert set(batch.episode[:100].tolist()) <= newest  # the window's share comes first

@@ -314,12 +314,12 @@ def test_the_memory_estimate_is_what_the_storage_allocates():
 
     for env in (BitFlip(7, num_envs=4), PointReach(num_envs=3)):
         space, actions = env.single_observation_space, env.single_action_space
-        replay = EpisodeReplay(space, actions, 5_000, env.num_envs, horizon=env.horizon)
+        replay = EpisodeReplay(space, actions, 5_000, num_envs=env.num_envs, horizon=env.horizon)
         replay.start(env.reset(seed=0))
         tables = [replay.obs, replay.steps, replay._staging.obs, replay._staging.steps]
         allocated = sum(t.nbytes for table in tables for t in table.values())
         allocated += sum(t.nbytes for t in (replay.step_episode, replay.episode_step_start, replay.episode_obs_start, replay.length))
-        assert EpisodeReplay.bytes_needed(space, actions, 5_000, env.num_envs, env.horizon) == allocated
+        assert EpisodeReplay.bytes_needed(space, actions, 5_000, num_envs=env.num_envs, horizon=env.horizon) == allocated
 
 
 def test_interleaving_batches_is_what_splitting_undoes():

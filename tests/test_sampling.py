@@ -51,11 +51,12 @@ def test_within_a_task_sampling_is_uniform_over_its_transitions():
     replay, _ = filled_replay([0.5, 0.5], episodes=40, seed=3)
     sampler = TaskBalancedSampler(replay, 2)
     e, s = sampler.indices(40_000, torch.Generator().manual_seed(0))
-    counts = torch.zeros(replay.max_episodes, replay.horizon)
+    horizon = 4
+    counts = torch.zeros(replay.episode_slots, horizon)
     counts.index_put_((e, s), torch.ones_like(e, dtype=torch.float), accumulate=True)
-    task = replay.storage["obs/task"][:, 0]
+    task = replay.first_observations("task")
     for k in (0, 1):
-        cells = counts[task == k][torch.arange(replay.horizon) < replay.length[task == k][:, None]]
+        cells = counts[task == k][torch.arange(horizon) < replay.length[task == k][:, None]]
         expected = 20_000 / cells.numel()
         assert (cells - expected).abs().max() < 6 * expected**0.5  # each transition equally likely
 
@@ -66,7 +67,7 @@ def test_a_task_without_data_borrows_from_all_data_and_errors_name_the_problem()
     assert len(batch) == 64 and (batch.obs["task"] == 0).all()
     with pytest.raises(ValueError, match="'task' key"):
         space = gym.spaces.Dict({"observation": gym.spaces.Box(-1, 1, (1,), np.float32)})
-        TaskBalancedSampler(EpisodeReplay(space, gym.spaces.Box(-1, 1, (1,)), 40, 4, 1), 2)
+        TaskBalancedSampler(EpisodeReplay(space, gym.spaces.Box(-1, 1, (1,)), 40, num_envs=1, horizon=4), 2)
     empty, _ = filled_replay([1.0], episodes=0, capacity=40)
     with pytest.raises(RuntimeError, match="empty replay"):
         TaskBalancedSampler(empty, 1)(8)
@@ -74,7 +75,7 @@ def test_a_task_without_data_borrows_from_all_data_and_errors_name_the_problem()
 
 def test_balanced_batches_from_a_real_multitask_env():
     env = MultiTaskPointReach(num_envs=8, horizon=5, seed=0)
-    replay = EpisodeReplay(env.single_observation_space, env.single_action_space, 400, env.horizon, env.num_envs)
+    replay = EpisodeReplay(env.single_observation_space, env.single_action_space, 400, num_envs=env.num_envs, horizon=env.horizon)
     obs = env.reset(seed=0)
     replay.start(obs)
     for _ in range(20):

@@ -15,7 +15,7 @@ from taskrl.config import TrainConfig, validate, with_overrides
 from taskrl.envs.grid_tasks import GRID_TASKS, GridTasks
 from taskrl.envs.point_tasks import POINT_TASKS, PointTasks
 from taskrl.errors import ConfigError
-from taskrl.replay import EpisodeReplay, HindsightRelabeler
+from taskrl.replay import EpisodeReplay, Episodes, HindsightRelabeler
 from taskrl.replay.batch import Batch
 from taskrl.sharing import SharingConfig, TaskSharing, collect_task_datasets
 from taskrl.sharing.datasets import random_actions
@@ -26,7 +26,7 @@ ENVS = [GridTasks, PointTasks]
 def filled_replay(env_cls, steps: int = 300, seed: int = 0, weights=None, num_envs: int = 12):
     """A replay of random-action episodes of ``env_cls`` and the env that made them."""
     env = env_cls(num_envs=num_envs, seed=seed, task_weights=weights)
-    replay = EpisodeReplay(env.single_observation_space, env.single_action_space, env.horizon * 2_000, env.horizon, num_envs)
+    replay = EpisodeReplay(env.single_observation_space, env.single_action_space, env.horizon * 2_000, num_envs=num_envs, horizon=env.horizon)
     generator = torch.Generator().manual_seed(seed)
     obs = env.reset(seed=seed)
     replay.start(obs)
@@ -91,7 +91,7 @@ def test_sharing_fractions_match_the_configuration(fraction):
     generator = torch.Generator().manual_seed(0)
     batch = sharing(240, generator)  # 40 rows of each task
     per = 40
-    source = replay.storage["obs/task"][batch.episode, 0]
+    source = replay.observation_at("task", batch.episode, 0)
     for j in range(env.num_tasks):
         rows = batch.obs["task"] == j
         assert int(rows.sum()) == per
@@ -105,8 +105,8 @@ def test_none_shares_nothing_and_every_row_is_its_own_tasks():
     env, replay = filled_replay(GridTasks)
     sharing = TaskSharing(replay, env, env.num_tasks, SharingConfig(sharing="none"))
     batch = sharing(256, torch.Generator().manual_seed(0))
-    assert torch.equal(replay.storage["obs/task"][batch.episode, 0], batch.obs["task"])
-    assert torch.equal(batch.reward, replay.storage["reward"][batch.episode, batch.step])
+    assert torch.equal(replay.observation_at("task", batch.episode, 0), batch.obs["task"])
+    assert torch.equal(batch.reward, replay.gather(batch.episode, batch.step).reward)
     assert sharing.metrics(env.task_set.names)["shared_fraction"] == 0.0
 
 
@@ -117,7 +117,7 @@ def test_shared_rows_are_scored_under_their_new_task(strategy):
     sharing = TaskSharing(replay, env, env.num_tasks, SharingConfig(sharing=strategy), q_value=q)
     batch = sharing(300, torch.Generator().manual_seed(3))
     expected = env.task_reward(batch.obs, batch.action, batch.next_obs, batch.obs["task"])
-    source = replay.storage["obs/task"][batch.episode, 0]
+    source = replay.observation_at("task", batch.episode, 0)
     shared = source != batch.obs["task"]
     assert bool(shared.any())
     assert torch.equal(batch.next_obs["task"], batch.obs["task"])
@@ -132,12 +132,12 @@ def test_shared_rows_are_scored_under_their_new_task(strategy):
 def test_success_shares_exactly_the_episodes_that_pass_the_success_test():
     env, replay = filled_replay(GridTasks, steps=400)
     sharing = TaskSharing(replay, env, env.num_tasks, SharingConfig(sharing="success", share_fraction=1.0))
-    source = replay.storage["obs/task"][:, 0].long()
+    source = replay.first_observations("task").long()
     weights = sharing.shared_weights(source, None)
     # brute force: episode e of task i != j passes j's test at some stored step
-    for e in range(replay.num_episodes):
+    for e in replay.stored_episodes().tolist():
         n = int(replay.length[e])
-        next_obs = {k: replay.storage[f"obs/{k}"][e, 1 : n + 1] for k in replay.obs_keys}
+        next_obs = replay.gather(*replay.episode_steps(torch.tensor([e]))).next_obs
         for j in range(env.num_tasks):
             passes = bool(env.task_success(next_obs, torch.full((n,), j)).any())
             assert bool(weights[j, e] > 0) == (passes and int(source[e]) != j)
@@ -152,7 +152,7 @@ def test_random_draws_from_k_other_tasks_per_batch():
     env, replay = filled_replay(GridTasks)
     sharing = TaskSharing(replay, env, env.num_tasks, SharingConfig(sharing="random", share_tasks=2, share_fraction=1.0))
     batch = sharing(600, torch.Generator().manual_seed(0))
-    source = replay.storage["obs/task"][batch.episode, 0]
+    source = replay.observation_at("task", batch.episode, 0)
     for j in range(env.num_tasks):
         sources = set(source[batch.obs["task"] == j].tolist())
         assert j not in sources and 1 <= len(sources) <= 2
@@ -161,13 +161,14 @@ def test_random_draws_from_k_other_tasks_per_batch():
 def test_hipi_weights_are_the_posterior_with_its_partition_term():
     env, replay = filled_replay(PointTasks, steps=400)
     sharing = TaskSharing(replay, env, env.num_tasks, SharingConfig(sharing="hipi", hipi_temperature=0.5))
-    source = replay.storage["obs/task"][:, 0].long()
+    source = replay.first_observations("task").long()
     weights = sharing.shared_weights(source, None)
-    returns = sharing.scores.returns[: replay.num_episodes] / 0.5  # R_j(e) / T
+    stored = replay.stored_episodes()
+    returns = sharing.scores.returns[stored] / 0.5  # R_j(e) / T
     log_z = torch.logsumexp(returns, 0)
     posterior = torch.softmax(returns - log_z, 1)
-    other = source[: replay.num_episodes, None] != torch.arange(env.num_tasks)
-    assert torch.allclose(weights[:, : replay.num_episodes].t(), posterior * other, atol=1e-6)
+    other = source[stored, None] != torch.arange(env.num_tasks)
+    assert torch.allclose(weights[:, stored].t(), posterior * other, atol=1e-6)
     assert bool((returns > 0).any())  # some episodes score under some task
 
 
@@ -192,7 +193,7 @@ def test_conservative_keeps_shared_rows_above_the_own_percentile():
         replay, env, env.num_tasks, SharingConfig(sharing="conservative", conservative_percentile=90), q_value=q
     )
     batch = sharing(600, torch.Generator().manual_seed(1))
-    source = replay.storage["obs/task"][batch.episode, 0]
+    source = replay.observation_at("task", batch.episode, 0)
     shared = source != batch.obs["task"]
     own_heights = batch.obs["observation"][~shared, 1]
     assert bool(shared.any())
@@ -226,7 +227,7 @@ def test_sharing_composes_with_hindsight_goals():
         def task_terminated(self, next_obs, task):
             return torch.zeros_like(task, dtype=torch.bool)
 
-    replay = EpisodeReplay(space, gym.spaces.Box(-1, 1, (2,)), 10 * 200, 10, 8)
+    replay = EpisodeReplay(space, gym.spaces.Box(-1, 1, (2,)), 10 * 200, num_envs=8, horizon=10)
     generator = torch.Generator().manual_seed(0)
     for e in range(40):
         walk = torch.rand(8, 11, 2, generator=generator) * 2 - 1
@@ -241,12 +242,19 @@ def test_sharing_composes_with_hindsight_goals():
             "truncated": torch.zeros(8, 10, dtype=torch.bool),
         }
         tables["truncated"][:, -1] = True
-        replay.add_episodes(tables, torch.full((8,), 10))
+        flat = {k: v.reshape(-1, *v.shape[2:]) for k, v in tables.items()}
+        replay.add_episodes(
+            Episodes(
+                obs={k[len("obs/") :]: v for k, v in flat.items() if k.startswith("obs/")},
+                **{k: flat[k] for k in ("action", "reward", "terminated", "truncated")},
+                lengths=torch.full((8,), 10),
+            )
+        )
     sharing = TaskSharing(replay, Tasks(), 2, SharingConfig(sharing="all"))
     her = HindsightRelabeler(reward, "future", 4, task_key="task")
     batch = her(sharing(512, generator), replay, generator)
-    source = replay.storage["obs/task"][batch.episode, 0]
-    stored_goal = replay.storage["obs/desired_goal"][batch.episode, batch.step]
+    source = replay.observation_at("task", batch.episode, 0)
+    stored_goal = replay.gather(batch.episode, batch.step).obs["desired_goal"]
     assert bool((source != batch.obs["task"]).any())  # task relabelled
     assert bool((batch.obs["desired_goal"] != stored_goal).any(-1).any())  # goals relabelled
     expected = reward(batch.next_obs["achieved_goal"], batch.obs["desired_goal"], {"task": batch.obs["task"]})
@@ -260,13 +268,18 @@ def test_datasets_have_their_quality_and_size(env_cls):
     qualities = dict.fromkeys(names, "random")
     qualities[names[0]], qualities[names[1]] = "expert", "medium"
     env = env_cls(num_envs=10 * len(names), task_sampling="fixed", seed=0)
-    tables, lengths = collect_task_datasets(env, qualities, 400, seed=0)
-    task = tables["obs/task"][:, 0]
-    solved = tables["reward"].sum(1) > 0
+    episodes = collect_task_datasets(env, qualities, 400, seed=0)
+    lengths = episodes.lengths
+    task = episodes.obs["task"][torch.cumsum(lengths + 1, 0) - (lengths + 1)]  # each episode's first
+    of_step = torch.arange(episodes.num_episodes).repeat_interleave(lengths)
+    solved = torch.zeros(episodes.num_episodes).index_add_(0, of_step, episodes.reward) > 0
     for j in range(len(names)):
         assert int(lengths[task == j].sum()) == 400  # the same transitions per task
-    rate = [float(solved[task == j].float().mean()) for j in range(3)]
-    assert rate[0] > 0.9 and rate[0] > rate[1] > rate[2]  # expert > medium > random
+    # the fragments cut when collection stops: truncated before the horizon (one per env copy)
+    cut = episodes.truncated[torch.cumsum(lengths, 0) - 1] & (lengths < env.horizon)
+    assert int(cut.sum()) <= env.num_envs
+    rate = [float(solved[(task == j) & ~cut].float().mean()) for j in range(3)]
+    assert rate[0] > 0.9 and rate[0] >= rate[1] > rate[2]  # expert >= medium > random
 
 
 def dataset_batch(obs_dim: int, action: torch.Tensor, terminated: bool) -> tuple[dict, Batch]:

@@ -273,13 +273,18 @@ def build(config: TrainConfig, source: Any = None) -> RunParts:
             horizon = getattr(env, "horizon", None)
             check_replay_memory(
                 EpisodeReplay.bytes_needed(
-                    env.single_observation_space, env.single_action_space, capacity, env.num_envs, horizon
+                    env.single_observation_space, env.single_action_space, capacity, num_envs=env.num_envs, horizon=horizon
                 ),
                 capacity,
                 device,
             )
             parts.replay = EpisodeReplay(
-                env.single_observation_space, env.single_action_space, capacity, env.num_envs, device, horizon
+                env.single_observation_space,
+                env.single_action_space,
+                capacity,
+                num_envs=env.num_envs,
+                device=device,
+                horizon=horizon,
             )
             parts.relabel = make_relabeler(config, env)
             if config.sampling == "task_balanced":

@@ -70,6 +70,7 @@ class EpisodeReplay:
         observation_space: gym.spaces.Dict,
         action_space: gym.spaces.Space,
         capacity: int,
+        *,
         num_envs: int = 1,
         device: str | torch.device = "cpu",
         horizon: int | None = None,
@@ -110,6 +111,7 @@ class EpisodeReplay:
         observation_space: gym.spaces.Dict,
         action_space: gym.spaces.Space,
         capacity: int,
+        *,
         num_envs: int = 1,
         horizon: int | None = None,
     ) -> int:
