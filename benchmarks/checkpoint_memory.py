@@ -25,9 +25,10 @@ def main() -> None:
     args = parser.parse_args()
     env = BitFlip(40, num_envs=64)
     replay = EpisodeReplay(env.single_observation_space, env.single_action_space, args.capacity, num_envs=64, horizon=env.horizon)
-    for table in replay.storage.values():
+    tables = [*replay.obs.values(), *replay.steps.values(), replay.step_episode]
+    for table in tables:
         table.fill_(1)
-    size = sum(t.nbytes for t in replay.storage.values()) / 2**20
+    size = sum(t.nbytes for t in tables) / 2**20
     before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     with tempfile.TemporaryDirectory() as folder:
         save_checkpoint(folder, {"replay": replay.state_dict()}, 0)

@@ -17,15 +17,13 @@ path it replaced, in one process and in alternating blocks (the machine's drift 
 - ``split``: 4 updates per call (``agent.update_many(batch, 4)``) with the 4 batches split out of the drawn
   batch inside the compiled graph (taskrl's path) against split eagerly before the call and passed to the
   graph as 4 batches;
-- ``gather``: the replay's gather at flat positions (one ``index_select`` per table) against indexing
-  each table with the two index tensors ``[episode, step]``;
 - ``CARE encoders``: the ``mt10-sac-care`` preset's SAC update (batch 1280, 10 tasks, random data), eager and
   compiled, with CARE's k encoders run one at a time (``CAREEncoder.encoding``, taskrl's path) against all k as
   one batched matmul per layer mixed by an ``einsum``;
 - ``ReLU in place``: the ``mt10-sac-onehot``, ``mt10-sac-care`` and ``mt10-sac-film-language`` presets' eager SAC updates with the networks'
   ReLUs in place (``nets.activation_after``, taskrl's) against out of place.
 
-    cd benchmarks && ../.venv/bin/python per_call_costs.py [--only stance 'size asserts' 'C++ wrapper' 'Adam scalars' 'clip norm' 'obs concat' split gather 'CARE encoders' 'ReLU in place'] [--write]
+    cd benchmarks && ../.venv/bin/python per_call_costs.py [--only stance 'size asserts' 'C++ wrapper' 'Adam scalars' 'clip norm' 'obs concat' split 'CARE encoders' 'ReLU in place'] [--write]
 """
 
 from __future__ import annotations
@@ -49,7 +47,6 @@ PAIRS = (
     "clip norm",
     "obs concat",
     "split",
-    "gather",
     "CARE encoders",
     "ReLU in place",
 )
@@ -231,46 +228,6 @@ def split_pairs(batch_size: int, hidden: tuple[int, ...], k: int = 4) -> list[st
     return [row]
 
 
-def gather_pairs() -> list[str]:
-    from learner_speed import DQN_EQUAL, bitflip_replay
-    from taskrl.replay.batch import Batch
-
-    def two_index_gather(replay, episode, step) -> Batch:
-        s = replay.storage
-        return Batch(
-            obs={k: s[f"obs/{k}"][episode, step] for k in replay.obs_keys},
-            action=s["action"][episode, step],
-            reward=s["reward"][episode, step],
-            next_obs={k: s[f"obs/{k}"][episode, step + 1] for k in replay.obs_keys},
-            terminated=s["terminated"][episode, step],
-            truncated=s["truncated"][episode, step],
-            episode=episode,
-            step=step,
-        )
-
-    _, _, replay = bitflip_replay(DQN_EQUAL)
-    g = torch.Generator().manual_seed(0)
-    rows = []
-    for batch_size in (32, 256):
-        episode, step = replay.sample_indices(batch_size, g)
-        old, new = two_index_gather(replay, episode, step), replay.gather(episode, step)
-        assert all(torch.equal(getattr(old, f), getattr(new, f)) for f in ("action", "reward", "terminated", "truncated"))
-        assert all(torch.equal(old.obs[k], new.obs[k]) and torch.equal(old.next_obs[k], new.next_obs[k]) for k in old.obs)
-
-        def run(fn, episode=episode, step=step):
-            for _ in range(BLOCK):
-                fn(episode, step)
-            return BLOCK
-
-        ms = alternating_blocks(
-            {"a": lambda: run(lambda e, s: two_index_gather(replay, e, s)), "b": lambda: run(replay.gather)}, ROUNDS
-        )
-        a, b = ms["a"], ms["b"]
-        rows.append(_row(f"replay gather, batch {batch_size} (bit flipping n = 15)", "two index tensors", "flat", a, b))
-        print(rows[-1], flush=True)
-    return rows
-
-
 def batched_care_forward(self, state, context, return_weights=False):
     """The CARE mixture taskrl's one-encoder-at-a-time ``CAREEncoder.forward`` replaced: the k encoders as one
     batched matmul per layer (``[k, B, hidden]`` activations), mixed by an ``einsum``."""
@@ -352,7 +309,6 @@ def main() -> None:
     args = micro_benchmark_args(__doc__, PAIRS)
     rows = [*compiled_pairs(32, (64, 64), args.only), *compiled_pairs(256, (256, 256), args.only)]
     rows += [*split_pairs(32, (64, 64)), *split_pairs(256, (256, 256))] if "split" in args.only else []
-    rows += gather_pairs() if "gather" in args.only else []
     rows += care_pairs() if "CARE encoders" in args.only else []
     rows += relu_pairs() if "ReLU in place" in args.only else []
     table = "\n".join(

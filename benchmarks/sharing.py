@@ -70,6 +70,9 @@ def one_run(job: tuple[str, str, int, dict]) -> dict:
         "mean_success": run.metrics["success_rate"],
         "shared_at_end": shared,
         "wall_seconds": run.metrics["wall_seconds"],
+        # what the replay held at the last evaluation (datasets and completed episodes) and had dropped
+        "replay_transitions": int(float(rows[-1].get("replay_transitions") or 0)),
+        "replay_evicted": int(float(rows[-1].get("replay_evicted") or 0)),
         "curve": curve,
     }
 
@@ -140,7 +143,9 @@ def sampler_costs(transitions: int, batch_size: int, calls: int) -> str:
 
     torch.set_num_threads(1)
     env = GridTasks(num_envs=64, seed=0)
-    replay = EpisodeReplay(env.single_observation_space, env.single_action_space, transitions * 2, num_envs=64, horizon=env.horizon)
+    replay = EpisodeReplay(
+        env.single_observation_space, env.single_action_space, transitions * 2, num_envs=64, horizon=env.horizon
+    )
     generator = torch.Generator().manual_seed(0)
     obs = env.reset(seed=0)
     replay.start(obs)
@@ -240,7 +245,9 @@ def main() -> None:
             f"Final greedy success after the preset's budget ({results[0]['curve'][-1]['at']:,} {axis}), "
             f"mean ± 95% t-interval half-width over seeds {args.seeds}; one torch thread per run, {args.jobs} runs at once. "
             f"Curves: `benchmarks/figures/{figure.name}`; raw per-seed data and curves: "
-            f"`benchmarks/results/sharing_{name}.json`.\n\n" + text,
+            f"`benchmarks/results/sharing_{name}.json`. The replay held "
+            f"{statistics.fmean(r['replay_transitions'] for r in results):,.0f} transitions on average at the last "
+            f"evaluation and dropped {max(r['replay_evicted'] for r in results):,} at most.\n\n" + text,
         )
 
 

@@ -318,7 +318,9 @@ def test_the_memory_estimate_is_what_the_storage_allocates():
         replay.start(env.reset(seed=0))
         tables = [replay.obs, replay.steps, replay._staging.obs, replay._staging.steps]
         allocated = sum(t.nbytes for table in tables for t in table.values())
-        allocated += sum(t.nbytes for t in (replay.step_episode, replay.episode_step_start, replay.episode_obs_start, replay.length))
+        allocated += sum(
+            t.nbytes for t in (replay.step_episode, replay.episode_step_start, replay.episode_obs_start, replay.length)
+        )
         assert EpisodeReplay.bytes_needed(space, actions, 5_000, num_envs=env.num_envs, horizon=env.horizon) == allocated
 
 

@@ -26,7 +26,9 @@ ENVS = [GridTasks, PointTasks]
 def filled_replay(env_cls, steps: int = 300, seed: int = 0, weights=None, num_envs: int = 12):
     """A replay of random-action episodes of ``env_cls`` and the env that made them."""
     env = env_cls(num_envs=num_envs, seed=seed, task_weights=weights)
-    replay = EpisodeReplay(env.single_observation_space, env.single_action_space, env.horizon * 2_000, num_envs=num_envs, horizon=env.horizon)
+    replay = EpisodeReplay(
+        env.single_observation_space, env.single_action_space, env.horizon * 2_000, num_envs=num_envs, horizon=env.horizon
+    )
     generator = torch.Generator().manual_seed(seed)
     obs = env.reset(seed=seed)
     replay.start(obs)
@@ -388,3 +390,30 @@ def test_offline_run_learns_from_datasets_without_stepping_an_env(tmp_path):
     # and resumes
     more = taskrl.train(resume=run.run_dir, total_steps=600, tensorboard=False)
     assert more.metrics["updates"] == 600
+
+
+def test_a_grid_run_under_capacity_stores_every_step_it_collected(tmp_path):
+    """Episodes end early on the grid (success, failure): the replay keeps all of them, counted in transitions."""
+    from taskrl.checkpoint import load_checkpoint
+    from taskrl.replay.storage import saved_episodes
+
+    run = taskrl.train(
+        "grid-sharing-dqn",
+        out=tmp_path / "grid",
+        total_steps=4_000,
+        eval_interval=2_000,
+        buffer_size=1_000_000,
+        save_replay=True,
+        tensorboard=False,
+        progress=False,
+    )
+    last = list(csv.DictReader(open(run.run_dir / "metrics.csv")))[-1]
+    episodes, _ = saved_episodes(load_checkpoint(run.run_dir / "checkpoints", ("replay",), "cpu")["replay"])
+    assert episodes.num_transitions == run.metrics["env_steps"]  # every step, the running episodes cut at the end
+    # the last row was written before those were cut: it counts the completed episodes' steps exactly
+    ends = torch.cumsum(episodes.lengths, 0) - 1
+    cut = episodes.truncated[ends] & (episodes.lengths < 30)  # cut at the end, not at the grid's time limit
+    assert int(last["replay_transitions"]) == run.metrics["env_steps"] - int(episodes.lengths[cut].sum())
+    assert int(last["replay_evicted"]) == 0 and int(last["replay_episodes"]) == episodes.num_episodes - int(cut.sum())
+    # episodes end early: more of them than rows of the grid's 30-step horizon the run's steps would fill
+    assert episodes.num_episodes > (4_000 + 2 * run.config.num_envs * 30) / 30

@@ -354,8 +354,7 @@ def check_preload_fits(replay: EpisodeReplay, transitions: int, what: str) -> No
     require(
         needed <= replay.capacity,
         "buffer_size",
-        f"{what} holds {transitions:,} transitions; the replay holds {replay.capacity:,}: "
-        f"use --buffer-size {needed:,} or more",
+        f"{what} holds {transitions:,} transitions; the replay holds {replay.capacity:,}: use --buffer-size {needed:,} or more",
     )
 
 

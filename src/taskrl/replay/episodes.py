@@ -103,7 +103,10 @@ class Episodes:
         """No episode, with the tables of these spaces."""
         return cls(
             obs={k: torch.zeros((0, *s.shape), dtype=space_dtype(s), device=device) for k, s in observation_space.spaces.items()},
-            **{k: torch.zeros((0, *(action_space.shape if k == "action" else ())), dtype=d, device=device) for k, d in step_dtypes(action_space).items()},
+            **{
+                k: torch.zeros((0, *(action_space.shape if k == "action" else ())), dtype=d, device=device)
+                for k, d in step_dtypes(action_space).items()
+            },
             lengths=torch.zeros(0, dtype=torch.long, device=device),
         )
 

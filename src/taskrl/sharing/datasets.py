@@ -29,9 +29,7 @@ def random_actions(space: gym.spaces.Space, n: int, generator: torch.Generator, 
     return low + (high - low) * torch.rand((n, *space.shape), generator=generator, device=device)
 
 
-def collect_task_datasets(
-    env, qualities: Mapping[str, str], steps_per_task: int, seed: int
-) -> Episodes:
+def collect_task_datasets(env, qualities: Mapping[str, str], steps_per_task: int, seed: int) -> Episodes:
     """Whole episodes, ``steps_per_task`` transitions of every task (the running ones cut at the end).
 
     Args:
