@@ -138,27 +138,17 @@ def cli(*args: str, cwd: Path) -> subprocess.CompletedProcess:
     )
 
 
+def cli_train_slider(env_id: str, out: Path, cwd: Path) -> subprocess.CompletedProcess:
+    """``taskrl train pointreach-sac-her`` on a registered slider, with :data:`SMALL`'s budget."""
+    budget = ["--total-steps", "3000", "--eval-interval", "1500", "--eval-episodes", "50", "--learning-starts", "500"]
+    common = ["--env-module", "test_custom_envs", "--no-progress", "--no-tensorboard"]
+    return cli("train", "pointreach-sac-her", "--env-id", env_id, "--out", str(out), *budget, *common, cwd=cwd)
+
+
 def test_cli_trains_resumes_evaluates_and_loads_a_registered_goal_env(tmp_path):
     out = tmp_path / "slider"
     common = ["--env-module", "test_custom_envs", "--no-progress", "--no-tensorboard"]
-    first = cli(
-        "train",
-        "pointreach-sac-her",
-        "--env-id",
-        "testenvs/Slider-v0",
-        "--out",
-        str(out),
-        "--total-steps",
-        "3000",
-        "--eval-interval",
-        "1500",
-        "--eval-episodes",
-        "50",
-        "--learning-starts",
-        "500",
-        *common,
-        cwd=tmp_path,
-    )
+    first = cli_train_slider("testenvs/Slider-v0", out, cwd=tmp_path)
     assert first.returncode == 0, first.stderr
     saved = json.loads((out / "config.json").read_text())
     assert (saved["env"], saved["gym"]["env_id"], saved["algo"], saved["env_module"]) == (
@@ -210,27 +200,7 @@ def test_api_trains_on_a_factory_and_needs_it_again_to_resume_and_load(tmp_path)
 def test_a_goal_env_without_max_episode_steps_trains_from_the_command_line_and_from_python(tmp_path):
     assert gym.spec("testenvs/SliderThatEnds-v0").max_episode_steps is None
     out = tmp_path / "ends-cli"
-    done = cli(
-        "train",
-        "pointreach-sac-her",
-        "--env-id",
-        "testenvs/SliderThatEnds-v0",
-        "--out",
-        str(out),
-        "--total-steps",
-        "3000",
-        "--eval-interval",
-        "1500",
-        "--eval-episodes",
-        "50",
-        "--learning-starts",
-        "500",
-        "--env-module",
-        "test_custom_envs",
-        "--no-progress",
-        "--no-tensorboard",
-        cwd=tmp_path,
-    )
+    done = cli_train_slider("testenvs/SliderThatEnds-v0", out, cwd=tmp_path)
     assert done.returncode == 0, done.stderr
     assert successes(out)[-1] >= 0.9
 

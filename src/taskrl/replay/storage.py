@@ -47,6 +47,13 @@ def draw_transitions(
     return row, u - (cumulative.index_select(0, row) - lengths.index_select(0, row))
 
 
+def ring_rows(first: torch.Tensor, counts: torch.Tensor, ring: int) -> torch.Tensor:
+    """The rows of runs of ``counts[i]`` consecutive rows from ``first[i]`` in a ring of ``ring`` rows, run after run."""
+    offsets = torch.cumsum(counts, 0) - counts
+    within = torch.arange(int(counts.sum()), device=counts.device) - offsets.repeat_interleave(counts)
+    return (first.repeat_interleave(counts) + within) % ring
+
+
 def _size(shape: tuple, dtype: torch.dtype) -> int:
     return int(np.prod(shape, dtype=np.int64)) * torch.empty((), dtype=dtype).element_size()
 
@@ -169,12 +176,7 @@ class EpisodeReplay:
         next_obs: Obs,
         reset_obs: Obs,
     ) -> None:
-        """Append one step of every env copy; the episodes it ended are stored.
-
-        ``next_obs`` is the observation the step led to (the final observation where an episode
-        ended); ``reset_obs`` is what the environment returned, whose rows start the next episode
-        where one ended.
-        """
+        """Append one step of every env copy (as :meth:`EpisodeStaging.add`); the episodes it ended are stored."""
         episodes = self._staging.add(action, reward, terminated, truncated, next_obs, reset_obs)
         if episodes is not None:
             self.add_episodes(episodes)
@@ -335,13 +337,9 @@ class EpisodeReplay:
     def episodes(self, ids: torch.Tensor | None = None) -> Episodes:
         """The stored episodes ``ids`` (default all, oldest first), flat: a copy."""
         ids = self.stored_episodes() if ids is None else ids
-        episode, step = self.episode_steps(ids)
-        at_step = (self.episode_step_start.index_select(0, episode) + step) % self.capacity
         lengths = self.length.index_select(0, ids)
-        obs_episode = ids.repeat_interleave(lengths + 1)
-        first = torch.cumsum(lengths + 1, 0) - (lengths + 1)
-        index = torch.arange(obs_episode.numel(), device=self.device) - first.repeat_interleave(lengths + 1)
-        at_obs = (self.episode_obs_start.index_select(0, obs_episode) + index) % self.obs_rows
+        at_step = ring_rows(self.episode_step_start.index_select(0, ids), lengths, self.capacity)
+        at_obs = ring_rows(self.episode_obs_start.index_select(0, ids), lengths + 1, self.obs_rows)
         return Episodes(
             obs={k: self.obs[k].index_select(0, at_obs) for k in self.obs_keys},
             **{k: self.steps[k].index_select(0, at_step) for k in STEP_KEYS},
@@ -393,13 +391,8 @@ def saved_episodes(state: dict[str, torch.Tensor]) -> tuple[Episodes, list[int] 
     obs_tables = {k[len("obs/") :]: v for k, v in state.items() if k.startswith("obs/")}
     obs_rows = next(iter(obs_tables.values())).shape[0]
     lengths = length[ids]
-    episode = ids.repeat_interleave(lengths)
-    step = torch.arange(episode.numel(), device=length.device) - (torch.cumsum(lengths, 0) - lengths).repeat_interleave(lengths)
-    at_step = (state["episode_step_start"][episode] + step) % capacity
-    obs_episode = ids.repeat_interleave(lengths + 1)
-    first = torch.cumsum(lengths + 1, 0) - (lengths + 1)
-    index = torch.arange(obs_episode.numel(), device=length.device) - first.repeat_interleave(lengths + 1)
-    at_obs = (state["episode_obs_start"][obs_episode] + index) % obs_rows
+    at_step = ring_rows(state["episode_step_start"][ids], lengths, capacity)
+    at_obs = ring_rows(state["episode_obs_start"][ids], lengths + 1, obs_rows)
     episodes = Episodes(
         obs={k: v[at_obs] for k, v in obs_tables.items()},
         **{k: state[f"steps/{k}"][at_step] for k in STEP_KEYS},
