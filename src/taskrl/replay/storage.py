@@ -334,17 +334,9 @@ class EpisodeReplay:
     def sample(self, batch_size: int, generator: torch.Generator | None = None) -> Batch:
         return self.gather(*self.sample_indices(batch_size, generator))
 
-    def episodes(self, ids: torch.Tensor | None = None) -> Episodes:
-        """The stored episodes ``ids`` (default all, oldest first), flat: a copy."""
-        ids = self.stored_episodes() if ids is None else ids
-        lengths = self.length.index_select(0, ids)
-        at_step = ring_rows(self.episode_step_start.index_select(0, ids), lengths, self.capacity)
-        at_obs = ring_rows(self.episode_obs_start.index_select(0, ids), lengths + 1, self.obs_rows)
-        return Episodes(
-            obs={k: self.obs[k].index_select(0, at_obs) for k in self.obs_keys},
-            **{k: self.steps[k].index_select(0, at_step) for k in STEP_KEYS},
-            lengths=lengths,
-        )
+    def episodes(self) -> Episodes:
+        """The stored episodes, oldest first, flat: a copy."""
+        return saved_episodes(self.state_dict())[0]
 
     def metrics(self) -> dict[str, int]:
         """``replay_transitions`` (stored now), ``replay_episodes``, ``replay_evicted`` (transitions dropped so far)."""
