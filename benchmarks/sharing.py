@@ -7,6 +7,12 @@ mixed-quality datasets), with per-task success, curves and 95% confidence interv
 .venv/bin/python benchmarks/sharing.py costs --write
 .venv/bin/python benchmarks/sharing.py offline --seeds 0 1 2 --name corners-expert --write \
     --set dataset_quality=top-left=expert,top-right=expert,bottom-left=expert,bottom-right=expert,centre=random,right-edge=random
+.venv/bin/python benchmarks/sharing.py offline --preset grid-sharing-dqn --seeds 0 1 2 --write \
+    --sweep cql_alpha 0.03 0.1 0.3 1 3 --sweep-seed 100
+
+``--sweep KEY V1 V2 ...`` first runs every value for every strategy on ``--sweep-seed`` (a seed the table
+does not use), keeps per strategy the value with the highest mean success, then runs the table's seeds at
+each strategy's own value.
 
 Each run is the preset with ``--sharing S`` (and the overrides given with ``--set KEY=VALUE``); the
 figures are the final greedy evaluation (``eval_episodes`` per task) and the evaluation curve of
@@ -194,6 +200,8 @@ def main() -> None:
     parser.add_argument("--jobs", type=int, default=2, help="runs at once (one torch thread each)")
     parser.add_argument("--set", nargs="*", default=[], help="overrides KEY=VALUE (numbers parsed)")
     parser.add_argument("--name", default="", help="suffix of the result files (default: the overrides)")
+    parser.add_argument("--sweep", nargs="+", default=None, help="KEY V1 V2 ...: pick a value per strategy first")
+    parser.add_argument("--sweep-seed", type=int, default=100, help="the seed of the --sweep runs")
     parser.add_argument("--write", action="store_true")
     args = parser.parse_args()
     if args.setting == "costs":
@@ -217,7 +225,24 @@ def main() -> None:
             overrides[key] = json.loads(value)
         except json.JSONDecodeError:
             overrides[key] = value
-    jobs = [(preset, s, seed, overrides) for s in strategies for seed in args.seeds]
+    per_strategy = {s: dict(overrides) for s in strategies}
+    sweep_text = ""
+    if args.sweep:
+        key, values = args.sweep[0], [json.loads(v) for v in args.sweep[1:]]
+        sweep_jobs = [(preset, s, args.sweep_seed, {**overrides, key: v}) for s in strategies for v in values]
+        with ProcessPoolExecutor(args.jobs) as pool:
+            swept = list(pool.map(one_run, sweep_jobs))
+        sweep_text = f"Sweep of `{key}` on seed {args.sweep_seed} (mean success over all tasks):\n\n"
+        sweep_text += "| strategy | " + " | ".join(f"{key}={v}" for v in values) + " | picked |\n"
+        sweep_text += "|---" * (len(values) + 2) + "|\n"
+        for s in strategies:
+            scores = [at_point(r, None)["all tasks"] for r in swept if r["strategy"] == s]
+            # ties go to the first (smallest) value listed
+            best = values[max(range(len(values)), key=lambda i: (scores[i], -i))]
+            per_strategy[s][key] = best
+            sweep_text += f"| {s} | " + " | ".join(f"{v:.2f}" for v in scores) + f" | {best} |\n"
+        print(sweep_text, flush=True)
+    jobs = [(preset, s, seed, per_strategy[s]) for s in strategies for seed in args.seeds]
     with ProcessPoolExecutor(args.jobs) as pool:
         results = []
         for result in pool.map(one_run, jobs):
@@ -233,6 +258,8 @@ def main() -> None:
     print(text)
     if args.write:
         suffix = args.name or "_".join(f"{k}-{v}" for k, v in overrides.items())
+        if args.sweep and not args.name:
+            suffix = "_".join(filter(None, [suffix, f"sweep-{args.sweep[0]}"]))
         name = preset + (f"_{suffix}" if suffix else "")
         (HERE / "results").mkdir(exist_ok=True)
         (HERE / "figures").mkdir(exist_ok=True)
@@ -240,14 +267,17 @@ def main() -> None:
         figure = HERE / "figures" / f"sharing_{name}.png"
         plot(results, strategies, [*(low or tasks[:2]), "mean"], figure)
         axis = results[0]["axis"].replace("_", " ")
+        swept = f" at the {args.sweep[0]} a sweep picks per strategy" if args.sweep else ""
         append_results(
-            f"Data sharing, {args.setting}: {preset}{' ' + str(overrides) if overrides else ''}",
+            f"Data sharing, {args.setting}: {preset}{' ' + str(overrides) if overrides else ''}{swept}",
             f"Final greedy success after the preset's budget ({results[0]['curve'][-1]['at']:,} {axis}), "
             f"mean ± 95% t-interval half-width over seeds {args.seeds}; one torch thread per run, {args.jobs} runs at once. "
             f"Curves: `benchmarks/figures/{figure.name}`; raw per-seed data and curves: "
             f"`benchmarks/results/sharing_{name}.json`. The replay held "
             f"{statistics.fmean(r['replay_transitions'] for r in results):,.0f} transitions on average at the last "
-            f"evaluation and dropped {max(r['replay_evicted'] for r in results):,} at most.\n\n" + text,
+            f"evaluation and dropped {max(r['replay_evicted'] for r in results):,} at most.\n\n"
+            + (sweep_text + "\n" if sweep_text else "")
+            + text,
         )
 
 
