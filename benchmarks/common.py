@@ -97,25 +97,18 @@ def alternating_blocks(blocks: dict, rounds: int, before_round=None) -> dict[str
 
 
 def append_results(title: str, body: str) -> None:
-    """Write a dated section to benchmarks/RESULTS.md, naming the commit it was measured at. A section with
-    the same title is replaced (a new measurement of the same question replaces the old; git keeps history)."""
+    """Write a dated section to benchmarks/RESULTS.md, naming the commit it was measured at. It replaces the
+    section with the same title (a new measurement of the same question replaces the old; git keeps history),
+    and the report is laid out again chapter by chapter (``report.py``)."""
+    from report import organise
+
     stamp = datetime.date.today().isoformat()
     text = (
-        f"\n## {title}\n\n- measured at commit: {commit()}\n- date: {stamp}\n- machine: {machine()}\n"
+        f"\n### {title}\n\n- measured at commit: {commit()}\n- date: {stamp}\n- machine: {machine()}\n"
         f"- command: `{command_line()}`\n\n{body.strip()}\n"
     )
-    if not RESULTS.exists():
-        RESULTS.write_text("# Benchmark results\n\nEach section was written by the script named in its command.\n")
-    current = RESULTS.read_text()
-    sections = current.split("\n## ")
-    head, rest = sections[0], sections[1:]
-    same = [i for i, section in enumerate(rest) if section.split("\n", 1)[0].strip() == title]
-    if not same:
-        RESULTS.write_text(current.rstrip("\n") + "\n" + text)
-        return
-    rest[same[0]] = text.lstrip("\n")[len("## ") :].rstrip("\n") + "\n"
-    rest = [section for i, section in enumerate(rest) if i not in same[1:]]
-    RESULTS.write_text("\n## ".join([head, *rest]))
+    current = RESULTS.read_text() if RESULTS.exists() else ""
+    RESULTS.write_text(organise(current.rstrip("\n") + "\n" + text))
 
 
 def taskrl_learn_until(preset: str, seed: int, budget: int, eval_interval: int, target: float, **settings) -> dict:

@@ -39,13 +39,20 @@ def taskrl_time_to_success(n_bits: int, seed: int, budget: int, eval_interval: i
     return taskrl_learn_until("bitflip-her", seed, budget, eval_interval, target, n_bits=n_bits)
 
 
-def sb3_model(n_bits: int, seed: int, budget: int, batch_size: int = 32, net_arch=(64, 64)):
+def sb3_model(n_bits: int, seed: int, budget: int, batch_size: int = 32, net_arch=(64, 64), own_env: bool = False):
+    """SB3's DQN + HER at the settings of its HER test. ``own_env``: step SB3's own ``BitFlippingEnv`` (numpy,
+    its goal fixed at all ones), as a user's SB3 script would, instead of taskrl's random-goal env."""
     import gymnasium as gym
     from stable_baselines3 import DQN, HerReplayBuffer
     from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.envs import BitFlippingEnv
 
     n_envs = 2
-    env = make_vec_env(lambda: gym.make("taskrl/BitFlip-v0", n_bits=n_bits), n_envs=n_envs, seed=seed)
+    if own_env:
+        make = lambda: BitFlippingEnv(n_bits=n_bits, continuous=False, max_steps=n_bits)
+    else:
+        make = lambda: gym.make("taskrl/BitFlip-v0", n_bits=n_bits)
+    env = make_vec_env(make, n_envs=n_envs, seed=seed)
     return DQN(
         "MultiInputPolicy",
         env,

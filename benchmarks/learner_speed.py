@@ -105,7 +105,9 @@ DIFFERENCES = {
     "dqn": "SB3's network reads observation, achieved and desired goal (45 inputs), taskrl's observation and "
     "desired goal (30); SB3 computes a relabelled transition's termination as stored, taskrl for the new goal; "
     "SB3 copies the target every 100 env steps (50 calls of 2), taskrl every 100 updates (the same count at one "
-    "update per env step)",
+    "update per env step); SB3's throughput runs step SB3's own `BitFlippingEnv` (numpy, one copy per env, its goal "
+    "fixed at all ones), as a user's SB3 script would, and its time-to-90% runs taskrl's random-goal env so that both "
+    "learn the same task; taskrl steps its native batched torch env in both",
     "sac": "SB3 (the zoo's `normalize: True`) also normalises rewards with VecNormalize, taskrl normalises observations "
     "only (running mean/std from training batches, clipped to +-5, against VecNormalize's clip 10)",
 }
@@ -126,7 +128,8 @@ def dqn_case(batch: int, hidden: tuple[int, ...]):
     n = DQN_EQUAL["n_bits"]
 
     def sb3(seed: int, budget: int, eval_interval: int, target: float) -> dict:
-        model = sb3_model(n, seed, budget, batch_size=batch, net_arch=hidden)
+        # throughput: SB3 at its own full speed, on its own env as a user's script would run it
+        model = sb3_model(n, seed, budget, batch_size=batch, net_arch=hidden, own_env=target <= 0)
         if target <= 0:
             return _sb3_throughput(model, budget)
         eval_seed = seed + EVAL_SEED_OFFSET
@@ -200,6 +203,8 @@ def _with_compile(ours, compile_mode: str, per_call: int, *args):
 def equal(args) -> tuple[str, dict]:
     cases = {"dqn32": lambda: dqn_case(32, (64, 64)), "dqn256": lambda: dqn_case(256, (256, 256)), "sac": sac_case}
     budgets = {"dqn32": (100_000, 20_000), "dqn256": (100_000, 20_000), "sac": (20_000, 6_000)}
+    if args.throughput_steps:
+        budgets = {key: (to_target, args.throughput_steps) for key, (to_target, _) in budgets.items()}
     out, lines = {}, []
     reused = _earlier_runs(args.reuse_log, args.seeds)
     for key in args.cases:
@@ -215,10 +220,10 @@ def equal(args) -> tuple[str, dict]:
         # seed by seed, every library in turn: the machine's drift over the minutes of a case falls on all alike
         for seed in args.seeds:
             for lib, runner in runners.items():
-                for kind, (budget, interval, target) in {
-                    "to_target": (to_target, 1_000, args.target),
-                    "throughput": (throughput_steps, 10**12, 0.0),
-                }.items():
+                kinds = {"to_target": (to_target, 1_000, args.target), "throughput": (throughput_steps, 10**12, 0.0)}
+                if args.throughput_only:
+                    kinds.pop("to_target")
+                for kind, (budget, interval, target) in kinds.items():
                     keep = lib in args.reuse_libs or f"{key}/{lib}" in args.reuse_libs
                     r = reused.get((key, lib, kind, seed)) if keep else None
                     if r is None:
@@ -235,20 +240,25 @@ def equal(args) -> tuple[str, dict]:
         sb3_rate = _median(runs["sb3"]["throughput"], "updates_per_s")
         for lib, r in runs.items():
             t, p = r["target"], r["throughput"]
-            solved = sum(x["solved"] for x in t)
             after = (
                 _median(p, "updates_per_s_after_compile")
                 if "updates_per_s_after_compile" in p[0]
                 else _median(p, "updates_per_s")
             )
+            reached = (
+                f"{sum(x['solved'] for x in t)}/{len(t)} | {_median(t, 'env_steps'):,.0f} | {_median(t, 'seconds'):.1f}"
+                if t
+                else "not run | | "
+            )
             lines.append(
-                f"| {lib} | {solved}/{len(t)} | {_median(t, 'env_steps'):,.0f} | {_median(t, 'seconds'):.1f} | "
+                f"| {lib} | {reached} | "
                 f"{_median(p, 'env_steps_per_s'):,.0f} | {_median(p, 'updates_per_s'):,.0f} | {after:,.0f} | "
                 f"{_median(p, 'updates_per_s') / sb3_rate:.2f}x ({after / sb3_rate:.2f}x after compiling) |"
             )
-        sb3_seconds = _median(runs["sb3"]["target"], "seconds")
-        for lib in list(runners)[1:]:
-            lines.append(f"\nWall-clock to 90%, SB3 / {lib}: {sb3_seconds / _median(runs[lib]['target'], 'seconds'):.2f}x")
+        if runs["sb3"]["target"]:
+            sb3_seconds = _median(runs["sb3"]["target"], "seconds")
+            for lib in list(runners)[1:]:
+                lines.append(f"\nWall-clock to 90%, SB3 / {lib}: {sb3_seconds / _median(runs[lib]['target'], 'seconds'):.2f}x")
         lines += ["", f"Differences left: {DIFFERENCES['sac' if key == 'sac' else 'dqn']}.", ""]
         lines.append(
             f"Per-seed throughput runs: {throughput_steps:,} env steps each, no evaluation; time-to-90% runs: up to {to_target:,}."
@@ -730,6 +740,8 @@ def main() -> None:
     parser.add_argument("--only", nargs="*", default=[], help="bound: only the cases whose names hold one of these words")
     parser.add_argument("--per-call", type=int, default=4, help="bound: updates per call in the K-updates column")
     parser.add_argument("--target", type=float, default=0.9)
+    parser.add_argument("--throughput-only", action="store_true", help="equal: skip the time-to-90%% runs")
+    parser.add_argument("--throughput-steps", type=int, default=0, help="equal: env steps of each throughput run (0: the case's)")
     parser.add_argument("--reuse-log", type=Path, default=None, help="equal: an earlier run's output, whose results to keep")
     parser.add_argument(
         "--reuse-libs", nargs="*", default=["sb3"], help="equal: the libraries (or CASE/LIBRARY) whose earlier results to keep"

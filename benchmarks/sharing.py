@@ -48,6 +48,14 @@ def interval(values: list[float]) -> tuple[float, float]:
     return mean, T95.get(len(values) - 1, 1.96) * statistics.stdev(values) / math.sqrt(len(values))
 
 
+def describe(overrides: dict, name: str) -> str:
+    """A section title's words for the overrides: ``--name`` if given, else ``key=value`` (long values by key only;
+    the section's command lists them)."""
+    if name:
+        return name.replace("-", " ")
+    return " ".join(f"{k}={v}" if len(str(v)) <= 16 else k for k, v in overrides.items())
+
+
 def one_run(job: tuple[str, str, int, dict]) -> dict:
     import torch
 
@@ -269,7 +277,7 @@ def main() -> None:
         axis = results[0]["axis"].replace("_", " ")
         swept = f" at the {args.sweep[0]} a sweep picks per strategy" if args.sweep else ""
         append_results(
-            f"Data sharing, {args.setting}: {preset}{' ' + str(overrides) if overrides else ''}{swept}",
+            f"Data sharing, {args.setting}: {preset}{', ' + describe(overrides, args.name) if overrides else ''}{swept}",
             f"Final greedy success after the preset's budget ({results[0]['curve'][-1]['at']:,} {axis}), "
             f"mean ± 95% t-interval half-width over seeds {args.seeds}; one torch thread per run, {args.jobs} runs at once. "
             f"Curves: `benchmarks/figures/{figure.name}`; raw per-seed data and curves: "

@@ -31,6 +31,7 @@ def built(algo: str, family: str, settings: dict, **more):
     return make_agent(config, env, CPU), env
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("algo, kind", CASES)
 def test_act_takes_one_observation_a_numpy_batch_or_tensors(algo, kind):
     family, env_id, settings = ENVS[kind]
@@ -101,6 +102,7 @@ def test_td3_on_a_sac_preset_explores_with_its_own_noise():
     assert abs((explored - greedy)[inside].std().item() - 0.1) < 0.01  # TD3's 0.1, not a full half-width
 
 
+@pytest.mark.slow
 def test_import_taskrl_alone_registers_every_native_id_and_gymnasiums_checker_passes():
     code = (
         "import gymnasium as gym, taskrl\n"

@@ -6,6 +6,7 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
 import torch
 
 import taskrl
@@ -57,6 +58,7 @@ def test_only_the_newest_checkpoints_are_kept(tmp_path):
     assert sorted(p.name for p in tmp_path.glob("step_*")) == ["step_000000000003", "step_000000000004"]
 
 
+@pytest.mark.slow
 def test_resume_continues_counters_weights_and_metrics(tmp_path):
     out = tmp_path / "run"
     first = taskrl.train("bitflip-her", out=out, total_steps=2_000, eval_interval=500, checkpoint_interval=1_000, **TINY)
@@ -72,6 +74,7 @@ def test_resume_continues_counters_weights_and_metrics(tmp_path):
     assert json.loads((out / "config.json").read_text())["total_steps"] == 4_000
 
 
+@pytest.mark.slow
 def test_a_killed_run_resumes_from_its_last_checkpoint(tmp_path):
     out = tmp_path / "killed"
     cmd = [
@@ -135,6 +138,7 @@ def test_a_killed_run_resumes_from_its_last_checkpoint(tmp_path):
     assert Path(out / "learning_curve.png").stat().st_size > 1000
 
 
+@pytest.mark.slow
 def test_metrics_csv_gains_the_agents_columns_after_the_first_updates(tmp_path):
     run = taskrl.train("bitflip-her", out=tmp_path / "cols", total_steps=600, eval_interval=200, **TINY)
     rows = read_metrics(tmp_path / "cols" / "metrics.csv")
@@ -143,6 +147,7 @@ def test_metrics_csv_gains_the_agents_columns_after_the_first_updates(tmp_path):
     assert run.metrics["updates"] > 0
 
 
+@pytest.mark.slow
 def test_a_time_limit_stops_cleanly_and_resume_finishes_the_run(tmp_path):
     out = tmp_path / "limited"
     first = taskrl.train(
@@ -160,6 +165,7 @@ def test_a_time_limit_stops_cleanly_and_resume_finishes_the_run(tmp_path):
     assert (stopped_at // 400 + 1) * 400 in steps  # the stop's extra evaluation did not shift the schedule
 
 
+@pytest.mark.slow
 def test_sigterm_stops_a_cli_run_with_a_checkpoint_at_the_current_step(tmp_path):
     out = tmp_path / "terminated"
     cmd = [

@@ -4,13 +4,8 @@ import sys
 
 import pytest
 
+from helpers import run_cli
 from taskrl.cli import main
-
-
-def run_cli(capsys, *args):
-    code = main(list(args))
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 def test_presets_lists_each_with_a_description(capsys):
@@ -57,6 +52,7 @@ def test_refuses_to_overwrite_an_existing_run(capsys, tmp_path):
     assert code == 2 and "--resume" in err
 
 
+@pytest.mark.slow
 def test_train_then_eval_from_the_command_line(tmp_path):
     out = tmp_path / "cli-run"
     train = subprocess.run(
@@ -179,6 +175,7 @@ def test_flags_follow_the_presets_algorithm(capsys):
     assert code == 2 and "needs continuous (Box) actions" in err
 
 
+@pytest.mark.slow
 def test_multitask_train_then_eval_per_task_from_the_command_line(capsys, tmp_path):
     out = tmp_path / "mt"
     code, stdout, err = run_cli(

@@ -6,6 +6,7 @@ import pytest
 import torch
 
 from agent_batches import bandit_batch
+from helpers import small_run
 from taskrl.agents.compiled import CompiledStep
 from taskrl.agents.dqn import DQNAgent, DQNConfig
 from taskrl.agents.parts import functional_adam_step, gradient_step, init_adam_state, polyak_update
@@ -70,6 +71,7 @@ def same_random_numbers():
         yield
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["dqn", "sac", "td3", "qtopt"])
 def test_compiled_updates_give_the_eager_parameters(name, same_random_numbers):
     torch.manual_seed(0)
@@ -96,6 +98,7 @@ def test_compiled_updates_give_the_eager_parameters(name, same_random_numbers):
         torch.testing.assert_close(b, a, rtol=1e-4, atol=1e-5)
 
 
+@pytest.mark.slow
 def test_a_multitask_sac_update_compiles_to_the_eager_one(same_random_numbers):
     from taskrl.conditioning.networks import make_conditioning
     from taskrl.config import ConditioningConfig
@@ -190,6 +193,7 @@ def test_unknown_compile_modes_are_refused():
         CompiledStep(agent.learn, "turbo", [])
 
 
+@pytest.mark.slow
 def test_each_agent_runs_its_own_graph():
     """Two agents of one class share the update's code: each must still run with its own settings."""
     batch = discrete_batch()
@@ -204,6 +208,7 @@ def test_each_agent_runs_its_own_graph():
             torch.testing.assert_close(compiled.update(batch)["loss"], eager.update(batch)["loss"], rtol=1e-4, atol=1e-6)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["dqn", "td3", "qtopt", "sac"])
 def test_k_updates_in_one_call_are_k_updates(name, same_random_numbers):
     """Eagerly K = 4; compiled K = 2, which holds both schedule flags of each agent (a target refresh or a
@@ -230,20 +235,19 @@ def test_k_updates_in_one_call_are_k_updates(name, same_random_numbers):
         torch.testing.assert_close(c, a, rtol=1e-4, atol=1e-5)
 
 
+@pytest.mark.slow
 def test_a_compiled_run_with_several_updates_per_call_learns_bit_flipping(tmp_path, capsys):
-    import taskrl
 
     # 2 per call: the path of any K > 1 (4 is the documented choice), at half the compile time of 4
-    run = taskrl.train(
+    run = small_run(
         "bitflip-her",
-        out=tmp_path / "run",
+        tmp_path / "run",
         n_bits=6,
         total_steps=3_000,
         eval_interval=3_000,
         updates_per_step=0.25,
         updates_per_call=2,
         compile="default",
-        tensorboard=False,
     )
     assert run.agent.step_many.active
     assert run.metrics["updates"] == pytest.approx(0.25 * (3_000 - run.config.learning_starts), abs=2 + 32)

@@ -180,6 +180,7 @@ def embedded(cache_dir):
     return language.sentence_embeddings(SENTENCES, cache_dir=cache_dir)
 
 
+@pytest.mark.slow
 def test_packaged_model_embeds_sentences(embedded):
     assert embedded.shape == (3, 384) and embedded.dtype == torch.float32
     torch.testing.assert_close(embedded.norm(dim=1), torch.ones(3))  # documented: L2-normalised
@@ -202,6 +203,7 @@ def test_second_call_reads_the_cache_without_loading_the_model(embedded, cache_d
         language.sentence_embeddings(SENTENCES[::-1], cache_dir=cache_dir)
 
 
+@pytest.mark.slow
 def test_cache_dir_follows_the_environment_variable(embedded, cache_dir, tmp_path, monkeypatch):
     monkeypatch.setenv("TASKRL_CACHE_DIR", str(tmp_path))
     assert language.default_cache_dir() == tmp_path / "embeddings"

@@ -7,9 +7,7 @@ Each learning test asserts a success rate a random policy does not reach (about 
 
 import csv
 import json
-import os
 import subprocess
-import sys
 from pathlib import Path
 
 import gymnasium as gym
@@ -17,6 +15,7 @@ import numpy as np
 import pytest
 
 import taskrl
+from helpers import cli, cli_train, successes
 from taskrl.errors import ConfigError
 from taskrl.tasks import TaskSet, TaskSpec
 
@@ -127,24 +126,14 @@ if "testenvs/SliderThatEnds-v0" not in gym.registry:  # no time limit declared
 SMALL = dict(total_steps=3000, eval_interval=1500, eval_episodes=50, learning_starts=500, tensorboard=False)
 
 
-def successes(run_dir: Path) -> list[float]:
-    return [float(r["success_rate"]) for r in csv.DictReader(open(run_dir / "metrics.csv"))]
-
-
-def cli(*args: str, cwd: Path) -> subprocess.CompletedProcess:
-    env = {**os.environ, "PYTHONPATH": str(TESTS)}
-    return subprocess.run(
-        [sys.executable, "-m", "taskrl.cli", *args], capture_output=True, text=True, timeout=600, cwd=cwd, env=env
-    )
-
-
 def cli_train_slider(env_id: str, out: Path, cwd: Path) -> subprocess.CompletedProcess:
     """``taskrl train pointreach-sac-her`` on a registered slider, with :data:`SMALL`'s budget."""
     budget = ["--total-steps", "3000", "--eval-interval", "1500", "--eval-episodes", "50", "--learning-starts", "500"]
-    common = ["--env-module", "test_custom_envs", "--no-progress", "--no-tensorboard"]
-    return cli("train", "pointreach-sac-her", "--env-id", env_id, "--out", str(out), *budget, *common, cwd=cwd)
+    common = ["--env-module", "test_custom_envs", "--no-tensorboard"]
+    return cli_train("pointreach-sac-her", "--env-id", env_id, "--out", str(out), *budget, *common, cwd=cwd)
 
 
+@pytest.mark.slow
 def test_cli_trains_resumes_evaluates_and_loads_a_registered_goal_env(tmp_path):
     out = tmp_path / "slider"
     common = ["--env-module", "test_custom_envs", "--no-progress", "--no-tensorboard"]
@@ -180,6 +169,7 @@ def test_cli_trains_resumes_evaluates_and_loads_a_registered_goal_env(tmp_path):
     assert env.action_space.contains(agent.act(obs)) and info["is_success"]
 
 
+@pytest.mark.slow
 def test_api_trains_on_a_factory_and_needs_it_again_to_resume_and_load(tmp_path):
     run = taskrl.train("pointreach-sac-her", env=Slider, max_episode_steps=20, out=tmp_path / "factory", **SMALL)
     assert run.config.env == "gym" and run.config.env_settings.env_id == "python:test_custom_envs.Slider"
@@ -197,6 +187,7 @@ def test_api_trains_on_a_factory_and_needs_it_again_to_resume_and_load(tmp_path)
     vec.close()
 
 
+@pytest.mark.slow
 def test_a_goal_env_without_max_episode_steps_trains_from_the_command_line_and_from_python(tmp_path):
     assert gym.spec("testenvs/SliderThatEnds-v0").max_episode_steps is None
     out = tmp_path / "ends-cli"
@@ -212,6 +203,7 @@ def test_a_goal_env_without_max_episode_steps_trains_from_the_command_line_and_f
     assert int(rows[-1]["replay_evicted"]) == 0 and 2000 < int(rows[-1]["replay_transitions"]) <= 3000
 
 
+@pytest.mark.slow
 def test_a_plain_discrete_env_trains_with_dqn_and_bad_input_is_one_line(tmp_path):
     run = taskrl.train(
         "bitflip-dqn",
@@ -248,6 +240,7 @@ def slide_tasks() -> TaskSet:
     )
 
 
+@pytest.mark.slow
 def test_a_custom_three_task_set_trains_with_language_conditioning(tmp_path):
     """From the same position the three tasks need opposite actions: without the task at most ~1/3 succeed."""
     run = taskrl.train(
@@ -275,6 +268,7 @@ def test_a_custom_three_task_set_trains_with_language_conditioning(tmp_path):
     assert again.act({**obs, "task": np.int64(2)})[0] > 0
 
 
+@pytest.mark.slow
 def test_a_task_file_is_read_by_the_command_line(tmp_path, capsys):
     from taskrl.cli import main
 

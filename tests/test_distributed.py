@@ -16,6 +16,7 @@ import pytest
 import torch
 
 import taskrl
+from helpers import small_run
 from taskrl.config import ConfigError, with_overrides
 from taskrl.distributed.limiter import UpdateToDataLimiter
 from taskrl.distributed.loop import DistributedLoop, RoleLives, RolesLost
@@ -139,6 +140,7 @@ def _local_loop(tmp_path, config, updaters: int, evaluated: bool = False):
     return loop, rows, parts
 
 
+@pytest.mark.slow
 def test_the_loop_keeps_the_update_to_data_ratio_and_a_bounded_queue(tmp_path):
     config = _config(collectors=2, bellman_updaters=2, queue_size=5, batches_per_call=2)
     loop, rows, parts = _local_loop(tmp_path, config, updaters=2)
@@ -255,6 +257,7 @@ class _DyingUpdater:
         raise RoleDied("killed")
 
 
+@pytest.mark.slow
 def test_updaters_out_of_restarts_leave_the_targets_to_the_trainer(tmp_path):
     config = _config(collectors=2, bellman_updaters=1, max_restarts=0, total_steps=1_500)
     loop, rows, parts = _local_loop(tmp_path, config, updaters=1)
@@ -265,6 +268,7 @@ def test_updaters_out_of_restarts_leave_the_targets_to_the_trainer(tmp_path):
     parts.close()
 
 
+@pytest.mark.slow
 def test_sac_learns_through_collectors_with_its_own_targets(tmp_path):
     # the Ape-X layout: collectors feed the trainer's replay and SAC makes its whole update itself, at the
     # settings of tests/test_learning.py's in-process run (random: ~0.05)
@@ -279,6 +283,7 @@ def test_sac_learns_through_collectors_with_its_own_targets(tmp_path):
     assert rows[-1]["weight_lag"] < config.cluster.publish_interval + 32
 
 
+@pytest.mark.slow
 def test_data_sharing_runs_through_collectors(tmp_path):
     """The trainer samples with the run's TaskSharing: the grid's low-data task is learnt from the
     other tasks' data that collectors send, and the shares are logged.
@@ -319,6 +324,7 @@ def test_distribution_settings_are_checked():
     assert err.value.field == "ray_address"
 
 
+@pytest.mark.slow
 @ON_RAY
 def test_more_actors_than_the_cluster_can_place_are_refused_not_waited_for(tmp_path, monkeypatch):
     # no --ray-address is a local Ray of the run's own, whatever cluster RAY_ADDRESS (or a `ray start`) names
@@ -329,6 +335,7 @@ def test_more_actors_than_the_cluster_can_place_are_refused_not_waited_for(tmp_p
     assert not (tmp_path / "run").exists()
 
 
+@pytest.mark.slow
 @ON_RAY
 def test_a_role_that_cannot_start_stops_the_run_with_its_reason(tmp_path, monkeypatch):
     # a module the trainer imports but the roles' processes cannot, as on cluster nodes that lack it: Ray never
@@ -339,21 +346,21 @@ def test_a_role_that_cannot_start_stops_the_run_with_its_reason(tmp_path, monkey
     monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(tmp_path), os.environ.get("PYTHONPATH", "")]))
     monkeypatch.setenv("TRAINER_PID", str(os.getpid()))
     with pytest.raises(RoleCannotStart, match="Collector 0 could not start: .*cannot import 'trainer_only': not on this node"):
-        taskrl.train(
+        small_run(
             "pointreach-qtopt-her",
-            out=tmp_path / "run",
+            tmp_path / "run",
             env_module="trainer_only",
             distributed=True,
             collectors=2,
             ray_cpus=2,
             total_steps=2_000,
-            tensorboard=False,
         )
     import ray
 
     assert not ray.is_initialized()  # the run's Ray is shut down on the way out
 
 
+@pytest.mark.slow
 def test_an_unreachable_cluster_is_one_line_and_exit_2(tmp_path):
     out = tmp_path / "run"
     done = subprocess.run(
@@ -408,16 +415,16 @@ def test_auto_that_finds_a_gone_clusters_address_is_one_error_not_a_wait(monkeyp
     assert time.monotonic() - started < 10
 
 
+@pytest.mark.slow
 def test_offline_data_from_another_run_then_online(tmp_path):
     # a run that only acts at random (no update: learning never starts) leaves its replay ...
     random = dict(random_action_prob=1.0, random_action_prob_end=1.0)
-    source = taskrl.train(
+    source = small_run(
         "pointreach-qtopt-her",
-        out=tmp_path / "explore",
+        tmp_path / "explore",
         total_steps=8_000,
         learning_starts=10**6,
         threads=1,
-        tensorboard=False,
         **random,
     )
     assert source.metrics["success_rate"] < 0.1
@@ -457,6 +464,7 @@ def _role_pids(name: str) -> list[int]:
     return [pid for pid, title in titles.items() if title.startswith(f"ray::{name}") and descends(pid)]
 
 
+@pytest.mark.slow
 @ON_RAY
 def test_distributed_qtopt_survives_killed_roles_and_reaches_the_in_process_success(tmp_path):
     """The settings and goal of tests/test_learning.py's in-process run, on 2 collectors and 1 updater, with a
@@ -480,9 +488,9 @@ def test_distributed_qtopt_survives_killed_roles_and_reaches_the_in_process_succ
 
     killer = threading.Thread(target=kill_roles, daemon=True)
     killer.start()
-    run = taskrl.train(
+    run = small_run(
         "pointreach-qtopt-her",
-        out=out,
+        out,
         distributed=True,
         collectors=2,
         bellman_updaters=1,
@@ -492,7 +500,6 @@ def test_distributed_qtopt_survives_killed_roles_and_reaches_the_in_process_succ
         total_steps=40_000,
         seed=0,
         threads=1,
-        tensorboard=False,
     )
     killer.join(timeout=5)
     assert set(killed) == {"Collector", "BellmanUpdater"}, killed
@@ -512,18 +519,18 @@ def test_distributed_qtopt_survives_killed_roles_and_reaches_the_in_process_succ
     assert read_metrics(out / "metrics.csv")[-1]["stored_episodes"] >= stored[-1]
 
 
+@pytest.mark.slow
 @ON_RAY
 def test_dqn_learns_through_ray_collectors_with_its_own_targets(tmp_path):
     # the Ape-X layout on Ray: DQN (epsilon-greedy in each collector) on 8-bit flipping, as in one process
-    run = taskrl.train(
+    run = small_run(
         "bitflip-her",
-        out=tmp_path / "dqn",
+        tmp_path / "dqn",
         n_bits=8,
         total_steps=12_000,
         eval_interval=2_000,
         stop_at_success=0.9,
         seed=0,
-        tensorboard=False,
         distributed=True,
         collectors=2,
         ray_cpus=2,

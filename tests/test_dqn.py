@@ -74,6 +74,7 @@ def chain_mdp(n_states=4, gamma=0.9):
     return q[: n_states - 1]
 
 
+@pytest.mark.slow
 def test_dqn_converges_to_q_star_of_a_tiny_mdp():
     n, gamma = 4, 0.9
     q_star = chain_mdp(n, gamma)

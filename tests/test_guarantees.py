@@ -18,8 +18,8 @@ import pytest
 import torch
 
 import taskrl
+from helpers import run_cli, small_run
 from taskrl.checkpoint import latest_checkpoint, load_checkpoint
-from taskrl.cli import main
 from taskrl.errors import ConfigError
 from taskrl.training.bookkeeping import Bookkeeping, LoopState
 from taskrl.training.evaluation import evaluate
@@ -60,13 +60,8 @@ def wait_for(condition, seconds: float = 300.0, every: float = 0.05) -> bool:
     return False
 
 
-def run_cli(capsys, *args):
-    code = main(list(args))
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
 # ------------------------------------------------------------------ kills
+@pytest.mark.slow
 def test_a_run_killed_long_before_its_checkpoint_interval_resumes(tmp_path):
     out = tmp_path / "run"
     proc = start(
@@ -94,6 +89,7 @@ def test_a_run_killed_long_before_its_checkpoint_interval_resumes(tmp_path):
     assert resumed.metrics["env_steps"] >= step + 1_000
 
 
+@pytest.mark.slow
 def test_a_kill_during_a_checkpoint_write_leaves_the_previous_checkpoint(tmp_path):
     out = tmp_path / "run"
     # a large replay and a checkpoint every 640 env steps: the writes take long enough to be hit
@@ -131,6 +127,7 @@ def test_a_kill_during_a_checkpoint_write_leaves_the_previous_checkpoint(tmp_pat
     assert resumed.metrics["env_steps"] > parts["loop"]["env_steps"]
 
 
+@pytest.mark.slow
 def test_ctrl_c_on_an_async_vector_run_stops_cleanly_with_a_checkpoint(tmp_path):
     out = tmp_path / "run"
     proc = start(
@@ -172,6 +169,7 @@ def test_ctrl_c_on_an_async_vector_run_stops_cleanly_with_a_checkpoint(tmp_path)
 
 
 # ------------------------------------------------------------------ runs that are not damaged
+@pytest.mark.slow
 def test_an_incompatible_resume_is_refused_and_the_run_stays_resumable(tmp_path):
     run = taskrl.train("bitflip-her", out=tmp_path / "run", **TINY)
     before = (run.run_dir / "config.json").read_bytes()
@@ -182,6 +180,7 @@ def test_an_incompatible_resume_is_refused_and_the_run_stays_resumable(tmp_path)
     assert taskrl.train(resume=run.run_dir, total_steps=1_500, tensorboard=False).metrics["env_steps"] >= 1_500
 
 
+@pytest.mark.slow
 def test_a_second_process_on_the_same_run_is_refused(tmp_path, capsys):
     out = tmp_path / "run"
     proc = start(
@@ -245,6 +244,7 @@ def test_a_diverging_run_stops_with_one_line_and_keeps_finite_weights(tmp_path, 
     assert all(torch.isfinite(t).all() for t in agent["q"].values())
 
 
+@pytest.mark.slow
 def test_tensorboard_keeps_no_points_twice_after_a_resume(tmp_path):
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
@@ -342,6 +342,7 @@ DAMAGES = [
 ]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("how", DAMAGES)
 def test_a_damaged_run_directory_is_one_line_for_eval_resume_and_load(tmp_path, capsys, how):
     run_dir = _make_run(tmp_path)
@@ -492,17 +493,17 @@ def test_bad_python_input_is_a_config_error_naming_the_argument(tmp_path, overri
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.slow
 def test_a_stopped_run_keeps_every_transition_it_collected(tmp_path):
     """Episodes still running at a stop are stored, cut (truncated) at their last step."""
-    run = taskrl.train(
+    run = small_run(
         "pointreach-sac-her",
-        out=tmp_path / "run",
+        tmp_path / "run",
         total_steps=10_000_000,
         max_hours=1.5 / 3600,
         eval_interval=10**8,
         eval_episodes=4,
         learning_starts=200,
-        tensorboard=False,
     )
     assert run.stopped_by == "time limit"
     parts = load_checkpoint(run.run_dir / "checkpoints", ("replay", "loop"))

@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 
 import gymnasium as gym
 import numpy as np
@@ -12,6 +10,7 @@ import pytest
 import torch
 
 import taskrl
+from helpers import cli, small_run
 from taskrl.agents.bc import BCAgent, BCConfig
 from taskrl.agents.spec import AgentInputs
 from taskrl.conditioning.networks import ConditioningConfig, TaskConditioning
@@ -139,6 +138,7 @@ def test_dart_noise_changes_what_runs_not_the_labels(tmp_path):
     assert not torch.allclose(moved, actions[:-1], atol=1e-3)  # but the executed actions were perturbed
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(300)
 def test_metaworld_experts_collect_successful_episodes(tmp_path):
     card = collect_demos("reach,drawer-open", 2, tmp_path / "mw", seed=1, after_success=5)
@@ -182,6 +182,7 @@ def _bc_agent(demos, **settings) -> BCAgent:
     return BCAgent(inputs, BCConfig(hidden_sizes=(64, 64), **settings), "cpu", conditioning)
 
 
+@pytest.mark.slow
 def test_language_regression_pulls_each_demo_embedding_to_its_task(point_demos):
     torch.manual_seed(0)
     demos = read_demonstrations(point_demos)
@@ -215,11 +216,12 @@ def test_bc_config_refuses_bad_settings():
 
 
 # ---------------------------------------------------------------------- runs
+@pytest.mark.slow
 @pytest.mark.timeout(300)
 @pytest.mark.parametrize("extra", [{}, {"chunk": 4, "loss": "gaussian"}])
 def test_bc_learns_multitask_pointreach_from_demonstrations(point_demos, tmp_path, extra):
     """A random policy ends in its task's region about 1% of the time; cloning the scripted expert, >= 0.9."""
-    run = taskrl.train("pointreach-mt-bc", out=tmp_path / "run", dataset=str(point_demos), tensorboard=False, **extra)
+    run = small_run("pointreach-mt-bc", tmp_path / "run", dataset=str(point_demos), **extra)
     assert run.metrics["success_rate"] >= 0.9
     assert run.metrics["env_steps"] == 0 and run.metrics["updates"] == 2_000  # offline: updates are the axis
     again = taskrl.evaluate_run(tmp_path / "run", episodes=20)
@@ -231,13 +233,13 @@ def test_bc_learns_multitask_pointreach_from_demonstrations(point_demos, tmp_pat
     assert action.shape == (2,) and action[1] < -0.5
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(300)
 def test_held_out_tasks_are_not_trained_on_and_are_evaluated_by_prompt(point_demos, tmp_path):
-    run = taskrl.train(
+    run = small_run(
         "pointreach-mt-bc",
-        out=tmp_path / "run",
+        tmp_path / "run",
         dataset=str(point_demos),
-        tensorboard=False,
         held_out_tasks="centre",
         task_input="demo",
         task_encoder="language",
@@ -273,24 +275,22 @@ def test_a_sentence_names_the_meta_world_task_it_describes():
         assert nearest_task(sentence, known)[0] == task
 
 
+@pytest.mark.slow
 def test_prompting_a_one_hot_policy_is_refused(point_demos, tmp_path):
-    taskrl.train("pointreach-mt-bc", out=tmp_path / "run", dataset=str(point_demos), tensorboard=False, total_steps=10)
+    small_run("pointreach-mt-bc", tmp_path / "run", dataset=str(point_demos), total_steps=10)
     with pytest.raises(ConfigError, match="language embeddings"):
         evaluate_prompted(tmp_path / "run", tasks=["centre"], episodes=1)
     with pytest.raises(ConfigError, match="unknown task 'nowhere'"):
         evaluate_prompted(tmp_path / "run", tasks=["nowhere"], episodes=1)
     with pytest.raises(ConfigError, match="holds out no task"):
         evaluate_prompted(tmp_path / "run", episodes=1)
-    done = _cli("eval", str(tmp_path / "run"), "--held-out", "--task", "go left")
+    done = cli("eval", str(tmp_path / "run"), "--held-out", "--task", "go left")
     assert done.returncode == 2 and "choose one of --held-out, --tasks and --task" in done.stderr
 
 
-def _cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "taskrl.cli", *args], capture_output=True, text=True)
-
-
+@pytest.mark.slow
 def test_cli_demos_and_bad_input_are_one_line(point_demos, tmp_path):
-    info = _cli("demos", "info", str(point_demos), "--json")
+    info = cli("demos", "info", str(point_demos), "--json")
     assert info.returncode == 0 and json.loads(info.stdout)["total_episodes"] == 100
     for args, needle in (
         (("demos", "collect", "nowhere-task", "--out", str(tmp_path / "x")), "SOURCE unknown Meta-World task"),
@@ -298,12 +298,13 @@ def test_cli_demos_and_bad_input_are_one_line(point_demos, tmp_path):
         (("train", "pointreach-mt-bc", "--dataset", str(tmp_path / "missing"), "--out", str(tmp_path / "r")), "--dataset"),
         (("train", "pointreach-mt-bc", "--chunk", "0", "--out", str(tmp_path / "r")), "--chunk must be in 1..100"),
     ):
-        done = _cli(*args)
+        done = cli(*args)
         assert done.returncode == 2, done.stderr
         assert len(done.stderr.strip().splitlines()) == 1 and needle in done.stderr, done.stderr
     assert not (tmp_path / "r").exists()  # a refused run leaves no directory
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(300)
 def test_ending_evaluation_episodes_at_success_keeps_every_outcome():
     """Meta-World counts success at any step: stopping at it changes how long evaluation takes, not what it finds."""

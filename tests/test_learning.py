@@ -1,14 +1,15 @@
 """End-to-end learning gates: small budgets, fixed seeds, thresholds a broken learner cannot reach."""
 
 import gymnasium as gym
+import pytest
 
 import taskrl
+from helpers import small_run
 
 
+@pytest.mark.slow
 def test_her_dqn_solves_8_bit_flipping(tmp_path):
-    run = taskrl.train(
-        "bitflip-her", out=tmp_path / "her8", n_bits=8, total_steps=12_000, eval_interval=2_000, seed=0, tensorboard=False
-    )
+    run = small_run("bitflip-her", tmp_path / "her8", n_bits=8, total_steps=12_000, eval_interval=2_000, seed=0)
     assert run.metrics["success_rate"] >= 0.9
     # A random policy reaches a random 8-bit goal within 8 flips far less often than this.
     agent = taskrl.load(run.run_dir)
@@ -26,20 +27,20 @@ def test_her_dqn_solves_8_bit_flipping(tmp_path):
 
 def test_evaluation_of_an_untrained_agent_is_near_chance(tmp_path):
     # Guards the threshold above: with no updates the greedy policy rarely reaches random goals.
-    run = taskrl.train(
+    run = small_run(
         "bitflip-her",
-        out=tmp_path / "untrained",
+        tmp_path / "untrained",
         n_bits=8,
         total_steps=500,
         learning_starts=10**9,
         eval_interval=500,
         seed=0,
-        tensorboard=False,
     )
     assert run.metrics["updates"] == 0
     assert run.metrics["success_rate"] < 0.3
 
 
+@pytest.mark.slow
 def test_the_same_seed_gives_the_same_run(tmp_path):
     kwargs = dict(
         n_bits=5,
@@ -59,30 +60,30 @@ def test_the_same_seed_gives_the_same_run(tmp_path):
     assert [a.metrics[k] for k in keys] != [c.metrics[k] for k in keys]
 
 
+@pytest.mark.slow
 def test_sac_her_solves_pointreach(tmp_path):
-    run = taskrl.train(
+    run = small_run(
         "pointreach-sac-her",
-        out=tmp_path / "sac",
+        tmp_path / "sac",
         total_steps=21_000,
         stop_at_success=0.9,
         seed=0,
         threads=1,
-        tensorboard=False,
         save_replay=False,
     )
     assert run.metrics["success_rate"] >= 0.9
 
 
+@pytest.mark.slow
 def test_qtopt_her_solves_pointreach(tmp_path):
     # the in-process twin of tests/test_distributed.py's distributed run: the same settings and goal (random: ~0.05)
-    run = taskrl.train(
+    run = small_run(
         "pointreach-qtopt-her",
-        out=tmp_path / "qtopt",
+        tmp_path / "qtopt",
         total_steps=40_000,
         stop_at_success=0.9,
         seed=0,
         threads=1,
-        tensorboard=False,
         save_replay=False,
     )
     assert run.metrics["success_rate"] >= 0.9

@@ -6,16 +6,18 @@ import pytest
 import torch
 
 import taskrl
+from helpers import small_run
 from taskrl.config import ConfigError
 
 pytest.importorskip("metaworld")
 
 
+@pytest.mark.slow
 def test_mt10_care_run_writes_per_task_results_and_reloads(tmp_path):
     out = tmp_path / "mt10"
-    run = taskrl.train(
+    run = small_run(
         "mt10-sac-care",
-        out=out,
+        out,
         total_steps=600,
         learning_starts=300,
         max_episode_steps=30,
@@ -24,7 +26,6 @@ def test_mt10_care_run_writes_per_task_results_and_reloads(tmp_path):
         eval_interval=10**6,
         eval_episodes=2,
         buffer_size=2_000,
-        tensorboard=False,
     )
     per_task = json.loads((out / "per_task_success.json").read_text())
     assert per_task["distinct_goals"] is True and per_task["success"] == "reached at any step"
@@ -50,10 +51,11 @@ def test_mt10_care_run_writes_per_task_results_and_reloads(tmp_path):
     torch.testing.assert_close(loaded.act(obs), agent.act(obs))
 
 
+@pytest.mark.slow
 def test_mt1_run_has_no_task_context(tmp_path):
-    run = taskrl.train(
+    run = small_run(
         "mt1-reach-sac",
-        out=tmp_path / "mt1",
+        tmp_path / "mt1",
         total_steps=400,
         learning_starts=200,
         num_envs=2,
@@ -63,7 +65,6 @@ def test_mt1_run_has_no_task_context(tmp_path):
         eval_interval=10**6,
         eval_episodes=1,
         buffer_size=1_000,
-        tensorboard=False,
     )
     assert run.agent.conditioning is None and "success/reach" in run.metrics
 
@@ -74,6 +75,7 @@ def test_metaworld_settings_are_checked_before_anything_is_built(tmp_path):
     assert err.value.field == "num_envs" and "multiple of the 10 tasks" in str(err.value)
 
 
+@pytest.mark.slow
 def test_a_task_file_of_metaworld_names_runs_with_its_own_descriptions(tmp_path):
     """Tasks without an env are Meta-World tasks: a custom set keeps the user's sentences and Meta-World's
     any-step success."""

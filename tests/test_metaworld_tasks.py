@@ -80,6 +80,7 @@ def test_names_and_order_match_the_installed_metaworld():
     assert [version_free(n) for n in MT10_V3] == list(MT10_TASKS)
 
 
+@pytest.mark.slow
 def test_mt10_builds_with_one_hot_and_the_one_hot_matches_the_task_index():
     with MetaWorldMultiTaskEnv("MT10", use_one_hot=True, max_episode_steps=3, seed=0, num_goals=3) as env:
         assert env.num_envs == 10 and env.horizon == 3 and env.task_set.names == list(MT10_TASKS)
@@ -125,6 +126,7 @@ def test_success_comes_from_metaworld_info_success():
         assert not successes[0] and any(successes)
 
 
+@pytest.mark.slow
 def test_seeding_repeats_and_horizons_past_500():
     def make():
         return MetaWorldMultiTaskEnv("MT1", task="reach", use_one_hot=True, max_episode_steps=505, seed=3, num_goals=10)

@@ -179,6 +179,7 @@ def _train_sac(conditioned: bool, seed: int = 0, env_steps: int = 250) -> float:
     return result["mean_success_rate"]
 
 
+@pytest.mark.slow
 def test_one_hot_conditioning_solves_what_an_unconditioned_policy_cannot():
     assert _train_sac(conditioned=True) >= 0.9
     assert _train_sac(conditioned=False) <= 0.4  # at most 1/K = 0.2 in expectation

@@ -7,6 +7,7 @@ import torch
 from torch import nn
 
 import taskrl
+from helpers import small_run
 from taskrl.agents.sac import SACAgent, SACConfig
 from taskrl.checkpoint import flatten_state, unflatten_state
 from taskrl.conditioning.networks import ARCHITECTURES, ConditionedMLP, ConditioningConfig, make_conditioning
@@ -142,6 +143,7 @@ def test_checkpoint_round_trip_gives_the_same_actions(architecture, multi_head):
     assert not torch.equal(make_agent("embedding", architecture, multi_head).act(obs), agent.act(obs))
 
 
+@pytest.mark.slow
 def test_actions_depend_on_the_task_after_training():
     """A one-step multi-task bandit: the same state, and task t pays -|a - best_t|^2. Only an agent
     that learnt from the task reaches each task's own optimum; an untrained one reaches none."""
@@ -173,8 +175,9 @@ def test_actions_depend_on_the_task_after_training():
     assert (untrained - best).abs().max() > 0.3  # not by luck of the initialisation
 
 
+@pytest.mark.slow
 def test_multitask_run_with_one_hot_solves_every_region(tmp_path):
-    run = taskrl.train("pointreach-mt-sac-onehot", out=tmp_path / "run", total_steps=10_000, tensorboard=False)
+    run = small_run("pointreach-mt-sac-onehot", tmp_path / "run", total_steps=10_000)
     per_task = json.loads((tmp_path / "run" / "per_task_success.json").read_text())
     assert per_task["success"] == "at the final step" and set(per_task["tasks"]) == {
         "top-left",
@@ -190,9 +193,10 @@ def test_multitask_run_with_one_hot_solves_every_region(tmp_path):
     assert again["success_rate"] >= 0.8 and "success/top-left" in again
 
 
+@pytest.mark.slow
 def test_multitask_ppo_run_resumes_and_evaluates_per_task(tmp_path):
     out = tmp_path / "ppo"
-    first = taskrl.train("pointreach-mt-ppo-onehot", out=out, total_steps=20_000, eval_interval=10_000, tensorboard=False)
+    first = small_run("pointreach-mt-ppo-onehot", out, total_steps=20_000, eval_interval=10_000)
     assert first.metrics["env_steps"] >= 20_000 and "success/centre" in first.metrics
     assert {"policy_loss", "approx_kl", "explained_variance"} <= set(first.metrics)
     assert not (out / "checkpoints" / "latest").read_text().strip() == ""

@@ -202,6 +202,7 @@ def _train_on_point(config: PPOConfig, total_steps: int, stop_at: float, seed: i
     return agent, state, rows, checkpoints
 
 
+@pytest.mark.slow
 def test_ppo_with_one_hot_conditioning_solves_multitask_point_reach():
     agent, state, rows, checkpoints = _train_on_point(PPOConfig(), total_steps=200_000, stop_at=1.0)
     # Fails without the task (at most 1/5 at the final step) or without learning.
@@ -229,6 +230,7 @@ def test_ppo_with_one_hot_conditioning_solves_multitask_point_reach():
     assert state.updates == 40 * state.env_steps // (64 * 32)  # epochs x minibatches per rollout
 
 
+@pytest.mark.slow
 def test_reinforce_without_a_baseline_learns_multitask_point_reach():
     cfg = PPOConfig(estimator="reinforce", rollout_steps=50, lr=3e-3, gamma=0.9, value_coef=0.0)
     agent, state, rows, _ = _train_on_point(cfg, total_steps=200_000, stop_at=0.8)
@@ -259,6 +261,7 @@ class TaskBandit(BatchedEnv):
         return self._draw(), success.float(), done, ~done, {"is_success": success, "final_obs": final}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("estimator", ["reinforce", "ppo"])
 def test_categorical_policies_learn_a_contextual_bandit(estimator):
     torch.manual_seed(0)

@@ -163,6 +163,7 @@ def test_acting_respects_the_bounds_and_explores_uniformly_at_the_requested_rate
     assert isinstance(single, np.ndarray) and single.shape == (2,)
 
 
+@pytest.mark.slow
 def test_qtopt_learns_the_best_action_of_a_continuous_bandit():
     # One-step bandit, two states with different best actions; reward in [0, 1] (log loss).
     best = torch.tensor([-0.5, 0.6])

@@ -3,9 +3,6 @@ videos, policy export, settings files, many seeds and their comparison, TensorBo
 
 import csv
 import json
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import gymnasium as gym
@@ -13,31 +10,19 @@ import numpy as np
 import pytest
 
 import taskrl
+from helpers import cli, metrics
 from taskrl.cli import main
 
 TINY = ["--n-bits", "6", "--total-steps", "3000", "--eval-interval", "1000", "--eval-episodes", "20", "--no-tensorboard"]
 
 
-def cli(*args: str, env: dict | None = None) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "taskrl.cli", *args],
-        capture_output=True,
-        text=True,
-        timeout=600,
-        env={**os.environ, **(env or {})},
-    )
-
-
-def rows(run_dir: Path) -> list[dict]:
-    return list(csv.DictReader(open(run_dir / "metrics.csv")))
-
-
+@pytest.mark.slow
 def test_without_a_terminal_a_run_prints_one_line_per_evaluation_and_keeps_its_name_on_resume(tmp_path):
     out = tmp_path / "run"
     first = cli("train", "bitflip-her", *TINY, "--out", str(out))  # stderr is a pipe: no terminal
     assert first.returncode == 0, first.stderr
     lines = [line for line in first.stderr.splitlines() if line.startswith("bitflip-her  step ")]
-    assert len(lines) == len(rows(out)) >= 4  # one per evaluation, each flushed as it happens
+    assert len(lines) == len(metrics(out)) >= 4  # one per evaluation, each flushed as it happens
     assert all("success" in line and "steps/s" in line and "ETA" in line for line in lines)
     again = cli("train", "--resume", str(out), "--total-steps", "5000", "--no-tensorboard")
     assert again.returncode == 0, again.stderr
@@ -82,7 +67,7 @@ def test_eval_gives_intervals_the_checkpoint_step_and_older_checkpoints(bitflip_
     assert (
         lo <= result["success_rate"] <= hi
         and hi - lo > 0
-        and result["checkpoint_step"] == int(rows(bitflip_run)[-1]["env_steps"])
+        and result["checkpoint_step"] == int(metrics(bitflip_run)[-1]["env_steps"])
     )
     rlo, rhi = result["eval_return_ci95"]
     assert rlo < result["eval_return"] < rhi
@@ -103,6 +88,7 @@ def test_eval_writes_a_playable_video_of_a_native_env(bitflip_run, capsys):
     assert len(frames) >= 2 and frames[0].ndim == 3  # a first frame and at least one step
 
 
+@pytest.mark.slow
 def test_eval_writes_a_playable_video_of_fetchreach(tmp_path):
     out = tmp_path / "fetch"
     trained = cli(
@@ -140,6 +126,7 @@ def test_eval_writes_a_playable_video_of_fetchreach(tmp_path):
         ("pointreach-mt-ppo-onehot", "taskrl/MultiTaskPointReach-v0", {}, ["--rollout-steps", "16"]),  # PPO
     ],
 )
+@pytest.mark.slow
 def test_an_exported_policy_acts_like_the_runs_agent(tmp_path, capsys, preset, env_id, extra, flags):
     import torch
 
@@ -167,6 +154,7 @@ def test_an_exported_policy_acts_like_the_runs_agent(tmp_path, capsys, preset, e
     vec.close()
 
 
+@pytest.mark.slow
 def test_many_seeds_into_one_folder_and_plot_matches_their_metrics(tmp_path, capsys):
     folder = tmp_path / "seeds"
     code = main(["train", "bitflip-her", "--seeds", "0", "1", "2", "--parallel", "2", *TINY, "--out", str(folder)])
@@ -177,12 +165,13 @@ def test_many_seeds_into_one_folder_and_plot_matches_their_metrics(tmp_path, cap
     assert main(["plot", str(folder), "--out", str(tmp_path / "cmp.png"), "--threshold", "0.9"]) == 0
     assert (tmp_path / "cmp.png").stat().st_size > 10_000
     summary = list(csv.DictReader(open(tmp_path / "cmp.csv")))[0]
-    finals = [float(rows(folder / f"seed_{s}")[-1]["success_rate"]) for s in range(3)]
-    bests = [max(float(r["success_rate"]) for r in rows(folder / f"seed_{s}")) for s in range(3)]
+    finals = [float(metrics(folder / f"seed_{s}")[-1]["success_rate"]) for s in range(3)]
+    bests = [max(float(r["success_rate"]) for r in metrics(folder / f"seed_{s}")) for s in range(3)]
     assert float(summary["final_success"]) == pytest.approx(sum(finals) / 3)
     assert float(summary["best_success"]) == pytest.approx(sum(bests) / 3)
     reached = [
-        next((int(r["env_steps"]) for r in rows(folder / f"seed_{s}") if float(r["success_rate"]) >= 0.9), None) for s in range(3)
+        next((int(r["env_steps"]) for r in metrics(folder / f"seed_{s}") if float(r["success_rate"]) >= 0.9), None)
+        for s in range(3)
     ]
     hit = sorted(r for r in reached if r is not None)
     assert summary["reached_0.9"] == f"{len(hit)}/3"
@@ -192,6 +181,7 @@ def test_many_seeds_into_one_folder_and_plot_matches_their_metrics(tmp_path, cap
         )
 
 
+@pytest.mark.slow
 def test_tensorboard_gets_training_scalars_between_evaluations(tmp_path):
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
@@ -210,6 +200,7 @@ def test_tensorboard_gets_training_scalars_between_evaluations(tmp_path):
     assert len(steps) >= 4 > len(evaluations) - 1 and steps == sorted(set(steps))
 
 
+@pytest.mark.slow
 def test_eval_writes_a_video_of_a_metaworld_task(tmp_path):
     out = tmp_path / "mt1"
     trained = cli(

@@ -138,6 +138,7 @@ def test_fixed_temperature_stays_put():
     assert agent.alpha.item() == pytest.approx(0.3)
 
 
+@pytest.mark.slow
 def test_sac_learns_the_best_action_of_a_continuous_bandit():
     best = torch.tensor([-0.5, 0.6])
     torch.manual_seed(0)

@@ -9,6 +9,7 @@ import pytest
 import torch
 
 import taskrl
+from helpers import small_run
 from taskrl.agents.dqn import DQNAgent, DQNConfig
 from taskrl.agents.sac import SACAgent, SACConfig
 from taskrl.config import TrainConfig, validate, with_overrides
@@ -317,6 +318,7 @@ def test_cql_penalty_lowers_q_of_actions_the_data_never_took():
     assert gaps[1.0] < gaps[0.0] - 0.5
 
 
+@pytest.mark.slow
 def test_cql_penalty_lowers_sac_q_away_from_the_data():
     data_action = torch.full((256, 2), 0.5)
     obs, batch = dataset_batch(3, data_action, terminated=True)
@@ -349,18 +351,17 @@ def test_bad_sharing_settings_are_one_line_errors():
         validate(with_overrides(base, {"sharing": "all", "sampling": "uniform"}))
     assert error.value.field == "sampling"
     with pytest.raises(ConfigError) as error:  # an env whose tasks are not reward functions
-        taskrl.train("pointreach-mt-sac-onehot", out=None, sharing="all", total_steps=100, tensorboard=False)
+        small_run("pointreach-mt-sac-onehot", None, sharing="all", total_steps=100)
     assert error.value.field == "sharing"
 
 
+@pytest.mark.slow
 def test_sharing_solves_a_low_data_task_that_none_does_not(tmp_path):
     """The grid preset at a small budget: sharing all tasks' data solves the task with a tenth of the
     episodes; its own data alone does not, at the same budget and seed."""
     success = {}
     for strategy in ("none", "all"):
-        run = taskrl.train(
-            "grid-sharing-dqn", out=tmp_path / strategy, sharing=strategy, total_steps=8_000, seed=0, tensorboard=False
-        )
+        run = small_run("grid-sharing-dqn", tmp_path / strategy, sharing=strategy, total_steps=8_000, seed=0)
         rows = list(csv.DictReader(open(run.run_dir / "metrics.csv")))
         success[strategy] = float(rows[-1]["success/top-left-avoid"])
         shared = float(rows[-1]["shared/top-left-avoid"])
@@ -369,16 +370,16 @@ def test_sharing_solves_a_low_data_task_that_none_does_not(tmp_path):
     assert success["none"] <= 0.4
 
 
+@pytest.mark.slow
 def test_offline_run_learns_from_datasets_without_stepping_an_env(tmp_path):
-    run = taskrl.train(
+    run = small_run(
         "point-sharing-offline",
-        out=tmp_path / "offline",
+        tmp_path / "offline",
         total_steps=400,
         eval_interval=200,
         dataset_steps=400,
         cql_samples=2,
         eval_episodes=4,
-        tensorboard=False,
     )
     rows = list(csv.DictReader(open(run.run_dir / "metrics.csv")))
     assert [int(r["updates"]) for r in rows] == [1, 200, 400]  # the untrained policy's evaluation first
@@ -392,19 +393,19 @@ def test_offline_run_learns_from_datasets_without_stepping_an_env(tmp_path):
     assert more.metrics["updates"] == 600
 
 
+@pytest.mark.slow
 def test_a_grid_run_under_capacity_stores_every_step_it_collected(tmp_path):
     """Episodes end early on the grid (success, failure): the replay keeps all of them, counted in transitions."""
     from taskrl.checkpoint import load_checkpoint
     from taskrl.replay.storage import saved_episodes
 
-    run = taskrl.train(
+    run = small_run(
         "grid-sharing-dqn",
-        out=tmp_path / "grid",
+        tmp_path / "grid",
         total_steps=4_000,
         eval_interval=2_000,
         buffer_size=1_000_000,
         save_replay=True,
-        tensorboard=False,
         progress=False,
     )
     last = list(csv.DictReader(open(run.run_dir / "metrics.csv")))[-1]

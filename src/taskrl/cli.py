@@ -137,7 +137,12 @@ def _active_sections(argv: Sequence[str], file_base: Any = None, file_settings: 
     selectors = {f.selected_by: f.name for f in ENV_FAMILIES.values() if f.selected_by}
     for setting in selectors:
         peek.add_argument(_flag(setting))
+    peek.add_argument("--env-module")
     known, _ = peek.parse_known_args(argv)
+    if known.env_module:  # it may register env families and algorithms the flags below name
+        from taskrl.run import import_env_module
+
+        import_env_module(known.env_module)
     for flag, value, allowed in (("--env", known.env, ENV_FAMILIES), ("--algo", known.algo, ALGORITHMS)):
         if value is not None and value not in allowed:
             hint = " (a gymnasium id goes to --env-id)" if flag == "--env" else ""
@@ -198,6 +203,11 @@ def cmd_train(argv: Sequence[str]) -> int:
     parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=True, help="progress bar and final table")
     parser.add_argument("--tensorboard", action=argparse.BooleanOptionalAction, default=True, help="write TensorBoard events")
     parser.add_argument(
+        "--wandb",
+        action="store_true",
+        help="also log to Weights & Biases (the wandb extra; offline into the run directory without an account)",
+    )
+    parser.add_argument(
         "--log-every",
         type=float,
         default=0.0,
@@ -221,6 +231,7 @@ def cmd_train(argv: Sequence[str]) -> int:
     print_config = args.pop("print_config")
     preset, out, resume = args.pop("preset"), args.pop("out"), args.pop("resume")
     progress, tensorboard, log_every = args.pop("progress"), args.pop("tensorboard"), args.pop("log_every")
+    wandb = args.pop("wandb")
     if log_every < 0:
         raise UsageError(f"--log-every must be >= 0 seconds (got {log_every})")
     if preset is None and resume is None and file_base is None:
@@ -257,7 +268,15 @@ def cmd_train(argv: Sequence[str]) -> int:
         return 0
 
     run = train(
-        preset, out=out, resume=resume, progress=progress, tensorboard=tensorboard, log_every=log_every, base=file_base, **args
+        preset,
+        out=out,
+        resume=resume,
+        progress=progress,
+        tensorboard=tensorboard,
+        wandb=wandb,
+        log_every=log_every,
+        base=file_base,
+        **args,
     )
     if not progress:
         print(json.dumps({"run_dir": str(run.run_dir), **run.metrics}))

@@ -1,4 +1,5 @@
-"""Metrics of a run: ``metrics.csv`` (one row per evaluation) and TensorBoard events.
+"""Metrics of a run: ``metrics.csv`` (one row per evaluation), TensorBoard events and, optionally,
+Weights & Biases (``--wandb``: the same rows and training scalars, and the run's settings).
 
 Columns of ``metrics.csv`` (the first ones always; then the scalars the agent's ``update``
 returns, averaged over the updates since the previous row, e.g. DQN's ``loss`` and ``q_mean``):
@@ -20,6 +21,8 @@ from __future__ import annotations
 
 import csv
 import io
+import os
+import secrets
 from pathlib import Path
 from typing import Any
 
@@ -47,10 +50,16 @@ class RunLogger:
         axis: the column that counts the run's progress (``env_steps``; ``updates`` for offline runs).
         resume_from_step: when resuming, rows logged after this step (by a run killed before
             its next checkpoint) are dropped so the file has no duplicates.
+        wandb: also log to Weights & Biases: ``{"name": ..., "config": {...}}`` of the run (see :func:`start_wandb`).
     """
 
     def __init__(
-        self, run_dir: Path, tensorboard: bool = True, resume_from_step: int | None = None, axis: str = "env_steps"
+        self,
+        run_dir: Path,
+        tensorboard: bool = True,
+        resume_from_step: int | None = None,
+        axis: str = "env_steps",
+        wandb: dict[str, Any] | None = None,
     ) -> None:
         self.path = Path(run_dir) / "metrics.csv"
         self.axis = axis  # the progress column: env_steps, or updates for offline runs
@@ -81,6 +90,10 @@ class RunLogger:
             # resumed run's curves never hold a stretch twice or run backwards.
             purge = resume_from_step + 1 if resume_from_step is not None else None
             self.writer = SummaryWriter(str(Path(run_dir) / "tensorboard"), purge_step=purge)
+        self.wandb = start_wandb(Path(run_dir), **wandb) if wandb is not None else None
+        if self.wandb is not None:  # curves against the run's own progress axis, as in TensorBoard
+            self.wandb.define_metric(self.axis)
+            self.wandb.define_metric("*", step_metric=self.axis)
 
     def _write_rows(self, rows: list[dict[str, Any]]) -> None:
         """Rewrite the whole file atomically (temp file + rename)."""
@@ -106,16 +119,65 @@ class RunLogger:
                 if isinstance(row.get(k), (int, float)):
                     self.writer.add_scalar(f"taskrl/{k}", row[k], step)
             self.writer.flush()
+        if self.wandb is not None:
+            values = {f"taskrl/{k}": row[k] for k in self.columns[1:] if isinstance(row.get(k), (int, float))}
+            self.wandb.log({**values, self.axis: int(row[self.axis])})
 
     def log_training(self, step: int, values: dict[str, float]) -> None:
         """Training scalars between evaluations, to TensorBoard only (``train/<name>``)."""
         if self.writer is not None:
             for name, value in values.items():
                 self.writer.add_scalar(f"train/{name}", value, step)
+        if self.wandb is not None:
+            self.wandb.log({**{f"train/{k}": v for k, v in values.items()}, self.axis: step})
 
     def close(self) -> None:
         if self.writer is not None:
             self.writer.close()
+        if self.wandb is not None:
+            self.wandb.finish()
+
+
+def wandb_mode() -> str:
+    """``WANDB_MODE`` when set; else ``online`` with an API key (``WANDB_API_KEY`` or ``wandb login``), else
+    ``offline``: a machine without an account or network still logs, to ``wandb/`` in the run directory,
+    for ``wandb sync`` later."""
+    if os.environ.get("WANDB_MODE"):
+        return os.environ["WANDB_MODE"]
+    netrc = Path.home() / ".netrc"
+    logged_in = netrc.exists() and "api.wandb.ai" in netrc.read_text(errors="ignore")
+    return "online" if os.environ.get("WANDB_API_KEY") or logged_in else "offline"
+
+
+def require_wandb() -> Any:
+    """The ``wandb`` module; a :class:`~taskrl.errors.ConfigError` naming the extra where it is not installed."""
+    try:
+        import wandb
+    except ImportError:
+        from taskrl.errors import ConfigError
+
+        raise ConfigError("wandb", "needs the wandb package: pip install 'taskrl[wandb]'") from None
+    return wandb
+
+
+def start_wandb(run_dir: Path, name: str, config: dict[str, Any], project: str = "taskrl") -> Any:
+    """A Weights & Biases run for ``run_dir``, resumed under the same id when the run directory is resumed
+    (the id is kept in ``run_dir/wandb_id``). Needs the ``wandb`` extra."""
+    wandb = require_wandb()
+    id_file = run_dir / "wandb_id"
+    run_id = id_file.read_text().strip() if id_file.exists() else secrets.token_hex(8)
+    atomic_write_text(id_file, run_id + "\n")
+    run = wandb.init(
+        project=os.environ.get("WANDB_PROJECT", project),
+        name=name,
+        id=run_id,
+        resume="allow",
+        dir=str(run_dir),
+        config=config,
+        mode=wandb_mode(),
+        settings=wandb.Settings(quiet=True, console="off"),
+    )
+    return run
 
 
 def _number(text: str | None) -> int | float | None:

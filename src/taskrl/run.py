@@ -49,7 +49,7 @@ from taskrl.envs.registry import ENV_FAMILIES, env_family, family_for_source
 from taskrl.envs.reward_tasks import parse_qualities
 from taskrl.envs.spec import EnvFamily, EnvRequest, env_kind
 from taskrl.errors import ConfigError, reason, require
-from taskrl.logger import RunLogger
+from taskrl.logger import RunLogger, require_wandb
 from taskrl.plots import plot_learning_curve
 from taskrl.presets import preset_config
 from taskrl.replay import EpisodeReplay, HindsightRelabeler, RecentMixSampler, TaskBalancedSampler
@@ -735,6 +735,7 @@ def train(
     resume: str | Path | None = None,
     progress: bool = False,
     tensorboard: bool = True,
+    wandb: bool = False,
     console: Console | None = None,
     log_every: float = 0.0,
     base: TrainConfig | None = None,
@@ -749,6 +750,8 @@ def train(
             (``overrides`` still apply, e.g. a larger ``total_steps``).
         progress: show a progress bar and print the final table.
         tensorboard: write TensorBoard events.
+        wandb: also log metrics and settings to Weights & Biases (the ``wandb`` extra; offline, into the run
+            directory, without an account or network: ``WANDB_MODE`` decides when set).
         console: where the final table and notes go (default stderr).
         log_every: without a terminal, also print a progress line every this many seconds between
             evaluations (0: one line per evaluation only).
@@ -773,6 +776,8 @@ def train(
     if resume is None or "env_module" in overrides:  # a resumed run imports only what the caller names
         import_env_module(config.env_module)
 
+    if wandb:  # before anything is written
+        require_wandb()
     created = not run_dir.exists()
     lock = RunLock(run_dir, "resume" if resume is not None else "out")
     try:
@@ -808,7 +813,8 @@ def train(
         config_io.save(config, run_dir / "config.json")
         axis = progress_axis(config)
         at = state.progress(axis)
-        logger = RunLogger(run_dir, tensorboard=tensorboard, resume_from_step=at if resume else None, axis=axis)
+        tracking = {"name": run_dir.name, "config": config_io.to_dict(config)} if wandb else None
+        logger = RunLogger(run_dir, tensorboard=tensorboard, resume_from_step=at if resume else None, axis=axis, wandb=tracking)
         rows: list[dict[str, Any]] = []
         title = _run_title(run_dir, preset if resume is None else None, config)
         evaluator, last_eval = make_evaluator(config, parts.eval_env, parts.agent, config.seed + EVAL_SEED_OFFSET)
@@ -1021,7 +1027,8 @@ def evaluate_run(
         episodes: episodes (per task on multi-task envs).
         seed: evaluation seed (default the run's own evaluation seed: the same episodes it was scored on).
         device: where the networks go.
-        env, env_module: as for :func:`load`.
+        env: as for :func:`load`.
+        env_module: as for :func:`load`.
         checkpoint: the env step of the checkpoint to evaluate (default the latest).
         stochastic: act with the algorithm's exploration instead of greedily.
         video: also record this many episodes to ``run_dir/videos/`` (MP4).

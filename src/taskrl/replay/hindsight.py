@@ -33,7 +33,8 @@ class HindsightRelabeler:
         terminated_fn: ``compute_terminated(achieved_goal, desired_goal, info)``; when given,
             termination of relabelled transitions is recomputed for the new goal (needed when
             success ends an episode), otherwise the stored flag is kept.
-        achieved_key, desired_key: observation keys of the achieved and desired goals.
+        achieved_key: observation key of the achieved goal.
+        desired_key: observation key of the desired goal.
         task_key: on envs whose tasks are reward functions of the goal (``r_j(achieved, goal)``), the
             observation key of the task index: the reward functions then get ``info={task_key: task}``,
             so hindsight goals compose with data sharing's task relabelling (which comes first).
