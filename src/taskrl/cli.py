@@ -70,7 +70,19 @@ def _add_config_flags(parser: argparse.ArgumentParser, env: str, algo: str, base
     docs["env"] += " Choices: " + "; ".join(f"{f.name} ({f.description})" for f in ENV_FAMILIES.values())
     docs["algo"] += " Choices: " + "; ".join(f"{a.name} ({a.description})" for a in ALGORITHMS.values())
     choices = {"env": tuple(ENV_FAMILIES), "algo": tuple(ALGORITHMS)}
+    family = ENV_FAMILIES[env]
+    titles = {
+        "conditioning": "task conditioning (multi-task networks)",
+        "cluster": "where the roles run (--distributed)",
+        "data_sharing": "data sharing between tasks",
+        family.section: f"env family '{env}' ({family.section} section)",
+        algo: f"algorithm '{algo}' ({algo} section)",
+    }
+    groups: dict[str, Any] = {}
     for path, _field, tp in leaf_fields(env, algo):
+        section = path[0] if len(path) > 1 else "run"
+        if section not in groups:  # one block per section of config.json, so --help reads as the reference does
+            groups[section] = parser.add_argument_group(f"settings: {titles.get(section, 'run')}")
         name = path[-1]
         text = docs.get(name, "").replace("%", "%%")
         node: Any = values
@@ -91,7 +103,7 @@ def _add_config_flags(parser: argparse.ArgumentParser, env: str, algo: str, base
             kwargs.update(type=int, nargs="+", metavar="N")
         else:
             kwargs["type"] = tp
-        parser.add_argument(_flag(name), **kwargs)
+        groups[section].add_argument(_flag(name), **kwargs)
 
 
 def _config_file(argv: Sequence[str]) -> tuple[dict[str, Any], Any]:
