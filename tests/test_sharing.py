@@ -9,7 +9,7 @@ import pytest
 import torch
 
 import taskrl
-from helpers import small_run
+from helpers import run_cli, small_run
 from taskrl.agents.dqn import DQNAgent, DQNConfig
 from taskrl.agents.sac import SACAgent, SACConfig
 from taskrl.config import TrainConfig, validate, with_overrides
@@ -418,3 +418,13 @@ def test_a_grid_run_under_capacity_stores_every_step_it_collected(tmp_path):
     assert int(last["replay_evicted"]) == 0 and int(last["replay_episodes"]) == episodes.num_episodes - int(cut.sum())
     # episodes end early: more of them than rows of the grid's 30-step horizon the run's steps would fill
     assert episodes.num_episodes > (4_000 + 2 * run.config.num_envs * 30) / 30
+
+
+def test_a_recent_window_mixes_with_task_balanced_sampling_and_is_refused_beside_a_strategy(tmp_path, capsys):
+    code, _, err = run_cli(capsys, "train", "grid-sharing-dqn", "--recent-fraction", "0.3", "--out", str(tmp_path / "refused"))
+    assert code == 2 and "--recent-fraction does not combine with --sharing all" in err
+    assert not (tmp_path / "refused").exists()
+    run = small_run(
+        "grid-sharing-dqn", tmp_path / "mixed", sharing="none", recent_fraction=0.3, total_steps=600, eval_interval=300
+    )
+    assert run.metrics["updates"] > 0

@@ -288,7 +288,9 @@ def build(config: TrainConfig, source: Any = None) -> RunParts:
             )
             parts.relabel = make_relabeler(config, env)
             if config.sampling == "task_balanced":
-                parts.sampler = parts.sharing = _task_sharing(config, env, agent, parts.replay)
+                # a recent window mixes with plain task-balanced draws (validate() refuses it beside a strategy)
+                sharing = _task_sharing(config, env, agent, parts.replay) if config.recent_fraction == 0 else None
+                parts.sampler = parts.sharing = sharing
                 if parts.sampler is None:
                     parts.sampler = TaskBalancedSampler(parts.replay, len(env.task_set))
             if config.recent_fraction > 0:
