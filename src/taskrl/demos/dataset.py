@@ -68,8 +68,9 @@ def _minari():
         from minari.data_collector.episode_buffer import EpisodeBuffer
         from minari.dataset.minari_storage import MinariStorage
     except ImportError as error:
-        raise ImportError(
-            f"demonstration datasets need the `imitation` extra (minari, h5py): pip install 'taskrl[imitation]' ({error})"
+        raise ConfigError(
+            "dataset",
+            f"demonstration datasets need the `imitation` extra (minari, h5py): pip install 'taskrl[imitation]' ({error})",
         ) from None
     return MinariStorage, EpisodeBuffer
 

@@ -79,7 +79,9 @@ def _metaworld_expert(env: Any) -> Expert:
     try:
         from metaworld.policies import ENV_POLICY_MAP
     except ImportError as error:
-        raise ImportError(f"Meta-World experts need the `metaworld` extra: pip install 'taskrl[metaworld]' ({error})") from None
+        raise ConfigError(
+            "source", f"Meta-World experts need the `metaworld` extra: pip install 'taskrl[metaworld]' ({error})"
+        ) from None
     from taskrl.envs.metaworld_tasks import metaworld_id
 
     names = env.task_set.names

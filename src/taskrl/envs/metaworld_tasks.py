@@ -36,7 +36,7 @@ import torch
 
 from taskrl.envs.gymnasium_adapter import VECTOR_STRATEGIES, GymnasiumVectorEnv, VectorStrategy
 from taskrl.envs.spec import EnvFamily, EnvRequest
-from taskrl.errors import one_of, require
+from taskrl.errors import ConfigError, one_of, require
 from taskrl.tasks import TaskSet
 
 __all__ = [
@@ -463,8 +463,8 @@ class MetaWorldMultiTaskEnv(GymnasiumVectorEnv):
             raise ValueError(f"num_goals must be an integer >= 1, got {num_goals!r}")
         try:
             import metaworld
-        except ImportError as e:
-            raise ImportError(_INSTALL_HINT) from e
+        except ImportError:
+            raise ConfigError("env", _INSTALL_HINT) from None
         self.use_one_hot = use_one_hot
         self.envs_per_task = envs_per_task
         if not isinstance(success_hold, int) or success_hold < 0:
