@@ -182,6 +182,15 @@ def _bc_agent(demos, **settings) -> BCAgent:
     return BCAgent(inputs, BCConfig(hidden_sizes=(64, 64), **settings), "cpu", conditioning)
 
 
+def test_the_state_normaliser_is_fit_on_the_training_tasks_only(point_demos):
+    demos = read_demonstrations(point_demos)
+    agent = _bc_agent(demos, held_out_tasks="centre")
+    agent.use_dataset(demos)
+    training = demos.without_tasks(["centre"]).observations
+    assert torch.allclose(agent.inputs.normalize.mean, training.mean(0), atol=1e-5)
+    assert not torch.allclose(agent.inputs.normalize.mean, demos.observations.mean(0), atol=1e-3)
+
+
 @pytest.mark.slow
 def test_language_regression_pulls_each_demo_embedding_to_its_task(point_demos):
     torch.manual_seed(0)

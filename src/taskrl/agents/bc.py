@@ -166,11 +166,10 @@ class BCAgent(Agent):
 
     # ---------------------------------------------------------------- data
     def use_dataset(self, demos: Any) -> Any:
-        """Fit the state normaliser to the dataset, keep one prompt demonstration per task (its first), and
-        return the sampler of the batches this agent learns from (stratified over tasks)."""
+        """Keep one prompt demonstration per task (its first), fit the state normaliser to the training tasks'
+        demonstrations (held-out tasks excluded), and return the sampler of the batches this agent learns from (stratified over tasks)."""
         from taskrl.demos.sampling import DemoSampler, prompt_frames
 
-        self.inputs.update_statistics({"observation": demos.observations.to(self.device)})
         with torch.no_grad():
             self.prompt_demos.copy_(prompt_frames(demos, self.config.demo_frames))
         self._contexts = None
@@ -180,6 +179,8 @@ class BCAgent(Agent):
             demos = demos.without_tasks(held_out)
             if demos.num_episodes == 0:
                 raise ConfigError("held_out_tasks", "holds out every task of the dataset: nothing is left to train on")
+        # the training tasks' states only: a held-out task's states are unseen until it is prompted
+        self.inputs.update_statistics({"observation": demos.observations.to(self.device)})
         return DemoSampler(demos.to(self.device), chunk=self.config.chunk, frames=frames_per_prompt)
 
     # ---------------------------------------------------------------- contexts
