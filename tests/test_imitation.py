@@ -271,6 +271,24 @@ def test_held_out_tasks_are_not_trained_on_and_are_evaluated_by_prompt(point_dem
     assert said["matched"]["task"] == "centre" and said["tasks"]["centre"]["prompt"] == "Go to the middle."
 
 
+@pytest.mark.slow
+@pytest.mark.timeout(300)
+def test_zero_shot_controls_fail_where_the_prompt_carries_the_task(point_demos, tmp_path):
+    """On tasks it trained on, a language-prompted policy succeeds by description; prompted with nothing, or as
+    another task, it goes elsewhere: the controls a zero-shot figure is read against."""
+    small_run("pointreach-mt-bc", tmp_path / "run", dataset=str(point_demos), task_encoder="language")
+    tasks = ["top-left", "top-right", "bottom-left", "bottom-right"]
+    told = evaluate_prompted(tmp_path / "run", tasks=tasks, prompt="description", episodes=10)
+    other = evaluate_prompted(tmp_path / "run", tasks=tasks, prompt="other-task", episodes=10)
+    nothing = evaluate_prompted(tmp_path / "run", tasks=tasks, prompt="none", episodes=10)
+    assert told["success_rate"] >= 0.9
+    assert other["success_rate"] <= 0.1 and nothing["success_rate"] <= 0.5
+    assert other["tasks"]["top-left"]["prompt"] == told["tasks"]["top-right"]["prompt"]  # told the next task
+    assert nothing["tasks"]["top-left"]["prompt"] == "(null prompt)"
+    with pytest.raises(ConfigError, match="name two tasks or more"):
+        evaluate_prompted(tmp_path / "run", tasks=["top-left"], prompt="other-task", episodes=1)
+
+
 def test_a_sentence_names_the_meta_world_task_it_describes():
     from taskrl.envs.metaworld_tasks import METAWORLD_DESCRIPTIONS, METAWORLD_PARAPHRASES
     from taskrl.prompting import nearest_task

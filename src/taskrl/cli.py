@@ -318,7 +318,12 @@ def cmd_eval(argv: Sequence[str]) -> int:
     prompted.add_argument(
         "--task", default=None, metavar="SENTENCE", help="evaluate the task this sentence names, prompted with it"
     )
-    prompted.add_argument("--prompt", default="description", help="description, paraphrase or demo (default description)")
+    prompted.add_argument(
+        "--prompt",
+        default="description",
+        help="description, paraphrase or demo (default description); the controls: none (a null prompt) and "
+        "other-task (each task prompted as another evaluated one)",
+    )
     prompted.add_argument("--dataset", default=None, help="demonstrations for --prompt demo (default the run's dataset)")
     args = _parse(parser, argv)
     if args.episodes < 1:

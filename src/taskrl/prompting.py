@@ -6,7 +6,13 @@ task it never trained on. :func:`evaluate_prompted` builds an env of those tasks
 
 - ``description``: the sentence embedding of the task's description;
 - ``paraphrase``: of another wording of it, never seen in training (the family's ``task_sentences``);
-- ``demo``: the demo encoder's embedding of one demonstration of the task (the dataset's first).
+- ``demo``: the demo encoder's embedding of one demonstration of the task (the dataset's first);
+
+and two controls, for what a zero-shot figure owes to its prompt:
+
+- ``none``: a null prompt (a zero context), the policy told nothing of the task;
+- ``other-task``: each task prompted as another of the evaluated tasks (the next one in order: its
+  description under language input, its demonstration under demo input).
 
 ``sentence=`` evaluates whatever task a free sentence names (``taskrl eval RUN --task "open the
 drawer"``): the env runs the task whose known sentences are nearest to it (cosine of sentence
@@ -29,8 +35,8 @@ from taskrl.training.per_task import evaluate_per_task
 
 __all__ = ["PROMPTS", "evaluate_prompted", "nearest_task"]
 
-PROMPTS = ("description", "paraphrase", "demo")
-Prompt = Literal["description", "paraphrase", "demo"]
+PROMPTS = ("description", "paraphrase", "demo", "none", "other-task")
+Prompt = Literal["description", "paraphrase", "demo", "none", "other-task"]
 
 
 def nearest_task(sentence: str, sentences: dict[str, list[str]]) -> tuple[str, float]:
@@ -63,7 +69,8 @@ def evaluate_prompted(
         run_dir: a run of a prompted algorithm (``--algo bc`` with language or demo input).
         tasks: task names of the run's env family.
         sentence: a free sentence instead of ``tasks``: the task it names is run, prompted with it.
-        prompt: ``description``, ``paraphrase`` (the first other wording the family ships) or ``demo``.
+        prompt: ``description``, ``paraphrase`` (the first other wording the family ships), ``demo``, or the
+            controls ``none`` (a null prompt) and ``other-task`` (each task prompted as the next evaluated one).
         dataset: where demonstrations of the tasks are (``demo``; default the run's dataset).
         episodes: episodes per task.
         seed: evaluation seed (default the run's evaluation seed).
@@ -103,6 +110,8 @@ def evaluate_prompted(
         unknown = [n for n in tasks if n not in known]
         if unknown:
             raise ConfigError("tasks", f"unknown task {unknown[0]!r} for {config.env}; allowed: {', '.join(known)}")
+        if prompt == "other-task" and len(tasks) < 2:
+            raise ConfigError("prompt", "other-task prompts each task as another evaluated task: name two tasks or more")
         if prompt == "paraphrase":
             missing = [n for n in tasks if len(known[n]) < 2]
             if missing:
@@ -110,12 +119,21 @@ def evaluate_prompted(
             said = [known[n][1] for n in tasks]
         else:
             said = [known[n][0] for n in tasks]
-    if prompt == "demo":
+        if prompt == "other-task":  # task i is told task i + 1's description
+            said = said[1:] + said[:1]
+    demo_input = getattr(agent, "demo_encoder", None) is not None
+    if prompt == "none":
+        agent.prompt_with_nothing(len(tasks))
+        said = ["(null prompt)"] * len(tasks)
+    elif prompt == "demo" or (prompt == "other-task" and demo_input):
         from taskrl.demos.dataset import read_demonstrations
         from taskrl.demos.sampling import prompt_frames
 
-        demos = read_demonstrations(dataset or config.algo_settings.dataset, agent.device).select_tasks(tasks)
+        shown = tasks[1:] + tasks[:1] if prompt == "other-task" else tasks
+        demos = read_demonstrations(dataset or config.algo_settings.dataset, agent.device).select_tasks(shown)
         agent.prompt_with_demos(prompt_frames(demos, agent.config.demo_frames))  # each task's first demonstration
+        if prompt == "other-task":
+            said = [f"one demonstration of {name}" for name in shown]
     else:
         agent.prompt_with_descriptions(said)
     seed = config.seed + EVAL_SEED_OFFSET if seed is None else seed

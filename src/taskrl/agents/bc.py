@@ -231,6 +231,15 @@ class BCAgent(Agent):
         self.prompts = self.demo_context(frames)
         self._ensemble = None
 
+    @torch.no_grad()
+    def prompt_with_nothing(self, tasks: int) -> None:
+        """Act on ``tasks`` tasks told nothing of them: a zero context each (the null-prompt control)."""
+        contexts = self.training_contexts()
+        if contexts is None:
+            raise ConfigError("prompt", "a null prompt needs a policy told its task by an embedding (language or demo input)")
+        self.prompts = torch.zeros(tasks, contexts.shape[1], device=self.device)
+        self._ensemble = None
+
     def reset_prompts(self) -> None:
         """Act on the training tasks again."""
         self.prompts, self._ensemble = None, None
