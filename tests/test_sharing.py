@@ -162,16 +162,32 @@ def test_random_draws_from_k_other_tasks_per_batch():
 
 
 def test_hipi_weights_are_the_posterior_with_its_partition_term():
+    """Against an independent computation: each stored episode's return under every task summed step by step
+    from the env's reward functions, then q(j | e) = exp(R_j(e)/T - log Z_j) / sum_j' exp(R_j'(e)/T - log Z_j'),
+    log Z_j = log sum_e exp(R_j(e)/T), in float64 (the hindsight inverse-RL posterior over trajectories)."""
     env, replay = filled_replay(PointTasks, steps=400)
-    sharing = TaskSharing(replay, env, env.num_tasks, SharingConfig(sharing="hipi", hipi_temperature=0.5))
+    temperature = 0.5
+    sharing = TaskSharing(replay, env, env.num_tasks, SharingConfig(sharing="hipi", hipi_temperature=temperature))
     source = replay.first_observations("task").long()
     weights = sharing.shared_weights(source, None)
     stored = replay.stored_episodes()
-    returns = sharing.scores.returns[stored] / 0.5  # R_j(e) / T
-    log_z = torch.logsumexp(returns, 0)
-    posterior = torch.softmax(returns - log_z, 1)
+    flat = replay.episodes()  # the stored episodes, oldest first, read back flat
+    returns = torch.zeros(len(flat.lengths), env.num_tasks, dtype=torch.float64)
+    obs_at = step_at = 0
+    for e, length in enumerate(flat.lengths.tolist()):
+        for t in range(length):
+            obs = {k: v[obs_at + t : obs_at + t + 1] for k, v in flat.obs.items()}
+            next_obs = {k: v[obs_at + t + 1 : obs_at + t + 2] for k, v in flat.obs.items()}
+            action = flat.action[step_at + t : step_at + t + 1]
+            for j in range(env.num_tasks):
+                returns[e, j] += float(env.task_reward(obs, action, next_obs, torch.tensor([j])))
+        obs_at, step_at = obs_at + length + 1, step_at + length
+    scaled = returns / temperature
+    log_z = torch.log(torch.exp(scaled).sum(0))  # over episodes, per task
+    unnormalised = torch.exp(scaled - log_z)
+    posterior = unnormalised / unnormalised.sum(1, keepdim=True)
     other = source[stored, None] != torch.arange(env.num_tasks)
-    assert torch.allclose(weights[:, stored].t(), posterior * other, atol=1e-6)
+    assert torch.allclose(weights[:, stored].t().double(), posterior * other, atol=1e-5)
     assert bool((returns > 0).any())  # some episodes score under some task
 
 
