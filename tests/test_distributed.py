@@ -160,6 +160,9 @@ def test_the_loop_keeps_the_update_to_data_ratio_and_a_bounded_queue(tmp_path):
             assert row["updates_per_env_step"] == pytest.approx(config.updates_per_step, rel=0.05), row
     assert rows[-1]["updater/targets_per_s"] > 0 and rows[-1]["stored_episodes"] <= parts.replay.episodes_added
     assert parts.replay.num_transitions == state.env_steps  # every collected step is stored (flushed at the end)
+    # targets computed with weights some updates old, and how old, in every row
+    assert all(0 <= r["target_staleness"] <= r["target_staleness_max"] for r in rows)
+    assert any(r["target_staleness_max"] >= 1 for r in rows)
     parts.close()
 
 

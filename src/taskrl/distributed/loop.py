@@ -129,6 +129,7 @@ class RoleMeters:
         self.label_seconds = [0.0] * self.updaters
         self.queue_depth = self.queue_samples = 0
         self.lag = self.lag_samples = 0
+        self.staleness = self.staleness_max = self.staleness_samples = 0
 
     def row(self, elapsed: float) -> dict[str, float]:
         """The row's per-role columns (see docs/distributed.md), then a fresh start."""
@@ -140,6 +141,8 @@ class RoleMeters:
             for j, (n, s) in enumerate(zip(self.targets, self.label_seconds)):
                 out[f"updater{j}/targets_per_s"] = n / s if s > 0 else 0.0
             out["queue_depth"] = self.queue_depth / max(self.queue_samples, 1)
+            out["target_staleness"] = self.staleness / max(self.staleness_samples, 1)
+            out["target_staleness_max"] = self.staleness_max
         out["weight_lag"] = self.lag / max(self.lag_samples, 1)
         out["collector_restarts"] = self.collector_restarts
         if self.updaters:
@@ -320,6 +323,10 @@ class DistributedLoop:
                 self.meters.queue_depth += len(self.labelled)
                 self.meters.queue_samples += 1
                 got = self.labelled.popleft()
+                stale = self.agent.updates - got.version  # updates since the weights behind these targets
+                self.meters.staleness += stale
+                self.meters.staleness_max = max(self.meters.staleness_max, stale)
+                self.meters.staleness_samples += 1
                 metrics = self.agent.regress(got.batch.to(device), got.target.to(device))
             else:
                 metrics = self.agent.update(self.sample_batch())
