@@ -468,6 +468,7 @@ def _role_pids(name: str) -> list[int]:
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(900)  # about 2 minutes on 2 idle cores; 13 on cores shared with two benchmark runs
 @ON_RAY
 def test_distributed_qtopt_survives_killed_roles_and_reaches_the_in_process_success(tmp_path):
     """The settings and goal of tests/test_learning.py's in-process run, on 2 collectors and 1 updater, with a
