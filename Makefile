@@ -28,7 +28,7 @@ lint: $(STAMP)
 
 # the documentation site, strictly: a broken link or an undocumented docstring parameter fails
 docs: $(STAMP)
-	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict -q
+	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict
 
 # the suite in TEST_WORKERS processes (tests that start Ray share one: tests/test_distributed.py's ON_RAY)
 test: lint docs
