@@ -340,11 +340,17 @@ class DistributedLoop:
 
     # ---------------------------------------------------------------- the loop
     def wait(self) -> None:
-        """Nothing to do: wait for the first role call to come back (or a short while)."""
-        if self.collect_calls:
-            self.harvest(self.collectors.ready(list(self.collect_calls), IDLE_WAIT))
-        elif self.label_calls:
-            self.take_labels(IDLE_WAIT)
+        """Nothing to do: wait for the first role call of either kind to come back (or a short while), so
+        labels that are ready never wait on a collect call still running."""
+        if not self.collect_calls:
+            if self.label_calls:
+                self.take_labels(IDLE_WAIT)
+            return
+        # one wait over both kinds of call (the pools' handles are of one kind: Ray object refs, or done calls)
+        ready = self.collectors.ready([*self.collect_calls, *self.label_calls], IDLE_WAIT)
+        self.harvest([h for h in ready if h in self.collect_calls])
+        if any(h in self.label_calls for h in ready):
+            self.take_labels(0.0)
 
     def finish(self) -> None:
         """Keep every transition collected: the calls in flight, then each collector's running episodes."""
