@@ -22,7 +22,8 @@ class UpdateToDataLimiter:
         ratio: gradient updates per env step (``updates_per_step``).
         learning_starts: env steps before the first online update.
         offline_updates: updates on preloaded data before collection starts.
-        lead_steps: env steps collection may run ahead of the trainer (one round of collect calls).
+        lead_steps: env steps collection may run ahead of the trainer (the distributed loop passes two
+            rounds of collect calls: ``CALLS_PER_COLLECTOR`` calls of every collector).
         enabled: False lets both run as fast as they can (updates still wait for ``learning_starts``).
     """
 
