@@ -15,37 +15,12 @@ import time
 
 
 def one(variant: str, batch: int, width: int) -> dict:
-    import gymnasium as gym
     import torch
-    from stable_baselines3 import DQN, HerReplayBuffer
-    from stable_baselines3.common.env_util import make_vec_env
-    from stable_baselines3.common.envs import BitFlippingEnv
+
+    from her_bitflip import sb3_model  # the harness's own SB3 settings (its budget of 10k gives epsilon's full decay)
 
     torch.set_num_threads(1)
-    if variant == "sb3env":
-        make = lambda: BitFlippingEnv(n_bits=15, continuous=False, max_steps=15)
-    else:
-        import taskrl  # noqa: F401  (registers taskrl/BitFlip-v0)
-
-        make = lambda: gym.make("taskrl/BitFlip-v0", n_bits=15)
-    model = DQN(
-        "MultiInputPolicy",
-        make_vec_env(make, n_envs=2, seed=0),
-        replay_buffer_class=HerReplayBuffer,
-        replay_buffer_kwargs=dict(n_sampled_goal=4, goal_selection_strategy="future"),
-        learning_rate=2e-3,
-        train_freq=1,
-        gradient_steps=2,
-        learning_starts=100,
-        exploration_final_eps=0.05,
-        exploration_fraction=1.0,
-        target_update_interval=100,
-        batch_size=batch,
-        buffer_size=int(1e5),
-        policy_kwargs=dict(net_arch=[width, width]),
-        seed=0,
-        verbose=0,
-    )
+    model = sb3_model(15, 0, 10_000, batch_size=batch, net_arch=(width, width), own_env=variant == "sb3env")
     model.learn(2000)  # warm-up
     updates, start = model._n_updates, time.perf_counter()
     model.learn(8000, reset_num_timesteps=False)

@@ -56,7 +56,7 @@ def test_every_readme_command_parses(args, capsys):
     try:
         code, out, err = run_cli(capsys, *parse_only(args))
     except SystemExit as done:  # argparse's --help
-        (code, out, err), _ = (done.code, *capsys.readouterr()), None
+        code, (out, err) = done.code, capsys.readouterr()
     assert code in (0, None), err
     assert out.strip()
 

@@ -6,9 +6,7 @@ written once and reads the same from the command line (one line, exit code 2) an
 
 from __future__ import annotations
 
-from typing import Any
-
-__all__ = ["ConfigError", "one_of", "reason", "require", "require_module"]
+__all__ = ["ConfigError", "one_of", "reason", "require"]
 
 
 class ConfigError(ValueError):
@@ -39,14 +37,3 @@ def reason(error: BaseException, limit: int = 120) -> str:
     one-line message quotes of a library's error."""
     text = str(error).strip()
     return text.splitlines()[0][:limit] if text else type(error).__name__
-
-
-def require_module(module: str, extra: str, field: str, what: str) -> Any:
-    """``import module``, or a :class:`ConfigError` on ``field`` naming the optional extra that installs it
-    (``what`` says what needs it), instead of an ImportError traceback."""
-    import importlib
-
-    try:
-        return importlib.import_module(module)
-    except ImportError as error:
-        raise ConfigError(field, f"{what} needs the `{extra}` extra: pip install -e '.[{extra}]' ({reason(error, 80)})") from None
