@@ -27,7 +27,7 @@ HERE = Path(__file__).parent
 sys.path.insert(0, str(HERE))
 os.environ["PYTHONPATH"] = os.pathsep.join([str(HERE), os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep)  # role processes
 import taskrl  # noqa: E402
-import taskrl.run  # noqa: E402
+import taskrl.wiring.calls  # noqa: E402
 from common import append_results  # noqa: E402
 from taskrl.logger import read_metrics  # noqa: E402
 
@@ -98,7 +98,7 @@ def fetchreach(args: argparse.Namespace, folder: Path) -> str:
                 "env_steps": last["env_steps"],
                 "updates": last["updates"],
                 "final_success": last["success_rate"],
-                "learning_starts": taskrl.run.resolve_config("fetchreach-qtopt-her", None, {}).learning_starts,
+                "learning_starts": taskrl.wiring.calls.resolve_config("fetchreach-qtopt-her", None, {}).learning_starts,
                 "env_steps_to_90": steps_90,
                 "training_seconds_to_90": seconds_90,
                 "process_seconds": round(wall, 1),

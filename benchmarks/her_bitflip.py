@@ -31,8 +31,8 @@ import torch
 import taskrl
 from common import append_results, median_table, sb3_learn_until, taskrl_learn_until
 from taskrl.envs import BitFlip
-from taskrl.run import EVAL_SEED_OFFSET
 from taskrl.training.evaluation import evaluate
+from taskrl.wiring.parts import EVAL_SEED_OFFSET
 
 
 def taskrl_time_to_success(n_bits: int, seed: int, budget: int, eval_interval: int, target: float) -> dict:
@@ -104,7 +104,7 @@ def updates_per_second(batch_size: int, hidden: tuple[int, ...], n_bits: int = 1
     from taskrl.config import with_overrides
     from taskrl.presets import preset_config
     from taskrl.replay import EpisodeReplay
-    from taskrl.run import make_agent, make_env, make_relabeler
+    from taskrl.wiring.parts import make_agent, make_env, make_relabeler
 
     cfg = with_overrides(
         preset_config("bitflip-her"), {"n_bits": n_bits, "batch_size": batch_size, "hidden_sizes": tuple(hidden)}

@@ -24,8 +24,8 @@ import torch
 
 from common import append_results, median_table, sb3_learn_until, taskrl_learn_until
 from taskrl.envs import GymnasiumGoalEnv
-from taskrl.run import EVAL_SEED_OFFSET
 from taskrl.training.evaluation import evaluate
+from taskrl.wiring.parts import EVAL_SEED_OFFSET
 
 ENV_ID = "FetchReach-v4"
 

@@ -57,8 +57,8 @@ import torch
 import taskrl
 from common import alternating_blocks, append_results, fresh_compile_cache, sb3_learn_until, taskrl_learn_until
 from taskrl.replay.batch import Batch
-from taskrl.run import EVAL_SEED_OFFSET
 from taskrl.training.evaluation import evaluate
+from taskrl.wiring.parts import EVAL_SEED_OFFSET
 
 RESULTS_DIR = Path(__file__).with_name("results")
 
@@ -331,7 +331,7 @@ def bitflip_replay(settings: dict, steps: int = 4_000):
 def bitflip_agent_and_batch(batch_size: int, hidden: tuple[int, ...], double_q: bool):
     """A DQN agent at the equal-work settings (or with double-Q) and one relabelled batch from a filled replay,
     with the cost of sampling + relabelling that batch."""
-    from taskrl.run import make_agent, make_relabeler
+    from taskrl.wiring.parts import make_agent, make_relabeler
 
     settings = {**DQN_EQUAL, "batch_size": batch_size, "hidden_sizes": hidden, "double_q": double_q}
     cfg, env, replay = bitflip_replay(settings)

@@ -17,9 +17,11 @@ from taskrl.distributed.loop import IDLE_WAIT, DistributedLoop
 from taskrl.distributed.pools import LocalPool
 from taskrl.distributed.roles import BellmanUpdater, Labelled, pull_weights
 from taskrl.presets import preset_config
-from taskrl.run import build, preload_replay, role_agent
+from taskrl.run import build
+from taskrl.runmodes.distributed import role_agent
 from taskrl.training.bookkeeping import Bookkeeping, LoopState
 from taskrl.training.offpolicy import batch_sampler
+from taskrl.wiring.stored_data import preload_replay
 
 
 class SleepyUpdater(BellmanUpdater):

@@ -25,9 +25,11 @@ from taskrl.distributed.roles import BellmanUpdater, Collector
 from taskrl.logger import read_metrics
 from taskrl.presets import preset_config
 from taskrl.replay import EpisodeRecorder, EpisodeReplay, RecentMixSampler
-from taskrl.run import build, collector_env, make_evaluator, role_agent
+from taskrl.run import build
+from taskrl.runmodes.distributed import collector_env, role_agent
 from taskrl.training.bookkeeping import Bookkeeping, LoopState
 from taskrl.training.offpolicy import batch_sampler
+from taskrl.wiring.parts import make_evaluator
 
 #: tests that start Ray or look for its role processes: one after another in one test worker (``make test`` runs
 #: two), so two local clusters never share the 2 CPUs and a SIGKILL never reaches another test's roles
@@ -138,6 +140,21 @@ def _local_loop(tmp_path, config, updaters: int, evaluated: bool = False):
         parts.agent, parts.replay, sample, collectors, pool, config.cluster, config.total_steps, limiter, each, books
     )
     return loop, rows, parts
+
+
+@pytest.mark.timeout(120)
+def test_updates_are_owed_from_the_first_stored_episode_not_from_learning_starts(tmp_path):
+    """learning_starts below the end of the first episodes: no update can be made before an episode is stored,
+    so none is owed (else collection waits for updates that wait for an episode, for ever)."""
+    config = _config(num_envs=2, learning_starts=0, collector_steps=4, total_steps=160, batch_size=8, hidden_sizes=(16,))
+    loop, rows, parts = _local_loop(tmp_path, config, updaters=0)
+    state = loop.run()
+    parts.close()
+    horizon = parts.env.horizon
+    assert state.env_steps >= 160
+    # owed from the first stored episode on (the run's copies end theirs together), updates_per_step per env step
+    first = config.num_envs * (horizon - 1)
+    assert 0 < state.updates <= config.updates_per_step * (state.env_steps - first) + 1
 
 
 @pytest.mark.slow

@@ -189,7 +189,7 @@ def test_multitask_run_with_one_hot_solves_every_region(tmp_path):
     assert run.metrics["success_rate"] >= 0.9, per_task
     assert min(t["success_rate"] for t in per_task["tasks"].values()) >= 0.75
     assert run.metrics["success/centre"] == per_task["tasks"]["centre"]["success_rate"]
-    again = taskrl.run.evaluate_run(tmp_path / "run", episodes=5)
+    again = taskrl.evaluate_run(tmp_path / "run", episodes=5)
     assert again["success_rate"] >= 0.8 and "success/top-left" in again
 
 

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 import taskrl
+from taskrl.errors import ConfigError
 from helpers import cli, metrics
 from taskrl.cli import main
 
@@ -179,6 +180,22 @@ def test_many_seeds_into_one_folder_and_plot_matches_their_metrics(tmp_path, cap
         assert float(summary["median_env_steps_to_threshold"]) == pytest.approx(
             hit[len(hit) // 2] if len(hit) % 2 else (hit[len(hit) // 2 - 1] + hit[len(hit) // 2]) / 2
         )
+
+
+def test_train_seeds_in_python_trains_each_seed_in_turn_and_compares_them(tmp_path):
+    small = {"n_bits": 4, "total_steps": 200, "eval_interval": 100, "eval_episodes": 5, "tensorboard": False}
+    result = taskrl.train_seeds("bitflip-her", [3, 4], out=tmp_path / "seeds", **small)
+    assert sorted(result.runs) == [3, 4] and not result.failed
+    assert [run.config.seed for run in result.runs.values()] == [3, 4]
+    assert [run.run_dir.name for run in result.runs.values()] == ["seed_3", "seed_4"]
+    finals = [float(metrics(run.run_dir)[-1]["success_rate"]) for run in result.runs.values()]
+    assert result.summary[0]["final_success"] == pytest.approx(sum(finals) / 2)
+    assert result.plot.stat().st_size > 10_000
+    with pytest.raises(ConfigError, match="seeds"):
+        taskrl.train_seeds("bitflip-her", [1, 1], out=tmp_path / "twice", **small)
+    with pytest.raises(ConfigError, match="lr"):  # checked before any run starts: nothing is written
+        taskrl.train_seeds("bitflip-her", [1, 2], out=tmp_path / "bad", lr=-1.0, **small)
+    assert not (tmp_path / "bad").exists() and not (tmp_path / "twice").exists()
 
 
 @pytest.mark.slow

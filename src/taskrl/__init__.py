@@ -19,16 +19,23 @@ def train(*args, **kwargs):
     return _train(*args, **kwargs)
 
 
+def train_seeds(*args, **kwargs):
+    """See :func:`taskrl.seeds.train_seeds` (one run per seed, then their comparison)."""
+    from taskrl.seeds import train_seeds as _train_seeds
+
+    return _train_seeds(*args, **kwargs)
+
+
 def load(*args, **kwargs):
-    """See :func:`taskrl.run.load`."""
-    from taskrl.run import load as _load
+    """See :func:`taskrl.loading.load`."""
+    from taskrl.loading import load as _load
 
     return _load(*args, **kwargs)
 
 
 def evaluate_run(*args, **kwargs):
-    """See :func:`taskrl.run.evaluate_run`."""
-    from taskrl.run import evaluate_run as _evaluate_run
+    """See :func:`taskrl.loading.evaluate_run`."""
+    from taskrl.loading import evaluate_run as _evaluate_run
 
     return _evaluate_run(*args, **kwargs)
 
@@ -47,4 +54,4 @@ def load_policy(*args, **kwargs):
     return _load_policy(*args, **kwargs)
 
 
-__all__ = ["train", "load", "load_policy", "evaluate_run", "evaluate_prompted", "__version__"]
+__all__ = ["train", "train_seeds", "load", "load_policy", "evaluate_run", "evaluate_prompted", "__version__"]

@@ -152,7 +152,7 @@ def _active_sections(argv: Sequence[str], file_base: Any = None, file_settings: 
     peek.add_argument("--env-module")
     known, _ = peek.parse_known_args(argv)
     if known.env_module:  # it may register env families and algorithms the flags below name
-        from taskrl.run import import_env_module
+        from taskrl.wiring.calls import import_env_module
 
         import_env_module(known.env_module)
     for flag, value, allowed in (("--env", known.env, ENV_FAMILIES), ("--algo", known.algo, ALGORITHMS)):
@@ -253,21 +253,18 @@ def cmd_train(argv: Sequence[str]) -> int:
     if resume is not None and out is not None:
         raise UsageError("--out does not apply with --resume (a run continues in its own directory)")
     seeds, parallel = args.pop("seeds"), args.pop("parallel")
-    if seeds is not None:
-        if preset is None or resume is not None:
-            raise UsageError("--seeds starts new runs of a preset (resume each seed's run directory on its own)")
-        if parallel < 1:
-            raise UsageError(f"--parallel must be >= 1 (got {parallel})")
-        if "seed" in args:
-            raise UsageError("give --seeds or --seed, not both")
-        if print_config:
-            raise UsageError("--print-config prints one run's settings; drop --seeds")
-        return _train_seeds(argv, preset, seeds, parallel, out)
     if "hidden_sizes" in args:
         args["hidden_sizes"] = tuple(args["hidden_sizes"])
     args = {**file_settings, **args}  # flags override the file
+    if seeds is not None:
+        if preset is None or resume is not None:
+            raise UsageError("--seeds starts new runs of a preset (resume each seed's run directory on its own)")
+        if print_config:
+            raise UsageError("--print-config prints one run's settings; drop --seeds")
+        return _train_seeds(preset, seeds, parallel, out, progress, tensorboard, wandb, log_every, file_base, args)
 
-    from taskrl.run import resolve_config, train
+    from taskrl.run import train
+    from taskrl.wiring.calls import resolve_config
 
     if print_config:
         from taskrl.config import to_dict, validate
@@ -332,7 +329,7 @@ def cmd_eval(argv: Sequence[str]) -> int:
         raise UsageError(f"--video must be >= 0 episodes (got {args.video})")
     if args.held_out or args.tasks or args.task:
         return _eval_prompted(args)
-    from taskrl.run import evaluate_run
+    from taskrl.loading import evaluate_run
 
     result = evaluate_run(
         args.run_dir,
@@ -443,73 +440,45 @@ def cmd_plot(argv: Sequence[str]) -> int:
     return 0
 
 
-def _without(argv: Sequence[str], flags: dict[str, Any]) -> list[str]:
-    """``argv`` without the given flags and their values (1 value, or ``many``: the numbers that follow)."""
-    out, i = [], 0
-    while i < len(argv):
-        token = argv[i]
-        name = token.split("=", 1)[0]
-        if name in flags:
-            i += 1
-            if "=" not in token:
-                if flags[name] == "many":
-                    while i < len(argv) and argv[i].lstrip("-").isdigit():
-                        i += 1
-                else:
-                    i += flags[name]
-            continue
-        out.append(token)
-        i += 1
-    return out
-
-
-def _train_seeds(argv: Sequence[str], preset: str, seeds: list[int], parallel: int, out: str | None) -> int:
-    """One run per seed into ``out/seed_<s>`` (in turn, or ``parallel`` processes), then their comparison."""
-    import datetime
-    import subprocess
-    from pathlib import Path
-
+def _train_seeds(
+    preset: str,
+    seeds: list[int],
+    parallel: int,
+    out: str | None,
+    progress: bool,
+    tensorboard: bool,
+    wandb: bool,
+    log_every: float,
+    base: Any,
+    settings: dict[str, Any],
+) -> int:
+    """``--seeds``: :func:`taskrl.seeds.train_seeds`, its comparison table and where it wrote."""
     from rich.console import Console
 
     from taskrl.console import summary_table
-    from taskrl.plots import compare_runs
-    from taskrl.rundir import check_new_run_dir
+    from taskrl.seeds import train_seeds
 
-    folder = check_new_run_dir(out or Path("runs") / f"{preset}-seeds-{datetime.datetime.now():%Y%m%d-%H%M%S}")
-    rest = _without(argv, {"--seeds": "many", "--parallel": 1, "--out": 1, "--seed": 1})
-    folder.mkdir(parents=True, exist_ok=True)
-    commands = [
-        [
-            sys.executable,
-            "-m",
-            "taskrl.cli",
-            "train",
-            *rest,
-            "--seed",
-            str(s),
-            "--out",
-            str(folder / f"seed_{s}"),
-            "--no-progress",
-        ]
-        for s in seeds
-    ]
-    failed, running = [], []
-    for seed, command in zip(seeds, commands):
-        running.append((seed, subprocess.Popen(command)))
-        while len(running) >= parallel:
-            seed_done, proc = running.pop(0)
-            if proc.wait() != 0:
-                failed.append(seed_done)
-    for seed_done, proc in running:
-        if proc.wait() != 0:
-            failed.append(seed_done)
-    runs = [folder / f"seed_{s}" for s in seeds if s not in failed]
-    if runs:
-        summary = compare_runs({preset: runs}, folder / "seeds.png")
-        Console(stderr=True).print(summary_table(summary, f"{preset}: {len(runs)} seeds"))
-        print(f"runs: {folder}  plot: {folder / 'seeds.png'}")
-    if failed:
-        print(f"taskrl train: error: seeds {failed} failed (see their output above)", file=sys.stderr)
+    if "seed" in settings:
+        raise UsageError("give --seeds or --seed, not both")
+    result = train_seeds(
+        preset,
+        seeds,
+        out=out,
+        parallel=parallel,
+        progress=progress and parallel == 1,
+        base=base,
+        tensorboard=tensorboard,
+        wandb=wandb,
+        log_every=log_every,
+        **settings,
+    )
+    if result.runs and not (progress and parallel == 1):
+        Console(stderr=True).print(summary_table(result.summary, f"{preset}: {len(result.runs)} seeds"))
+    if result.plot is not None:
+        print(f"runs: {result.folder}  plot: {result.plot}")
+    if result.failed:
+        for seed, error in result.failed.items():
+            print(f"taskrl train: error: seed {seed}: {error}", file=sys.stderr)
         return 1
     return 0
 

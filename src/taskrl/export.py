@@ -73,7 +73,7 @@ def export_policy(
     """Write the acting part of a run's latest checkpoint to ``out`` (a new or empty directory)."""
     from taskrl import config as config_io
     from taskrl.checkpoint import flatten_state
-    from taskrl.run import load_run
+    from taskrl.loading import load_run
 
     run_dir, out = Path(run_dir), Path(out)
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
@@ -120,7 +120,8 @@ def load_policy(path: str | Path, device: str = "cpu") -> Policy:
     """Read an exported policy (``policy.json`` + ``policy.safetensors``); never executes code."""
     from taskrl.checkpoint import unflatten_state
     from taskrl.config import from_dict
-    from taskrl.run import RunSpaces, make_agent, resolve_device
+    from taskrl.loading import RunSpaces
+    from taskrl.wiring.parts import make_agent, resolve_device
 
     path = Path(path)
     try:

@@ -29,9 +29,10 @@ import torch
 
 from taskrl.envs.registry import env_family
 from taskrl.errors import ConfigError
-from taskrl.run import EVAL_SEED_OFFSET, env_request, load_run, per_task_intervals, use_run_threads
+from taskrl.loading import load_run, per_task_intervals
 from taskrl.training.evaluation import ActingPolicy
 from taskrl.training.per_task import evaluate_per_task
+from taskrl.wiring.parts import EVAL_SEED_OFFSET, env_request, use_run_threads
 
 __all__ = ["PROMPTS", "evaluate_prompted", "nearest_task"]
 

@@ -33,6 +33,11 @@ class UpdateToDataLimiter:
         self.ratio, self.learning_starts, self.offline_updates = ratio, learning_starts, offline_updates
         self.lead_steps, self.enabled = lead_steps, enabled
 
+    def nothing_to_sample(self, env_steps: int) -> None:
+        """No batch can be drawn after ``env_steps`` (no episode has ended yet): owe no update for them, as the
+        loop in one process makes none (otherwise collection waits for updates that wait for an episode)."""
+        self.learning_starts = max(self.learning_starts, env_steps)
+
     def owed(self, env_steps: int) -> float:
         """Updates owed after ``env_steps`` collected env steps."""
         return self.offline_updates + self.ratio * max(0, env_steps - self.learning_starts)

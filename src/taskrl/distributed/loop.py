@@ -374,6 +374,8 @@ class DistributedLoop:
         while True:
             if self.collect_calls:
                 self.harvest(self.collectors.ready(list(self.collect_calls), 0.0))
+            if self.replay.num_episodes == 0:
+                self.limiter.nothing_to_sample(state.env_steps)
             self.dispatch(state)
             made = self.learn(state)
             if made == 0 and (state.env_steps < self.total_steps or self.limiter.may_update(state.updates, state.env_steps)):

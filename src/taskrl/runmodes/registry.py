@@ -1,0 +1,52 @@
+"""The run modes, by name: how a run of a config runs (:class:`~taskrl.runmodes.spec.RunMode`).
+
+Each mode is declared in its own file; adding one is that file plus one line in :data:`BUILT_IN`, or
+:func:`register_run_mode` from a user's code. A config runs in the most recently registered mode that
+applies to it, so a more specific mode is registered after a more general one.
+"""
+
+from __future__ import annotations
+
+from taskrl.agents.registry import algorithm
+from taskrl.config import TrainConfig
+from taskrl.errors import ConfigError
+from taskrl.registry import Registry
+from taskrl.runmodes import distributed, in_process, offline
+from taskrl.runmodes.spec import RunMode
+
+__all__ = ["RUN_MODES", "progress_axis", "register_run_mode", "run_mode"]
+
+#: general first: a later mode that applies wins over an earlier one.
+BUILT_IN: tuple[RunMode, ...] = (
+    in_process.OFF_POLICY,
+    in_process.ON_POLICY,
+    offline.DATASET,
+    offline.STORED_DATA,
+    distributed.DISTRIBUTED,
+)
+
+RUN_MODES: Registry[RunMode] = Registry("run_mode", BUILT_IN)
+
+
+def register_run_mode(mode: RunMode, replace: bool = False) -> RunMode:
+    """Make ``mode`` available; configs it ``applies`` to run in it from now on."""
+    return RUN_MODES.register(mode, replace)
+
+
+def run_mode(config: TrainConfig) -> RunMode:
+    """The mode ``config`` runs in; a :class:`ConfigError` on ``algo`` when that mode does not run its algorithm."""
+    loop = algorithm(config.algo).loop
+    for mode in reversed(list(RUN_MODES.values())):
+        if mode.applies(config):
+            if loop not in mode.loops:
+                raise ConfigError(
+                    "algo",
+                    f"{config.algo} learns {loop.replace('_', '-')}; the {mode.name} run mode runs {', '.join(mode.loops)} algorithms",
+                )
+            return mode
+    raise ConfigError("algo", f"no run mode runs {config.algo} ({loop}); registered: {', '.join(RUN_MODES)}")
+
+
+def progress_axis(config: TrainConfig) -> str:
+    """What a run's ``total_steps`` counts: ``env_steps``, or ``updates`` for a run that steps no env."""
+    return run_mode(config).axis

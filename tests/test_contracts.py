@@ -1,0 +1,183 @@
+"""Contracts generated from the registries: every registered env family × algorithm × run mode that
+declares it fits builds, acts, updates, saves and loads; every sharing strategy runs; no two settings
+sections share a flag. A family, algorithm or mode added to a registry is in these tests at once; one
+with nothing here to run it on fails :func:`test_every_registered_family_has_a_smallest_setting`."""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import itertools
+from pathlib import Path
+from typing import Any
+
+import pytest
+import torch
+
+import taskrl
+from taskrl.agents.registry import ALGORITHMS
+from taskrl.config import TrainConfig, check_fit, leaf_fields, with_overrides
+from taskrl.envs.registry import ENV_FAMILIES
+from taskrl.errors import ConfigError
+from taskrl.runmodes import distributed as distributed_mode
+from taskrl.runmodes.registry import RUN_MODES, run_mode
+from taskrl.sharing.settings import SHARING_STRATEGIES
+from taskrl.tasks import TaskSet, TaskSpec
+
+#: env ids for the families built on gymnasium ids, by the algorithm's action space (a task set's envs need
+#: Box observations: CartPole for discrete actions there)
+GYM_IDS = {"discrete": "taskrl/BitFlip-v0", "box": "taskrl/PointReach-v0"}
+TASK_IDS = {"discrete": "CartPole-v1", "box": "taskrl/PointReach-v0"}
+#: families that take minutes to import or build, or need MuJoCo: the slow tier
+HEAVY = {"fetchreach", "fetchpush", "fetchpickandplace", "fetchslide", "mt1", "mt10", "mt50", "ml45"}
+#: each family's smallest settings (a family missing here fails the test below)
+SMALLEST: dict[str, dict[str, Any]] = {
+    "bitflip": {"n_bits": 4},
+    "pointreach": {},
+    "fetchreach": {},
+    "fetchpush": {},
+    "fetchpickandplace": {},
+    "fetchslide": {},
+    "pointreach-mt": {"num_envs": 5},
+    "gridtasks": {"num_envs": 4},
+    "pointtasks": {"num_envs": 4},
+    "mt1": {},
+    "mt10": {"num_envs": 10},
+    "mt50": {"num_envs": 50},
+    "ml45": {"num_envs": 45},
+    "gym": {},
+    "tasks": {"num_envs": 2},
+}
+#: what each run mode needs beyond a family and an algorithm (``None``: not generated here, with the reason)
+MODE_SETTINGS: dict[str, dict[str, Any]] = {
+    "off_policy": {},
+    "on_policy": {"rollout_steps": 4},
+    "dataset": {},  # a dataset of the family's scripted experts: the `demos` fixture
+    "stored_data": {"offline": True, "dataset_quality": "top-left=expert", "dataset_steps": 40},
+    "distributed": {"distributed": True, "collectors": 1, "collector_steps": 4},
+}
+
+
+def _task_set(kind: str) -> TaskSet:
+    return TaskSet([TaskSpec(f"t{i}", f"Task {i}.", i, TASK_IDS[kind], {}) for i in range(2)])
+
+
+def _fits(family: str, algo: str, mode: str) -> bool:
+    """Whether the family, algorithm and mode declare that they run together (before anything is built)."""
+    spec, env = ALGORITHMS[algo], ENV_FAMILIES[family]
+    if spec.loop not in RUN_MODES[mode].loops:
+        return False
+    if mode == "stored_data" and not hasattr(env.settings(), "dataset_quality"):
+        return False  # stored data comes from the family's datasets here (or another run's replay)
+    if mode == "dataset" and family != "pointreach-mt":
+        return False  # the fast tier collects demonstrations of one family; Meta-World's are in test_imitation
+    config = with_overrides(TrainConfig(), {"env": family, "algo": algo, "her": "none"})
+    try:
+        check_fit(config, env.kind, env.actions)
+    except ConfigError:
+        return False
+    return True
+
+
+CASES = [
+    pytest.param(f, a, m, id=f"{f}-{a}-{m}", marks=[pytest.mark.slow] if f in HEAVY else [])
+    for f, a, m in itertools.product(ENV_FAMILIES, ALGORITHMS, RUN_MODES)
+    if _fits(f, a, m)
+]
+
+
+def test_every_registered_family_has_a_smallest_setting():
+    assert set(SMALLEST) == set(ENV_FAMILIES), "add the new family's smallest settings to SMALLEST"
+    assert set(MODE_SETTINGS) == set(RUN_MODES), "add what the new run mode needs to MODE_SETTINGS"
+    modes = {m for _, _, m in (c.values for c in CASES)}
+    assert modes == set(RUN_MODES)  # every mode runs on at least one family and algorithm
+
+
+@pytest.fixture(scope="module")
+def demos(tmp_path_factory) -> Path:
+    from taskrl.cli import main
+
+    out = tmp_path_factory.mktemp("demos") / "pointreach-mt"
+    assert main(["demos", "collect", "pointreach-mt", "--out", str(out), "--episodes", "2", "--no-progress"]) == 0
+    return out
+
+
+@pytest.fixture
+def local_roles(monkeypatch):
+    """The distributed mode with its roles in this process (the same loop, no Ray): Ray itself is tested in
+    test_distributed."""
+    local = dataclasses.replace(
+        RUN_MODES["distributed"],
+        make_loop=functools.partial(distributed_mode.distributed_loop, pool=distributed_mode.local_pool),
+        prepare=None,
+    )
+    monkeypatch.setitem(RUN_MODES, "distributed", local)
+    return local
+
+
+@pytest.mark.parametrize("family, algo, mode", CASES)
+def test_every_fitting_family_algorithm_and_run_mode_trains_saves_and_loads(family, algo, mode, tmp_path, request):
+    kind = ALGORITHMS[algo].actions[0]
+    settings: dict[str, Any] = {**SMALLEST[family], **MODE_SETTINGS[mode]}
+    env: Any = family
+    if family == "gym":
+        env = GYM_IDS[kind]
+    elif family == "tasks":
+        env = _task_set(kind)
+    if mode == "dataset":
+        settings["dataset"] = str(request.getfixturevalue("demos"))
+    if mode == "distributed":
+        request.getfixturevalue("local_roles")
+    num_envs = settings.pop("num_envs", 2)
+    budget = 60 * num_envs if mode != "on_policy" else 8 * num_envs  # past the first complete episodes
+    run = taskrl.train(
+        None,
+        base=TrainConfig(),
+        out=tmp_path / "run",
+        tensorboard=False,
+        env=env,
+        algo=algo,
+        her="none",
+        hidden_sizes=(16,),
+        num_envs=num_envs,
+        total_steps=budget if mode not in ("dataset", "stored_data") else 3,
+        learning_starts=num_envs,
+        updates_per_step=1,
+        batch_size=4,
+        eval_episodes=1,
+        eval_interval=10**6,
+        **settings,
+    )
+    assert run_mode(run.config).name == mode
+    assert run.metrics["updates"] >= 1, run.metrics  # it learned from something
+    source = env if family == "tasks" else None
+    agent = taskrl.load(run.run_dir, env=source)
+    for mine, loaded in zip(run.agent.state_dict().values(), agent.state_dict().values()):
+        if isinstance(mine, torch.Tensor):
+            assert torch.equal(mine.cpu(), loaded.cpu())  # saved and loaded as trained
+
+
+@pytest.mark.parametrize("strategy", sorted(SHARING_STRATEGIES))
+def test_every_sharing_strategy_runs(strategy, tmp_path):
+    run = taskrl.train(
+        "grid-sharing-dqn",
+        out=tmp_path / "run",
+        tensorboard=False,
+        sharing=strategy,
+        total_steps=64,
+        learning_starts=16,
+        batch_size=8,
+        eval_interval=10**6,
+        eval_episodes=1,
+    )
+    assert run.metrics["updates"] >= 1
+
+
+def test_no_two_settings_sections_share_a_flag():
+    """Every family's section beside every algorithm's and the run's: each flag names one setting."""
+    clashes = {}
+    for env, algo in itertools.product(ENV_FAMILIES, ALGORITHMS):
+        names = [path[-1] for path, _, _ in leaf_fields(env, algo)]
+        if len(names) != len(set(names)):
+            clashes[env, algo] = sorted({n for n in names if names.count(n) > 1})
+    assert not clashes
