@@ -21,7 +21,7 @@ from taskrl.envs.registry import ENV_FAMILIES
 from taskrl.errors import ConfigError
 from taskrl.runmodes import distributed as distributed_mode
 from taskrl.runmodes.registry import RUN_MODES, run_mode
-from taskrl.sharing.settings import SHARING_STRATEGIES
+from taskrl.sharing.registry import SHARING_STRATEGIES
 from taskrl.tasks import TaskSet, TaskSpec
 
 #: env ids for the families built on gymnasium ids, by the algorithm's action space (a task set's envs need
@@ -157,7 +157,7 @@ def test_every_fitting_family_algorithm_and_run_mode_trains_saves_and_loads(fami
             assert torch.equal(mine.cpu(), loaded.cpu())  # saved and loaded as trained
 
 
-@pytest.mark.parametrize("strategy", sorted(SHARING_STRATEGIES))
+@pytest.mark.parametrize("strategy", list(SHARING_STRATEGIES))
 def test_every_sharing_strategy_runs(strategy, tmp_path):
     run = taskrl.train(
         "grid-sharing-dqn",

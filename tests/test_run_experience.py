@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 import taskrl
-from taskrl.errors import ConfigError
 from helpers import cli, metrics
 from taskrl.cli import main
+from taskrl.errors import ConfigError
 
 TINY = ["--n-bits", "6", "--total-steps", "3000", "--eval-interval", "1000", "--eval-episodes", "20", "--no-tensorboard"]
 

@@ -18,7 +18,7 @@ from taskrl.envs.point_tasks import POINT_TASKS, PointTasks
 from taskrl.errors import ConfigError
 from taskrl.replay import EpisodeReplay, Episodes, HindsightRelabeler
 from taskrl.replay.batch import Batch
-from taskrl.sharing import SharingConfig, TaskSharing, collect_task_datasets
+from taskrl.sharing import SHARING_STRATEGIES, SharingConfig, TaskSharing, collect_task_datasets
 from taskrl.sharing.datasets import random_actions
 
 ENVS = [GridTasks, PointTasks]
@@ -113,7 +113,7 @@ def test_none_shares_nothing_and_every_row_is_its_own_tasks():
     assert sharing.metrics(env.task_set.names)["shared_fraction"] == 0.0
 
 
-@pytest.mark.parametrize("strategy", ["all", "random", "success", "hipi", "conservative", "zero-reward"])
+@pytest.mark.parametrize("strategy", [name for name, spec in SHARING_STRATEGIES.items() if spec.shares])
 def test_shared_rows_are_scored_under_their_new_task(strategy):
     env, replay = filled_replay(PointTasks)
     q = lambda obs, action: -(action.float() - 0.5).square().sum(-1)  # noqa: E731
@@ -124,7 +124,7 @@ def test_shared_rows_are_scored_under_their_new_task(strategy):
     shared = source != batch.obs["task"]
     assert bool(shared.any())
     assert torch.equal(batch.next_obs["task"], batch.obs["task"])
-    if strategy == "zero-reward":
+    if SHARING_STRATEGIES[strategy].zero_reward:
         assert torch.all(batch.reward[shared] == 0) and not bool(batch.terminated[shared].any())
         assert torch.equal(batch.reward[~shared], expected[~shared])
     else:

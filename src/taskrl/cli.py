@@ -64,12 +64,13 @@ def _add_config_flags(parser: argparse.ArgumentParser, env: str, algo: str, base
     from taskrl.agents.registry import ALGORITHMS
     from taskrl.config import field_help, leaf_fields, to_dict
     from taskrl.envs.registry import ENV_FAMILIES
+    from taskrl.sharing.registry import SHARING_STRATEGIES
 
     docs = field_help(env, algo)
     values = to_dict(base) if base is not None and base.env == env and base.algo == algo else {}
     docs["env"] += " Choices: " + "; ".join(f"{f.name} ({f.description})" for f in ENV_FAMILIES.values())
     docs["algo"] += " Choices: " + "; ".join(f"{a.name} ({a.description})" for a in ALGORITHMS.values())
-    choices = {"env": tuple(ENV_FAMILIES), "algo": tuple(ALGORITHMS)}
+    choices = {"env": tuple(ENV_FAMILIES), "algo": tuple(ALGORITHMS), "sharing": tuple(SHARING_STRATEGIES)}
     family = ENV_FAMILIES[env]
     titles = {
         "conditioning": "task conditioning (multi-task networks)",

@@ -29,6 +29,7 @@ from taskrl.distributed.settings import DistributedConfig
 from taskrl.envs.registry import ENV_FAMILIES, env_family
 from taskrl.errors import ConfigError, one_of, reason, require
 from taskrl.rundir import atomic_write_text
+from taskrl.sharing.registry import sharing_strategy
 from taskrl.sharing.settings import SharingConfig
 
 __all__ = [
@@ -305,6 +306,7 @@ def validate(config: TrainConfig) -> TrainConfig:
     algorithm(c.algo)
     one_of(c.her, HER_STRATEGIES, "her", "strategy")
     one_of(c.sampling, SAMPLINGS, "sampling", "sampling")
+    sharing_strategy(c.data_sharing.sharing)
     for name in ("total_steps", "num_envs", "batch_size", "eval_interval", "eval_episodes", "checkpoint_interval"):
         require(getattr(c, name) >= 1, name, f"must be >= 1 (got {getattr(c, name)})")
     for name in ("her_k", "learning_starts", "updates_per_step", "threads", "tensorboard_interval", "offline_updates"):

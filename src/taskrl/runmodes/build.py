@@ -14,6 +14,7 @@ from taskrl.errors import require
 from taskrl.replay import EpisodeReplay, RecentMixSampler, TaskBalancedSampler
 from taskrl.runmodes.spec import RunMode
 from taskrl.sharing import TaskSharing
+from taskrl.sharing.registry import sharing_strategy
 from taskrl.sharing.strategies import task_functions
 from taskrl.wiring.parts import (
     RunParts,
@@ -104,10 +105,11 @@ def _task_sharing(config: TrainConfig, env: BatchedEnv, agent: Any, replay: Epis
             f"{config.env!r} has none; allowed envs: gridtasks, pointtasks",
         )
         return None
+    chosen = sharing_strategy(strategy)
     q_value = getattr(agent, "q_value", None)
     require(
-        strategy != "conservative" or q_value is not None,
+        not chosen.needs_q_value or q_value is not None,
         "sharing",
-        f"conservative ranks shared data by Q-values; {config.algo} has no q_value; use dqn or sac",
+        f"{strategy} ranks shared data by Q-values; {config.algo} has no q_value; use dqn or sac",
     )
-    return TaskSharing(replay, env, len(env.task_set), config.data_sharing, q_value)
+    return TaskSharing(replay, env, len(env.task_set), config.data_sharing, q_value, strategy=chosen)

@@ -3,13 +3,10 @@
 from __future__ import annotations
 
 import dataclasses
-from typing import Literal
 
-from taskrl.errors import one_of, require
+from taskrl.errors import require
 
-__all__ = ["SHARING_STRATEGIES", "SharingConfig"]
-
-SHARING_STRATEGIES = ("none", "all", "random", "success", "hipi", "conservative", "zero-reward")
+__all__ = ["SharingConfig"]
 
 
 @dataclasses.dataclass
@@ -23,7 +20,8 @@ class SharingConfig:
             success test), ``hipi`` (other tasks' episodes weighted by the inverse-RL posterior of
             this task), ``conservative`` (CDS: other tasks' transitions whose Q-value under this task
             reaches the ``conservative_percentile``-th percentile of its own rows' Q-values) or
-            ``zero-reward`` (UDS: any other task's data with reward 0). Needs an env whose tasks are
+            ``zero-reward`` (UDS: any other task's data with reward 0), or a strategy registered with
+            :func:`~taskrl.sharing.registry.register_sharing_strategy`. Needs an env whose tasks are
             reward functions (``gridtasks``, ``pointtasks``, or one with ``task_reward``,
             ``task_terminated`` and ``task_success``).
         share_fraction: the share of each task's rows drawn from other tasks' data (all of them
@@ -34,15 +32,15 @@ class SharingConfig:
             shared row must reach (rows that do not are replaced by the task's own data).
     """
 
-    sharing: Literal["none", "all", "random", "success", "hipi", "conservative", "zero-reward"] = "none"
+    sharing: str = "none"
     share_fraction: float = 0.5
     share_tasks: int = 1
     hipi_temperature: float = 1.0
     conservative_percentile: float = 50.0
 
     def validate(self) -> None:
-        """Raise :class:`~taskrl.errors.ConfigError` naming the first bad setting."""
-        one_of(self.sharing, SHARING_STRATEGIES, "sharing", "strategy")
+        """Raise :class:`~taskrl.errors.ConfigError` naming the first bad setting (the strategy's name is checked
+        against the registry by :func:`taskrl.config.validate`)."""
         require(0.0 <= self.share_fraction <= 1.0, "share_fraction", f"must be in [0, 1] (got {self.share_fraction})")
         require(self.share_tasks >= 1, "share_tasks", f"must be >= 1 (got {self.share_tasks})")
         require(self.hipi_temperature > 0, "hipi_temperature", f"must be > 0 (got {self.hipi_temperature})")

@@ -7,10 +7,13 @@ from episodes collected for other tasks i != j, and every row is then scored und
 
     s_task, s'_task <- j,   r <- r_j(s, a, s'),   terminated <- success_j(s') or failure_j(s')
 
-(``zero-reward`` instead keeps ``r = 0`` and no termination on the shared rows: UDS labels data of
-unknown reward with the lowest reward.) A transition is drawn from a set of episodes uniformly over
-its transitions: episode e with weight ``len(e) * w_j(e)``, then a step uniformly. The strategies
-differ only in the weight ``w_j(e)`` of another task's episode e:
+(a strategy with ``zero_reward``, UDS, instead keeps ``r = 0`` and no termination on the shared rows: it
+labels data of unknown reward with the lowest reward.) A transition is drawn from a set of episodes uniformly
+over its transitions: episode e with weight ``len(e) * w_j(e)``, then a step uniformly. A strategy
+(:class:`~taskrl.sharing.strategy.SharingStrategy`, registered in :mod:`taskrl.sharing.registry`) hooks in at
+three points: the weight ``w_j(e)`` of another task's episode e, a filter on the shared rows once drawn (a row
+not kept is replaced by one of j's own), and the reward of shared rows. The built-in ones are in
+:mod:`taskrl.sharing.builtin`:
 
     all, zero-reward   w_j(e) = 1
     random             w_j(e) = 1 if task(e) is one of k tasks drawn for j in this batch, else 0
@@ -18,8 +21,7 @@ differ only in the weight ``w_j(e)`` of another task's episode e:
     hipi               w_j(e) = q(j | e) = softmax_j(R_j(e) / T - log Z_j),  log Z_j = logsumexp_e' R_j(e') / T
                        (the inverse-RL posterior of HIPI, with its partition term, R_j the return under r_j)
     conservative       w_j(e) = 1, then a shared row is kept only if Q_j(s, a) >= P_k{Q_j(s~, a~)}, the
-                       k-th percentile over the batch's own rows of j (CDS); a row not kept is
-                       replaced by one of j's own
+                       k-th percentile over the batch's own rows of j (CDS)
 
 A task with no data of its own gets all its rows from others; a strategy that finds nothing to share
 for j (no episode passes success_j yet) gives j its own data only; a task with neither (early in a
@@ -29,7 +31,6 @@ of own data. How much of each task's rows came from which task is counted (:meth
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from typing import Any
 
@@ -37,7 +38,9 @@ import torch
 
 from taskrl.replay.batch import Batch
 from taskrl.replay.storage import EpisodeReplay
+from taskrl.sharing.registry import sharing_strategy
 from taskrl.sharing.settings import SharingConfig
+from taskrl.sharing.strategy import SharingStrategy
 from taskrl.types import Obs
 
 __all__ = ["EpisodeScores", "TaskSharing", "task_functions"]
@@ -101,9 +104,10 @@ class TaskSharing:
             ``task_terminated(next_obs, task)``, ``task_success(next_obs, task)``.
         num_tasks: T.
         settings: the strategy and its knobs (:class:`~taskrl.sharing.settings.SharingConfig`).
-        q_value: ``conservative``: ``q_value(obs, action) -> [B]``, the agent's Q of each row under the
-            row's task (no gradient).
+        q_value: for a strategy that ``needs_q_value`` (``conservative``): ``q_value(obs, action) -> [B]``, the
+            agent's Q of each row under the row's task (no gradient).
         task_key: the observation key of the task index.
+        strategy: the strategy (default the registered one that ``settings.sharing`` names).
     """
 
     def __init__(
@@ -114,41 +118,28 @@ class TaskSharing:
         settings: SharingConfig,
         q_value: QValue | None = None,
         task_key: str = "task",
+        strategy: SharingStrategy | None = None,
     ) -> None:
         if not task_functions(env):
             raise ValueError(
                 "data sharing needs an env whose tasks are reward functions: task_reward, task_terminated, task_success"
             )
-        if settings.sharing == "conservative" and q_value is None:
-            raise ValueError("conservative sharing compares Q-values of the agent: pass q_value")
+        self.strategy = strategy if strategy is not None else sharing_strategy(settings.sharing)
+        if self.strategy.needs_q_value and q_value is None:
+            raise ValueError(f"{self.strategy.name} sharing compares Q-values of the agent: pass q_value")
         self.replay, self.env, self.num_tasks, self.settings = replay, env, int(num_tasks), settings
         self.q_value, self.task_key = q_value, task_key
         self.tasks = torch.arange(self.num_tasks, device=replay.device)
-        self.scores = EpisodeScores(replay, env, self.num_tasks) if settings.sharing in ("success", "hipi") else None
+        self.scores = EpisodeScores(replay, env, self.num_tasks) if self.strategy.needs_scores else None
         self.counts = torch.zeros(self.num_tasks, self.num_tasks, device=replay.device)  # [target, source] rows
 
     # ------------------------------------------------------------------ weights
     def shared_weights(self, source: torch.Tensor, generator: torch.Generator | None) -> torch.Tensor:
         """``w_j(e)`` of every task j and stored episode e of another task, ``[T, E]`` (0 on own episodes)."""
-        strategy, T = self.settings.sharing, self.num_tasks
         other = (source[None] != self.tasks[:, None]).float()  # [T, E]
-        if strategy == "random":
-            k = min(self.settings.share_tasks, T - 1)
-            draw = torch.rand((T, T), generator=generator, device=source.device)
-            draw[self.tasks, self.tasks] = 2.0  # never its own task
-            chosen = torch.zeros(T, T, device=source.device).scatter_(1, draw.argsort(1)[:, :k], 1.0)
-            return other * chosen[:, source]
-        if strategy == "success":
-            self.scores.refresh()
-            return other * self.scores.success.t().float()
-        if strategy == "hipi":
-            self.scores.refresh()
-            stored = self.replay.length > 0
-            logits = self.scores.returns / self.settings.hipi_temperature  # [E, T]
-            log_z = torch.logsumexp(logits.masked_fill(~stored[:, None], -math.inf), 0)  # [T]
-            posterior = torch.softmax(logits - log_z, 1)  # q(j | e)
-            return other * posterior.t()
-        return other  # all, zero-reward, conservative (filtered by Q once drawn)
+        if self.strategy.weights is None:
+            return other
+        return other * self.strategy.weights(self, source, generator)
 
     # ------------------------------------------------------------------ drawing
     def _draw(self, weights: torch.Tensor, n: int, generator: torch.Generator | None) -> tuple[torch.Tensor, torch.Tensor]:
@@ -180,7 +171,7 @@ class TaskSharing:
         length = r.length.float()
         source = r.first_observations(self.task_key).long().masked_fill(r.length == 0, 0)  # [E]
         own = length * (source[None] == self.tasks[:, None])  # [T, E]
-        shared = length * self.shared_weights(source, generator) if s.sharing != "none" else torch.zeros_like(own)
+        shared = length * self.shared_weights(source, generator) if self.strategy.shares else torch.zeros_like(own)
         has_own, has_shared = own.sum(1) > 0, shared.sum(1) > 0
         n_shared = torch.where(has_shared, torch.where(has_own, round(s.share_fraction * per), per), 0)  # [T]
         # a task with neither its own data nor any to share: rows from all data, with their own tasks
@@ -189,8 +180,8 @@ class TaskSharing:
         shared_episode, shared_step = self._draw(torch.where(has_shared[:, None], shared, length[None]), per, generator)
         column = torch.arange(per, device=r.device)
         from_shared = column[None] < n_shared[:, None]  # [T, per]
-        if s.sharing == "conservative":
-            from_shared = from_shared & self._conservative(own_episode, own_step, shared_episode, shared_step, has_own)
+        if self.strategy.keep is not None:
+            from_shared = from_shared & self.strategy.keep(self, own_episode, own_step, shared_episode, shared_step, has_own)
         episode = torch.where(from_shared, shared_episode, own_episode)
         step = torch.where(from_shared, shared_step, own_step)
         # exactly batch_size rows: cut in step-major order (the remainder falls on the lowest tasks)
@@ -201,22 +192,15 @@ class TaskSharing:
         lent = ~(has_own | has_shared)[target]
         target = torch.where(lent, source[episode], target)
         self.counts.index_put_((target, source[episode]), torch.ones_like(target, dtype=torch.float), accumulate=True)
-        zero = from_shared if s.sharing == "zero-reward" else None
+        zero = from_shared if self.strategy.zero_reward else None
         return self.relabel(r.gather(episode, step), target, zero)
 
-    def _q(self, episode: torch.Tensor, step: torch.Tensor) -> torch.Tensor:
+    def q_under_task(self, episode: torch.Tensor, step: torch.Tensor) -> torch.Tensor:
         """``[T, n]`` Q-values of the rows at ``(episode, step)`` ``[T, n]``, row t scored under task t."""
         task = self.tasks[:, None].expand_as(episode).reshape(-1)
         batch = self.relabel(self.replay.gather(episode.reshape(-1), step.reshape(-1)), task)
         with torch.no_grad():
             return self.q_value(batch.obs, batch.action).view(episode.shape)
-
-    def _conservative(self, own_episode, own_step, shared_episode, shared_step, has_own) -> torch.Tensor:
-        """``[T, n]``: whether each shared candidate's Q under its task reaches the task's percentile of its own
-        rows (always, for a task with no data of its own to compare with)."""
-        threshold = torch.quantile(self._q(own_episode, own_step), self.settings.conservative_percentile / 100.0, dim=1)
-        threshold = threshold.masked_fill(~has_own, -math.inf)
-        return self._q(shared_episode, shared_step) >= threshold[:, None]
 
     # ------------------------------------------------------------------ statistics
     def metrics(self, names: list[str]) -> dict[str, float]:

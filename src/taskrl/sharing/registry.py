@@ -1,0 +1,28 @@
+"""The data-sharing strategies, by name (``--sharing``): one :class:`~taskrl.sharing.strategy.SharingStrategy` each.
+
+A new strategy is a file declaring one (its weights, filter or relabelling) and a line in :data:`BUILT_IN`, or
+:func:`register_sharing_strategy` from a user's code.
+"""
+
+from __future__ import annotations
+
+from taskrl.registry import Registry
+from taskrl.sharing import builtin
+from taskrl.sharing.strategy import SharingStrategy
+
+__all__ = ["SHARING_STRATEGIES", "register_sharing_strategy", "sharing_strategy"]
+
+BUILT_IN: tuple[SharingStrategy, ...] = builtin.BUILT_IN
+
+#: name -> strategy, in registration order.
+SHARING_STRATEGIES: Registry[SharingStrategy] = Registry("sharing", BUILT_IN)
+
+
+def register_sharing_strategy(strategy: SharingStrategy, replace: bool = False) -> SharingStrategy:
+    """Make ``strategy`` available as ``--sharing strategy.name``."""
+    return SHARING_STRATEGIES.register(strategy, replace)
+
+
+def sharing_strategy(name: str) -> SharingStrategy:
+    """The strategy called ``name``; a :class:`~taskrl.errors.ConfigError` on ``sharing`` listing them otherwise."""
+    return SHARING_STRATEGIES.lookup(name)
