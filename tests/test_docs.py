@@ -96,6 +96,22 @@ def test_the_new_algorithm_guide_runs(tmp_path):
     assert done.returncode == 0, done.stderr[-2000:]
 
 
+def test_the_new_sharing_strategy_guide_runs(tmp_path):
+    page = (ROOT / "docs" / "guides" / "new_sharing_strategy.md").read_text()
+    code = "\n".join(re.findall(r"```python\n(.*?)```", page, re.S))
+    script = tmp_path / "guide.py"
+    script.write_text(
+        code
+        + "\nimport taskrl\nfrom taskrl.sharing import register_sharing_strategy\n"
+        + "register_sharing_strategy(ANY_SUCCESS)\n"
+        + "run = taskrl.train('grid-sharing-dqn', out='run', sharing='any-success', total_steps=800, learning_starts=200,"
+        + " eval_interval=10**6, eval_episodes=1, tensorboard=False)\n"
+        + "assert run.metrics['updates'] > 0 and run.config.data_sharing.sharing == 'any-success', run.metrics\n"
+    )
+    done = subprocess.run([sys.executable, str(script)], cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-2000:]
+
+
 def test_the_reference_documents_every_setting_family_algorithm_and_preset():
     from taskrl.agents.registry import ALGORITHMS
     from taskrl.envs.registry import ENV_FAMILIES
