@@ -335,8 +335,7 @@ def test_cli_demos_and_bad_input_are_one_line(point_demos, tmp_path):
 @pytest.mark.timeout(300)
 def test_ending_evaluation_episodes_at_success_keeps_every_outcome():
     """Meta-World counts success at any step: stopping at it changes how long evaluation takes, not what it finds."""
-    from taskrl.demos.experts import _metaworld_expert
-    from taskrl.envs.metaworld_tasks import MetaWorldSettings
+    from taskrl.envs.metaworld_tasks import MetaWorldSettings, metaworld_expert
     from taskrl.envs.registry import env_family
     from taskrl.envs.spec import EnvRequest
     from taskrl.training.per_task import evaluate_per_task
@@ -347,7 +346,7 @@ def test_ending_evaluation_episodes_at_success_keeps_every_outcome():
         settings = MetaWorldSettings(task="reach", max_episode_steps=150, eval_until_success=until_success)
         env = family.make(settings, EnvRequest(num_envs=1, seed=0, device=torch.device("cpu"), evaluation=True, eval_episodes=8))
         try:
-            expert = _metaworld_expert(env)
+            expert = metaworld_expert(env)
             # a deterministic expert that gives up on half of the goals (a function of the state alone)
             biased = lambda obs, expert=expert: expert(obs) * (obs["observation"][:, 36:37] > 0.0)
             results.append(evaluate_per_task(biased, env, 8, seed=0, success="any")["tasks"]["reach"])

@@ -488,8 +488,12 @@ def cmd_demos(argv: Sequence[str]) -> int:
     parser = _Parser(prog="taskrl demos", description="Demonstration datasets: collect with scripted experts, show a card.")
     sub = parser.add_subparsers(dest="action", required=True, metavar="{collect,info}")
     collect = sub.add_parser("collect", help="run scripted experts and write their successful episodes (resumable)")
+    from taskrl.demos.experts import demo_sources
+
     collect.add_argument(
-        "source", help="mt10, mt50, ml45 (all 50 tasks, ML45 split in the card), pointreach-mt, or task,task,..."
+        "source",
+        help=f"a family with a scripted expert ({', '.join(demo_sources())}; ml45: all 50 tasks, its split in the card), "
+        "FAMILY:task,task, or Meta-World task,task,...",
     )
     collect.add_argument("--out", required=True, help="dataset folder (DIR/data is the Minari dataset); run again to resume")
     collect.add_argument("--episodes", type=int, default=50, help="successful episodes per task (default 50)")

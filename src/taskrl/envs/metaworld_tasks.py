@@ -34,8 +34,9 @@ import gymnasium as gym
 import numpy as np
 import torch
 
+from taskrl.envs.base import BatchedEnv
 from taskrl.envs.gymnasium_adapter import VECTOR_STRATEGIES, GymnasiumVectorEnv, VectorStrategy
-from taskrl.envs.spec import EnvFamily, EnvRequest
+from taskrl.envs.spec import DemoSource, EnvFamily, EnvRequest, Expert
 from taskrl.errors import ConfigError, one_of, require
 from taskrl.tasks import TaskSet
 
@@ -623,8 +624,11 @@ def _metaworld_family(benchmark: str | Sequence[str], description: str, name: st
         )
 
     label = name.upper() if name else str(benchmark)
+    family_name = name or str(benchmark).lower()
+    every = "MT50" if family_name == "ml45" else benchmark  # ML45's demonstrations hold its test tasks too
     return EnvFamily(
-        name=name or str(benchmark).lower(),
+        name=family_name,
+        demos=lambda tasks: metaworld_demos(family_name, tasks or every),
         description=description,
         section="metaworld",
         tasks_env=tasks_env,
@@ -638,6 +642,44 @@ def _metaworld_family(benchmark: str | Sequence[str], description: str, name: st
         video_env=lambda settings: MetaWorldVideoEnv(benchmark, task_of(settings), settings.max_episode_steps),
         check=check,
     )
+
+
+def metaworld_demos(name: str, tasks: str | Sequence[str]) -> DemoSource:
+    """Each task's scripted v3 expert from ``metaworld.policies`` (``ENV_POLICY_MAP``), goal positions resampled
+    every episode; ``ml45``: all 50 tasks, with ML45's split (45 training, 5 test tasks) in the card."""
+    task_set = metaworld_task_set(tasks)
+
+    def make_env(names: Sequence[str], copies: int, seed: int, after_success: int) -> BatchedEnv:
+        return MetaWorldMultiTaskEnv(
+            list(names), envs_per_task=copies, seed=seed, terminate_on_success=True, success_hold=after_success
+        )
+
+    splits = {}
+    if name == "ml45":
+        splits = {"train": [n for n in task_set.names if n not in ML45_TEST_TASKS], "test": list(ML45_TEST_TASKS)}
+    return DemoSource(name, task_set, make_env, metaworld_expert, "any", splits)
+
+
+def metaworld_expert(env: Any) -> Expert:
+    """The batched scripted experts of ``env``'s slots (``slot_tasks``)."""
+    try:
+        from metaworld.policies import ENV_POLICY_MAP
+    except ImportError as error:
+        raise ConfigError(
+            "source", f"Meta-World experts need the `metaworld` extra: pip install 'taskrl[metaworld]' ({error})"
+        ) from None
+
+    names = env.task_set.names
+    policies = [ENV_POLICY_MAP[metaworld_id(names[int(t)])]() for t in env.slot_tasks.tolist()]
+
+    def act(obs: dict[str, torch.Tensor]) -> torch.Tensor:
+        states = obs["observation"].detach().cpu().numpy().astype(np.float64)
+        with warnings.catch_warnings():  # the experts warn when their gains exceed the clipped range: noise
+            warnings.filterwarnings("ignore", message="Constant\\(s\\) may be too high")
+            actions = np.stack([p.get_action(s) for p, s in zip(policies, states)])
+        return torch.as_tensor(np.clip(actions, -1.0, 1.0), dtype=torch.float32, device=env.device)
+
+    return act
 
 
 FAMILIES = (

@@ -36,10 +36,10 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-from taskrl.envs.base import NativeEnv, Obs, StepResult
+from taskrl.envs.base import BatchedEnv, NativeEnv, Obs, StepResult
 from taskrl.envs.gymnasium_env import TaskChoiceEnv
 from taskrl.envs.point_reach import PointReachSettings, RewardType, _check_positive, check_point_env_args
-from taskrl.envs.spec import EnvFamily, EnvRequest
+from taskrl.envs.spec import DemoSource, EnvFamily, EnvRequest, Expert
 from taskrl.tasks import TaskSet
 
 TaskSampling = Literal["uniform", "fixed"]
@@ -254,8 +254,32 @@ def _regions_env(settings: PointReachSettings, request: EnvRequest, names) -> Mu
     )
 
 
+def _pointreach_demos(tasks: Sequence[str] | None) -> DemoSource:
+    """The optimal controller of every region (straight to it at full speed, then stay); episodes run their
+    50 steps and count when they end inside the region."""
+    regions = [r for r in DEFAULT_REGIONS if tasks is None or r[0] in tasks]
+    unknown = sorted(set(tasks or ()) - {r[0] for r in DEFAULT_REGIONS})
+    if unknown or not regions:
+        raise ValueError(f"unknown pointreach-mt tasks {unknown}; allowed: {', '.join(r[0] for r in DEFAULT_REGIONS)}")
+
+    def make_env(names: Sequence[str], copies: int, seed: int, after_success: int) -> BatchedEnv:
+        chosen = [r for r in regions if r[0] in names]  # episodes run their 50 steps: no cut at success
+        return MultiTaskPointReach(num_envs=len(chosen) * copies, regions=chosen, task_sampling="fixed", seed=seed)
+
+    def expert(env: Any) -> Expert:
+        def act(obs: dict[str, torch.Tensor]) -> torch.Tensor:
+            offset = env.centres[obs["task"].long()] - obs["observation"]
+            return (offset / env.max_speed).clamp(-1.0, 1.0)
+
+        return act
+
+    task_set = TaskSet.from_pairs((name, description) for name, description, _ in regions)
+    return DemoSource("pointreach-mt", task_set, make_env, expert, "final")
+
+
 FAMILY = EnvFamily(
     name="pointreach-mt",
+    demos=_pointreach_demos,
     tasks_env=_regions_env,
     task_sentences=lambda settings: {n: [d, *PARAPHRASES.get(n, ())] for n, d, _ in DEFAULT_REGIONS},
     description="multi-task point reaching: 5 regions named in words, the task index in the observation, native torch",

@@ -13,7 +13,7 @@ import torch
 
 from taskrl.envs.base import BatchedEnv, is_goal_env
 
-__all__ = ["EnvFamily", "EnvKind", "EnvRequest", "env_kind"]
+__all__ = ["DemoSource", "EnvFamily", "EnvKind", "EnvRequest", "Expert", "env_kind"]
 
 #: ``goal``: observations carry achieved / desired goals and the env has ``compute_reward`` (hindsight
 #: relabelling applies); ``multitask``: observations carry a task index under ``task``; ``plain``: neither.
@@ -57,6 +57,33 @@ class EnvRequest:
         return self.eval_episodes if self.evaluation else self.num_envs
 
 
+#: ``obs -> actions``: a batched scripted expert.
+Expert = Callable[[dict[str, torch.Tensor]], torch.Tensor]
+
+
+@dataclasses.dataclass(frozen=True)
+class DemoSource:
+    """A task set whose tasks have a scripted expert: what ``taskrl demos collect`` records.
+
+    Attributes:
+        name: what ``taskrl demos collect`` was given.
+        task_set: the tasks, in index order.
+        make_env: ``(task names, copies per task, seed, after_success) -> batched env`` whose slot ``s`` runs
+            task ``names[s // copies]`` (``slot_tasks``), episodes ending at the horizon or, where
+            ``success`` is ``any``, ``after_success`` steps after the first success.
+        expert: ``env -> (obs -> actions)``: the batched expert of that env's slots.
+        success: ``any`` (the episode ends at its first success) or ``final`` (success at the last step).
+        splits: named task lists (ML45's ``train`` and ``test``), recorded in the dataset card.
+    """
+
+    name: str
+    task_set: Any
+    make_env: Callable[[Sequence[str], int, int, int], BatchedEnv]
+    expert: Callable[[BatchedEnv], Expert]
+    success: Literal["any", "final"]
+    splits: dict[str, list[str]] = dataclasses.field(default_factory=dict)
+
+
 @dataclasses.dataclass(frozen=True)
 class EnvFamily:
     """One environment family, as runs and the command line see it.
@@ -88,6 +115,8 @@ class EnvFamily:
             matched against, and the paraphrases held-out prompts are tested with.
         video_env: ``video_env(settings) -> gymnasium.Env`` with ``render_mode="rgb_array"``: one copy to
             record videos of (``taskrl eval --video``); None where the family cannot render.
+        demos: families with a scripted expert: ``demos(task names or None) -> DemoSource`` of the named tasks (None:
+            the family's own set), what ``taskrl demos collect FAMILY`` (or ``FAMILY:task,task``) records.
     """
 
     name: str
@@ -106,6 +135,7 @@ class EnvFamily:
     video_env: Callable[[Any], Any] | None = None
     tasks_env: Callable[[Any, EnvRequest, Sequence[str]], BatchedEnv] | None = None
     task_sentences: Callable[[Any], dict[str, list[str]]] | None = None
+    demos: Callable[[Sequence[str] | None], DemoSource] | None = None
 
     def success_criterion(self, settings: Any) -> str:
         """``any`` or ``final``: when a multi-task evaluation episode counts as a success."""
