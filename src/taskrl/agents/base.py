@@ -113,6 +113,17 @@ class Agent:
     #: the checkpointed parts acting needs (what a policy export keeps)
     acting: ClassVar[tuple[str, ...]] = ()
 
+    def setup(
+        self, config: Any, device: str | torch.device, keys: tuple[str, ...], input_dim: int, conditioning: Any = None
+    ) -> None:
+        """The start every agent's constructor shares: its validated settings, its device, the (normalised) input of
+        the observation keys its networks read and, on multi-task runs, the task encoder (else None)."""
+        config.validate()
+        self.config, self.device = config, torch.device(device)
+        self.inputs = ObservationInput(keys, input_dim, config.normalize_inputs).to(self.device)
+        self.conditioning = conditioning
+        self.task_encoder = conditioning.encoder.to(self.device) if conditioning is not None else None
+
     # ---------------------------------------------------------------- acting
     @torch.no_grad()
     def act(self, obs: Any, explore: bool = False, generator: torch.Generator | None = None, env_steps: int = 0) -> Any:

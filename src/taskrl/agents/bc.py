@@ -32,7 +32,6 @@ import torch.nn.functional as F
 from taskrl.agents.base import Agent
 from taskrl.agents.parts import (
     ActionBox,
-    ObservationInput,
     check_learning_settings,
     check_non_negative,
     check_probability,
@@ -127,12 +126,9 @@ class BCAgent(Agent):
     }
 
     def __init__(self, inputs: Any, config: BCConfig, device: str | torch.device = "cpu", conditioning: Any = None) -> None:
-        config.validate()
-        self.config, self.device = config, torch.device(device)
+        self.setup(config, device, inputs.keys, inputs.dim, conditioning)
         self.box = ActionBox(inputs.action_space, self.device)
         self.action_dim, self.state_dim = self.box.dim, int(inputs.dim)
-        self.inputs = ObservationInput(inputs.keys, inputs.dim, config.normalize_inputs).to(self.device)
-        self.task_encoder = conditioning.encoder.to(self.device) if conditioning is not None else None
         self.language = isinstance(self.task_encoder, LanguageTaskEncoder)
         self.demo_encoder: DemoEncoder | None = None
         num_tasks = conditioning.num_tasks if conditioning is not None else 1

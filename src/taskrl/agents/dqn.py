@@ -31,7 +31,6 @@ from torch import nn
 
 from taskrl.agents.base import Agent
 from taskrl.agents.parts import (
-    ObservationInput,
     check_learning_settings,
     check_non_negative,
     check_probability,
@@ -144,14 +143,8 @@ class DQNAgent(Agent):
         device: str | torch.device = "cpu",
         conditioning: TaskConditioning | None = None,
     ) -> None:
-        config.validate()
-        self.config = config
-        self.device = torch.device(device)
+        self.setup(config, device, input_keys, input_dim, conditioning)  # online and target read the same input
         self.n_actions = n_actions
-        # The online and target networks read the same (normalised) input.
-        self.inputs = ObservationInput(input_keys, input_dim, config.normalize_inputs).to(self.device)
-        self.conditioning = conditioning
-        self.task_encoder = conditioning.encoder.to(self.device) if conditioning is not None else None
         self.q = QNetwork(input_dim, n_actions, config.hidden_sizes, conditioning).to(self.device)
         self.q_target = QNetwork(input_dim, n_actions, config.hidden_sizes, conditioning).to(self.device)
         self.q_target.load_state_dict(self.q.state_dict())

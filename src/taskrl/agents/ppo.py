@@ -53,7 +53,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from taskrl.agents.base import Agent
-from taskrl.agents.parts import ActionBox, ObservationInput, check_learning_settings, gradient_step
+from taskrl.agents.parts import ActionBox, check_learning_settings, gradient_step
 from taskrl.agents.spec import AlgorithmSpec
 from taskrl.conditioning.networks import TaskConditioning, network_for
 from taskrl.errors import one_of, require
@@ -238,10 +238,7 @@ class PPOAgent(Agent):
         device: str | torch.device = "cpu",
         conditioning: TaskConditioning | None = None,
     ) -> None:
-        config.validate()
-        self.config = config
-        self.device = torch.device(device)
-        self.conditioning = conditioning
+        self.setup(config, device, input_keys, input_dim, conditioning)
         self.discrete = isinstance(action_space, gym.spaces.Discrete)
         if self.discrete:
             self.num_actions, self.action_start = int(action_space.n), int(action_space.start)
@@ -249,11 +246,9 @@ class PPOAgent(Agent):
         else:
             self.box = ActionBox(action_space, self.device)
             self.action_dim = out_dim = self.box.dim
-        self.inputs = ObservationInput(input_keys, input_dim, config.normalize_inputs).to(self.device)
         self.policy_net = network_for(input_dim, out_dim, config.hidden_sizes, conditioning).to(self.device)
         self.value_net = network_for(input_dim, 1, config.hidden_sizes, conditioning).to(self.device)
         _scale_output_layer(self.policy_net, 0.01)  # near-uniform / zero-mean initial policy
-        self.task_encoder = conditioning.encoder.to(self.device) if conditioning is not None else None
         self.log_std = nn.Parameter(
             torch.full((out_dim,), float(config.init_log_std), device=self.device), requires_grad=not self.discrete
         )

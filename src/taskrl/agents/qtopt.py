@@ -41,7 +41,6 @@ from taskrl.agents.base import Agent
 from taskrl.agents.cem import CEMConfig, CrossEntropyMethod
 from taskrl.agents.parts import (
     ActionBox,
-    ObservationInput,
     check_learning_settings,
     check_non_negative,
     check_probability,
@@ -135,13 +134,10 @@ class QTOptAgent(Agent):
         config: QTOptConfig,
         device: str | torch.device = "cpu",
     ) -> None:
-        config.validate()
-        self.config = config
-        self.device = torch.device(device)
+        self.setup(config, device, input_keys, input_dim)
         self.box = ActionBox(action_space, self.device)
         self.action_dim = self.box.dim
         self.unit_low, self.unit_high = -torch.ones_like(self.box.low), torch.ones_like(self.box.high)
-        self.inputs = ObservationInput(input_keys, input_dim, config.normalize_inputs).to(self.device)
         self.q = StateActionQ(input_dim, self.action_dim, config.hidden_sizes).to(self.device)
         self.q_target1 = StateActionQ(input_dim, self.action_dim, config.hidden_sizes).to(self.device)
         self.q_target2 = StateActionQ(input_dim, self.action_dim, config.hidden_sizes).to(self.device)

@@ -52,7 +52,6 @@ from torch import nn
 from taskrl.agents.base import Agent
 from taskrl.agents.parts import (
     ActionBox,
-    ObservationInput,
     check_learning_settings,
     gradient_step,
     negative_return_bounds,
@@ -221,15 +220,10 @@ class SACAgent(Agent):
         device: str | torch.device = "cpu",
         conditioning: TaskConditioning | None = None,
     ) -> None:
-        config.validate()
-        self.config = config
-        self.device = torch.device(device)
+        self.setup(config, device, input_keys, input_dim, conditioning)
         self.box = ActionBox(action_space, self.device)
         self.action_dim = self.box.dim
         self.target_entropy = config.target_entropy_per_dim * self.action_dim
-        self.inputs = ObservationInput(input_keys, input_dim, config.normalize_inputs).to(self.device)
-        self.conditioning = conditioning
-        self.task_encoder = conditioning.encoder.to(self.device) if conditioning is not None else None
         self.num_tasks = conditioning.num_tasks if conditioning is not None else 1
         self.actor = SquashedGaussianActor(
             input_dim, self.action_dim, config.hidden_sizes, config.log_std_min, config.log_std_max, conditioning

@@ -27,7 +27,6 @@ from torch import nn
 from taskrl.agents.base import Agent
 from taskrl.agents.parts import (
     ActionBox,
-    ObservationInput,
     check_learning_settings,
     check_non_negative,
     check_probability,
@@ -126,12 +125,9 @@ class TD3Agent(Agent):
         config: TD3Config,
         device: str | torch.device = "cpu",
     ) -> None:
-        config.validate()
-        self.config = config
-        self.device = torch.device(device)
+        self.setup(config, device, input_keys, input_dim)
         self.box = ActionBox(action_space, self.device)
         self.action_dim = self.box.dim
-        self.inputs = ObservationInput(input_keys, input_dim, config.normalize_inputs).to(self.device)
         self.actor = DeterministicActor(input_dim, self.action_dim, config.hidden_sizes).to(self.device)
         self.actor_target = DeterministicActor(input_dim, self.action_dim, config.hidden_sizes).to(self.device)
         self.critics = nn.ModuleList(StateActionQ(input_dim, self.action_dim, config.hidden_sizes) for _ in range(2)).to(
