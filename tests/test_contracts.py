@@ -71,8 +71,8 @@ def _fits(family: str, algo: str, mode: str) -> bool:
         return False
     if mode == "stored_data" and not hasattr(env.settings(), "dataset_quality"):
         return False  # stored data comes from the family's datasets here (or another run's replay)
-    if mode == "dataset" and family != "pointreach-mt":
-        return False  # the fast tier collects demonstrations of one family; Meta-World's are in test_imitation
+    if mode == "dataset" and env.demos is None:
+        return False  # an offline algorithm learns from demonstrations of the family's scripted expert
     config = with_overrides(TrainConfig(), {"env": family, "algo": algo, "her": "none"})
     try:
         check_fit(config, env.kind, env.actions)
@@ -96,12 +96,20 @@ def test_every_registered_family_has_a_smallest_setting():
 
 
 @pytest.fixture(scope="module")
-def demos(tmp_path_factory) -> Path:
+def demos(tmp_path_factory):
+    """``family -> dataset folder`` of two demonstrations per task of the family's scripted expert."""
     from taskrl.cli import main
 
-    out = tmp_path_factory.mktemp("demos") / "pointreach-mt"
-    assert main(["demos", "collect", "pointreach-mt", "--out", str(out), "--episodes", "2", "--no-progress"]) == 0
-    return out
+    made: dict[str, Path] = {}
+
+    def of(family: str) -> Path:
+        if family not in made:
+            out = tmp_path_factory.mktemp("demos") / family
+            assert main(["demos", "collect", family, "--out", str(out), "--episodes", "2", "--no-progress"]) == 0
+            made[family] = out
+        return made[family]
+
+    return of
 
 
 @pytest.fixture
@@ -127,7 +135,7 @@ def test_every_fitting_family_algorithm_and_run_mode_trains_saves_and_loads(fami
     elif family == "tasks":
         env = _task_set(kind)
     if mode == "dataset":
-        settings["dataset"] = str(request.getfixturevalue("demos"))
+        settings["dataset"] = str(request.getfixturevalue("demos")(family))
     if mode == "distributed":
         request.getfixturevalue("local_roles")
     num_envs = settings.pop("num_envs", 2)

@@ -31,7 +31,7 @@ import numpy as np
 import torch
 
 from taskrl.envs.base import NativeEnv, Obs, StepResult
-from taskrl.envs.spec import EnvFamily, EnvRequest
+from taskrl.envs.spec import DemoSource, EnvFamily, EnvRequest
 from taskrl.errors import ConfigError, require
 from taskrl.tasks import TaskSet
 
@@ -211,6 +211,18 @@ def reward_task_family(
         weights = task_weights(names, settings.low_data_tasks, settings.low_data_fraction)
         return env_class(request.num_envs, request.device, task_weights=weights, seed=request.seed)
 
+    def demos(chosen: Sequence[str] | None) -> DemoSource:
+        """The scripted expert the offline datasets use (``expert_action``), for ``taskrl demos collect``; an
+        episode counts when it ends in the task's region (episodes end at success)."""
+        if chosen is not None and sorted(chosen) != sorted(names):
+            raise ValueError(f"{name} records all its tasks ({', '.join(names)}): give {name} alone")
+
+        def make_env(wanted: Sequence[str], copies: int, seed: int, after_success: int) -> RewardTaskEnv:
+            return env_class(len(tasks) * copies, "cpu", task_sampling="fixed", seed=seed)
+
+        task_set = TaskSet.from_pairs((t.name, t.description) for t in tasks)
+        return DemoSource(name, task_set, make_env, lambda env: env.expert_action, "any")
+
     return EnvFamily(
         name=name,
         description=description,
@@ -222,6 +234,7 @@ def reward_task_family(
         actions=actions,
         per_task_success="any",  # episodes end at success
         video_env=lambda settings: gym.make(gym_id, render_mode="rgb_array"),
+        demos=demos if actions == "box" else None,  # demonstration datasets hold actions in [-1, 1]
     )
 
 
