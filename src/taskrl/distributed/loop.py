@@ -191,6 +191,9 @@ class DistributedLoop:
         # a free call slot of each collector; first back, first sent again
         self.idle = collections.deque(i for _ in range(CALLS_PER_COLLECTOR) for i in range(collectors.size))
         self.dead_collectors: set[int] = set()
+        # steps of each collector's running episodes (and the process they are in); lost when it dies
+        self.running, self.running_pid = [0] * collectors.size, [None] * collectors.size
+        self.lost_env_steps = 0
         self.label_calls: dict[Any, tuple[int, int]] = {}  # handle -> (updater, its life when sent)
         self.labelled: collections.deque[Labelled] = collections.deque()
         self.live_updaters = list(range(updaters.size)) if updaters else []
@@ -220,7 +223,8 @@ class DistributedLoop:
             return
         while self.idle:
             ahead = state.env_steps + self.in_flight_steps()
-            if ahead >= self.total_steps or not self.limiter.may_collect(state.updates, ahead + self.call_steps):
+            owed_at = ahead - self.lost_env_steps + self.call_steps
+            if ahead >= self.total_steps or not self.limiter.may_collect(state.updates, owed_at):
                 return
             i = self.idle.popleft()
             handle = self.collectors.submit(
@@ -242,15 +246,29 @@ class DistributedLoop:
                 got: Collected = self.collectors.result(handle)
             except RoleDied as error:
                 self.collector_lives.failed(i, life, isinstance(error, RoleRestarting))
+                self.lose_running(i)
                 self.collector_lost(i)
                 continue
             self.collector_lives.answered(i, got.pid)
+            if self.running_pid[i] not in (None, got.pid):  # it died between calls: its running episodes too
+                self.lose_running(i)
+            self.running[i], self.running_pid[i] = got.running, got.pid
             self.idle.append(i)
             self.store(got)
             self.meters.steps[i] += got.steps
             self.meters.collect_seconds[i] += got.seconds
             self.meters.lag += self.agent.updates - got.version
             self.meters.lag_samples += 1
+
+    def lose_running(self, i: int) -> None:
+        """Collector i died: the steps of its running episodes (counted in ``env_steps``) never reach the replay."""
+        self.lost_env_steps += self.running[i]
+        self.running[i], self.running_pid[i] = 0, None
+
+    def data_steps(self, state: LoopState) -> int:
+        """Env steps whose transitions exist (stored, or in a live collector's running episodes): what the
+        limiter owes updates for."""
+        return state.env_steps - self.lost_env_steps
 
     def store(self, got: Collected) -> None:
         self.replay.add_episodes(got.episodes)
@@ -313,7 +331,11 @@ class DistributedLoop:
         """Up to :data:`UPDATE_BURST` updates while the limiter allows and batches are at hand."""
         made = 0
         device = self.agent.device
-        while made < UPDATE_BURST and self.replay.num_episodes > 0 and self.limiter.may_update(state.updates, state.env_steps):
+        while (
+            made < UPDATE_BURST
+            and self.replay.num_episodes > 0
+            and self.limiter.may_update(state.updates, self.data_steps(state))
+        ):
             if self.live_updaters:
                 self.refill()
                 if not self.labelled:
@@ -375,12 +397,14 @@ class DistributedLoop:
             if self.collect_calls:
                 self.harvest(self.collectors.ready(list(self.collect_calls), 0.0))
             if self.replay.num_episodes == 0:
-                self.limiter.nothing_to_sample(state.env_steps)
+                self.limiter.nothing_to_sample(self.data_steps(state))
             self.dispatch(state)
             made = self.learn(state)
-            if made == 0 and (state.env_steps < self.total_steps or self.limiter.may_update(state.updates, state.env_steps)):
+            if made == 0 and (
+                state.env_steps < self.total_steps or self.limiter.may_update(state.updates, self.data_steps(state))
+            ):
                 self.wait()
-            if self.row_due(state) and self.limiter.enabled and self.limiter.may_update(state.updates, state.env_steps):
+            if self.row_due(state) and self.limiter.enabled and self.limiter.may_update(state.updates, self.data_steps(state)):
                 continue  # a metrics row (and the end) comes once the updates owed so far are made
             if books.after_step(self.agent.exploration(state.env_steps)):
                 break
@@ -390,6 +414,7 @@ class DistributedLoop:
         state = self.books.state
         return {
             **self.meters.row(elapsed),
-            "updates_per_env_step": self.limiter.ratio_made(state.updates, state.env_steps),
+            "updates_per_env_step": self.limiter.ratio_made(state.updates, self.data_steps(state)),
+            "lost_env_steps": self.lost_env_steps,
             "stored_episodes": self.replay.episodes_added,
         }

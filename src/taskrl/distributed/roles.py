@@ -15,6 +15,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+import numpy as np
 import torch
 
 from taskrl.replay.batch import Batch
@@ -43,6 +44,8 @@ class Collected:
         seconds: wall-clock of the call.
         version: the weight version it acted with.
         pid: the collector's process (a new one after a restart).
+        running: steps of the episodes still running after the call (counted in ``steps``, not yet returned:
+            lost if the collector dies).
     """
 
     episodes: Episodes
@@ -52,6 +55,7 @@ class Collected:
     seconds: float
     version: int
     pid: int = dataclasses.field(default_factory=os.getpid)
+    running: int = 0
 
 
 @dataclasses.dataclass
@@ -101,11 +105,17 @@ class Collector:
         """This process's id (what an operator or a fault test signals)."""
         return os.getpid()
 
-    def _start(self, epoch: int) -> None:
-        # a restarted collector (a new epoch) must not replay the episodes of its first life
+    def _start(self, epoch: int, env_steps: int) -> None:
+        """Reset the envs of a new process. Its first life (epoch 0, the run's start) keeps the seeds a run is
+        reproduced with; any later start (a restart, whenever it died; a resumed run) draws its seeds from
+        (seed, epoch, the run's env steps), so no life repeats another's episodes."""
         self.epoch = epoch
-        self.generator.manual_seed(self.seed + 7919 * epoch)
-        self.obs = self.env.reset(seed=self.seed + 104_729 * epoch)
+        if epoch == 0 and env_steps == 0:
+            generator_seed, env_seed = self.seed, self.seed
+        else:
+            generator_seed, env_seed = (int(x) for x in np.random.SeedSequence([self.seed, epoch, env_steps]).generate_state(2))
+        self.generator.manual_seed(generator_seed)
+        self.obs = self.env.reset(seed=env_seed)
         self.recorder.start(self.obs)
 
     def collect(self, steps: int, version: int, fetch: Fetch, env_steps: int = 0, epoch: int = 0) -> Collected:
@@ -116,12 +126,12 @@ class Collector:
             version: the newest published weight version.
             fetch: ``() -> acting weights`` of that version (called only when they are newer).
             env_steps: the run's env steps, for exploration schedules.
-            epoch: how many times the trainer saw this collector restart (reseeds after a restart).
+            epoch: how many times the trainer saw this collector restart (seeds a new process).
         """
         started = time.perf_counter()
         pull_weights(self, version, fetch)
-        if self.obs is None or epoch != self.epoch:
-            self._start(epoch)
+        if self.obs is None:  # a new process: the envs of a running one are never reset (their steps are counted)
+            self._start(epoch, env_steps)
         env, recorder = self.env, self.recorder
         ended = succeeded = 0
         obs = self.obs
@@ -134,7 +144,10 @@ class Collector:
             succeeded += int((done & info["is_success"]).sum())
             obs = next_obs
         self.obs = obs
-        return Collected(recorder.drain(), steps * env.num_envs, ended, succeeded, time.perf_counter() - started, self.version)
+        seconds = time.perf_counter() - started
+        return Collected(
+            recorder.drain(), steps * env.num_envs, ended, succeeded, seconds, self.version, running=recorder.running_steps
+        )
 
     def flush(self) -> Collected:
         """The episodes still running, stored as cut at their last step (``truncated`` there): what a

@@ -277,6 +277,11 @@ class EpisodeRecorder:
         """One step of every env copy (:meth:`EpisodeStaging.add`'s arguments)."""
         self._keep(self.staging.add(*step))
 
+    @property
+    def running_steps(self) -> int:
+        """Steps of the episodes still running (not yet finished, so not yet drained)."""
+        return int(self.staging.t.sum())
+
     def cut_running(self) -> int:
         """Record the running episodes as cut at their last step; how many there were."""
         episodes = self.staging.cut_running()
