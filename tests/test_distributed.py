@@ -260,6 +260,19 @@ class _DyingCollector:
         raise RoleDied("killed")
 
 
+def test_labels_older_than_the_staleness_bound_are_dropped_and_counted(tmp_path):
+    config = _config(
+        collectors=2, bellman_updaters=2, queue_size=8, publish_interval=2, max_target_staleness=2, total_steps=1_000
+    )
+    loop, rows, parts = _local_loop(tmp_path, config, updaters=2)
+    loop.run()
+    parts.close()
+    used = [row for row in rows if row.get("target_staleness_max") is not None and row["updates"] > 0]
+    assert used and max(row["target_staleness_max"] for row in used) <= 2  # never regressed on older targets
+    assert sum(row["stale_batches_dropped"] for row in used) > 0  # a queue of 8 runs older: those were dropped
+    assert parts.agent.updates > 0
+
+
 def _collector(config, seed: int) -> Collector:
     """A new collector process (Ray's restart runs the constructor again with the same arguments)."""
     return Collector(lambda s: collector_env(config, None, 2, s), lambda env: role_agent(config, env), seed)

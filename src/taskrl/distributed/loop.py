@@ -130,6 +130,7 @@ class RoleMeters:
         self.queue_depth = self.queue_samples = 0
         self.lag = self.lag_samples = 0
         self.staleness = self.staleness_max = self.staleness_samples = 0
+        self.stale_dropped = 0
 
     def row(self, elapsed: float) -> dict[str, float]:
         """The row's per-role columns (see docs/distributed.md), then a fresh start."""
@@ -143,6 +144,7 @@ class RoleMeters:
             out["queue_depth"] = self.queue_depth / max(self.queue_samples, 1)
             out["target_staleness"] = self.staleness / max(self.staleness_samples, 1)
             out["target_staleness_max"] = self.staleness_max
+            out["stale_batches_dropped"] = self.stale_dropped
         out["weight_lag"] = self.lag / max(self.lag_samples, 1)
         out["collector_restarts"] = self.collector_restarts
         if self.updaters:
@@ -346,6 +348,10 @@ class DistributedLoop:
                 self.meters.queue_samples += 1
                 got = self.labelled.popleft()
                 stale = self.agent.updates - got.version  # updates since the weights behind these targets
+                bound = self.settings.max_target_staleness
+                if bound and stale > bound:  # too old to regress on: drop it (a fresh batch is labelled instead)
+                    self.meters.stale_dropped += 1
+                    continue
                 self.meters.staleness += stale
                 self.meters.staleness_max = max(self.meters.staleness_max, stale)
                 self.meters.staleness_samples += 1

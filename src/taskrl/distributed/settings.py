@@ -28,6 +28,9 @@ class DistributedConfig:
         batches_per_call: batches an updater labels per call (fewer calls: less transfer work for the
             trainer per batch; at most ``queue_size``).
         publish_interval: trainer updates between publications of the acting and target weights.
+        max_target_staleness: with Bellman updaters, drop (and count) a labelled batch whose targets were computed
+            with weights more than this many trainer updates old (0: no bound; else at least ``publish_interval``,
+            the age of the newest weights an updater can have).
         limit_updates: hold trainer updates per collected env step at ``updates_per_step``, by pausing
             the trainer or the collectors (off: both run as fast as they can).
         ray_address: empty: start a local Ray; ``auto`` or ``HOST:PORT``: join a running cluster.
@@ -47,6 +50,7 @@ class DistributedConfig:
     queue_size: int = 8
     batches_per_call: int = 1
     publish_interval: int = 10
+    max_target_staleness: int = 0
     limit_updates: bool = True
     ray_address: str = ""
     ray_cpus: int = 0
@@ -63,6 +67,12 @@ class DistributedConfig:
             self.batches_per_call <= self.queue_size,
             "batches_per_call",
             f"must be <= queue_size={self.queue_size} (got {self.batches_per_call})",
+        )
+        require(
+            self.max_target_staleness == 0 or self.max_target_staleness >= self.publish_interval,
+            "max_target_staleness",
+            f"must be 0 (no bound) or >= publish_interval={self.publish_interval}: newer targets cannot exist "
+            f"(got {self.max_target_staleness})",
         )
         require(self.actor_cpus > 0, "actor_cpus", f"must be > 0 (got {self.actor_cpus})")
         require(self.max_restarts >= -1, "max_restarts", f"must be >= -1 (-1 = unlimited; got {self.max_restarts})")
