@@ -20,7 +20,7 @@ from helpers import small_run
 from taskrl.config import ConfigError, with_overrides
 from taskrl.distributed.limiter import UpdateToDataLimiter
 from taskrl.distributed.loop import DistributedLoop, RoleLives, RolesLost
-from taskrl.distributed.pools import LocalPool, RoleCannotStart, RoleDied, RoleRestarting
+from taskrl.distributed.pools import LatePool, LocalPool, RoleCannotStart, RoleDied, RoleRestarting
 from taskrl.distributed.roles import BellmanUpdater, Collector
 from taskrl.logger import read_metrics
 from taskrl.presets import preset_config
@@ -107,19 +107,19 @@ def test_recent_mix_draws_its_share_from_the_newest_episodes():
     assert len(set(batch.episode[100:].tolist()) - newest) > 5  # the rest from all stored episodes
 
 
-def _local_loop(tmp_path, config, updaters: int, evaluated: bool = False):
-    """A DistributedLoop whose roles are plain objects in this process, with its bookkeeping (evaluating
-    the trainer's agent, or a stand-in evaluation)."""
+def _local_loop(tmp_path, config, updaters: int, evaluated: bool = False, pool=LocalPool):
+    """A DistributedLoop whose roles are plain objects in this process (``pool``: a LocalPool, or a LatePool whose
+    calls come back late and out of order), with its bookkeeping (evaluating the trainer's agent, or a stand-in)."""
     parts = build(config)
     evaluate = make_evaluator(config, parts.eval_env, parts.agent, seed=123)[0] if evaluated else lambda: {"success_rate": 0.0}
     each = config.cluster.envs_each(config.num_envs)
-    collectors = LocalPool(
+    collectors = pool(
         [
             Collector(lambda seed: collector_env(config, None, each, seed), lambda env: role_agent(config, env), 10 + i)
             for i in range(2)
         ]
     )
-    pool = LocalPool([BellmanUpdater(lambda: role_agent(config), 20 + j) for j in range(updaters)]) if updaters else None
+    labellers = pool([BellmanUpdater(lambda: role_agent(config), 20 + j) for j in range(updaters)]) if updaters else None
     limiter = UpdateToDataLimiter(
         config.updates_per_step, config.learning_starts, lead_steps=2 * each * config.cluster.collector_steps
     )
@@ -137,7 +137,7 @@ def _local_loop(tmp_path, config, updaters: int, evaluated: bool = False):
     )
     sample = batch_sampler(parts.replay, parts.relabel, config.batch_size, parts.generator, parts.sampler)
     loop = DistributedLoop(
-        parts.agent, parts.replay, sample, collectors, pool, config.cluster, config.total_steps, limiter, each, books
+        parts.agent, parts.replay, sample, collectors, labellers, config.cluster, config.total_steps, limiter, each, books
     )
     return loop, rows, parts
 
@@ -160,18 +160,23 @@ def test_updates_are_owed_from_the_first_stored_episode_not_from_learning_starts
 @pytest.mark.slow
 def test_the_loop_keeps_the_update_to_data_ratio_and_a_bounded_queue(tmp_path):
     config = _config(collectors=2, bellman_updaters=2, queue_size=5, batches_per_call=2)
-    loop, rows, parts = _local_loop(tmp_path, config, updaters=2)
-    most = []
-    refill = loop.refill
+    loop, rows, parts = _local_loop(tmp_path, config, updaters=2, pool=LatePool)  # calls late and out of order
+    most, leads = [], []
+    refill, dispatch = loop.refill, loop.dispatch
 
     def watched_refill():
         refill()
         most.append(loop.queued())
 
-    loop.refill = watched_refill
+    def watched_dispatch(state):
+        dispatch(state)  # the updates owed once every call out returns, beyond those made: the limiter's lead
+        leads.append(loop.limiter.owed(state.env_steps + loop.in_flight_steps()) - state.updates)
+
+    loop.refill, loop.dispatch = watched_refill, watched_dispatch
     state = loop.run()
     assert state.env_steps >= config.total_steps
     assert max(most) <= config.cluster.queue_size  # back-pressure: never more batches out than the queue holds
+    assert max(leads) <= config.updates_per_step * loop.limiter.lead_steps  # collection never ran further ahead
     for row in rows:
         if row["env_steps"] > config.learning_starts:
             assert row["updates_per_env_step"] == pytest.approx(config.updates_per_step, rel=0.05), row

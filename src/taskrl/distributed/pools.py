@@ -1,13 +1,16 @@
 """A group of role objects the trainer calls asynchronously: :class:`LocalPool` runs them in this
-process (each call at once), :class:`~taskrl.distributed.actors.RayPool` as Ray actors. The loop
-speaks only this interface, so it reads the same either way and is tested without Ray."""
+process (each call at once), :class:`LatePool` also returns them late and out of order,
+:class:`~taskrl.distributed.actors.RayPool` as Ray actors. The loop speaks only this interface, so it reads
+the same either way and is tested without Ray."""
 
 from __future__ import annotations
 
+import copy
+import random
 from collections.abc import Callable, Sequence
 from typing import Any, Protocol
 
-__all__ = ["LocalPool", "Pool", "RoleCannotStart", "RoleDied"]
+__all__ = ["LatePool", "LocalPool", "Pool", "RoleCannotStart", "RoleDied"]
 
 
 class RoleDied(RuntimeError):
@@ -84,7 +87,8 @@ class LocalPool:
         return handle.value
 
     def publish(self, value: Any) -> Callable[[], Any]:
-        return lambda: value
+        snapshot = copy.deepcopy(value)  # as Ray's object store: the trainer's later updates do not show through
+        return lambda: snapshot
 
     def call_all(self, method: str, timeout: float) -> list[Any]:
         return [getattr(role, method)() for role in self.roles]
@@ -94,3 +98,40 @@ class LocalPool:
             close = getattr(role, "close", None)
             if close is not None:
                 close()
+
+
+class LatePool(LocalPool):
+    """A :class:`LocalPool` whose calls finish late and out of order, as on Ray: each call runs when it is
+    submitted (with the weights of that moment) but shows as finished only after 0 to ``max_polls`` looks of
+    :meth:`ready`, drawn at random, and those finished together come back shuffled.
+
+    Args:
+        roles: the role objects.
+        max_polls: the most looks at ``ready`` a call stays unfinished for.
+        seed: seed of the draws.
+    """
+
+    def __init__(self, roles: Sequence[Any], max_polls: int = 4, seed: int = 0) -> None:
+        super().__init__(roles)
+        self.max_polls, self.random = max_polls, random.Random(seed)
+        self.polls_left: dict[int, int] = {}
+
+    def submit(self, index: int, method: str, *args: Any) -> _Done:
+        handle = super().submit(index, method, *args)
+        self.polls_left[id(handle)] = self.random.randint(0, self.max_polls)
+        return handle
+
+    def ready(self, handles: Sequence[Any], timeout: float) -> list[Any]:
+        done = []
+        for handle in handles:
+            left = self.polls_left.get(id(handle), 0)
+            if left <= 0:
+                done.append(handle)
+            else:
+                self.polls_left[id(handle)] = left - 1
+        self.random.shuffle(done)
+        return done
+
+    def result(self, handle: _Done) -> Any:
+        self.polls_left.pop(id(handle), None)
+        return super().result(handle)
