@@ -34,7 +34,7 @@ from pathlib import Path
 from common import append_results
 
 HERE = Path(__file__).parent
-ONLINE = ("none", "all", "random", "success", "hipi", "conservative", "zero-reward")
+ONLINE = ("none", "all", "random", "success", "hipi", "conservative", "zero-reward", "mtopt")
 OFFLINE = ("none", "all", "conservative", "zero-reward")
 # two-sided 95% Student t quantiles by degrees of freedom
 T95 = {1: 12.706, 2: 4.303, 3: 3.182, 4: 2.776, 5: 2.571, 6: 2.447, 7: 2.365, 8: 2.306, 9: 2.262}

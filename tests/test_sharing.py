@@ -151,6 +151,32 @@ def test_success_shares_exactly_the_episodes_that_pass_the_success_test():
     assert torch.all(weights[batch.obs["task"][shared], batch.episode[shared]] > 0)
 
 
+def test_mtopt_shares_successes_and_failures_half_and_half_per_task():
+    """Against a brute-force success test: of each task's shared rows, half from other tasks' episodes that pass
+    its success test somewhere and half from those that do not (where it has both)."""
+    env, replay = filled_replay(GridTasks, steps=400)
+    sharing = TaskSharing(replay, env, env.num_tasks, SharingConfig(sharing="mtopt", share_fraction=1.0))
+    source = replay.first_observations("task").long()
+    passes = torch.zeros(replay.episode_slots, env.num_tasks, dtype=torch.bool)
+    for e in replay.stored_episodes().tolist():
+        next_obs = replay.gather(*replay.episode_steps(torch.tensor([e]))).next_obs
+        for j in range(env.num_tasks):
+            passes[e, j] = bool(env.task_success(next_obs, torch.full((int(replay.length[e]),), j)).any())
+    batch = sharing(6000, torch.Generator().manual_seed(0))
+    task = batch.obs["task"].long()
+    shared = source[batch.episode] != task
+    balanced = 0
+    for j in range(env.num_tasks):
+        rows = shared & (task == j)
+        others = (source != j) & (replay.length > 0)
+        if not bool((passes[:, j] & others).any()) or not bool((~passes[:, j] & others).any()):
+            continue
+        share = passes[batch.episode[rows], j].float().mean().item()
+        assert abs(share - 0.5) < 0.08, (j, share)  # ~1000 rows a task: 0.5 +- 5 standard errors
+        balanced += 1
+    assert balanced >= 2  # the test saw tasks with both kinds of episode
+
+
 def test_random_draws_from_k_other_tasks_per_batch():
     env, replay = filled_replay(GridTasks)
     sharing = TaskSharing(replay, env, env.num_tasks, SharingConfig(sharing="random", share_tasks=2, share_fraction=1.0))

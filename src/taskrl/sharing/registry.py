@@ -7,12 +7,12 @@ A new strategy is a file declaring one (its weights, filter or relabelling) and 
 from __future__ import annotations
 
 from taskrl.registry import Registry
-from taskrl.sharing import builtin
+from taskrl.sharing import builtin, mtopt
 from taskrl.sharing.strategy import SharingStrategy
 
 __all__ = ["SHARING_STRATEGIES", "register_sharing_strategy", "sharing_strategy"]
 
-BUILT_IN: tuple[SharingStrategy, ...] = builtin.BUILT_IN
+BUILT_IN: tuple[SharingStrategy, ...] = (*builtin.BUILT_IN, mtopt.MTOPT)
 
 #: name -> strategy, in registration order.
 SHARING_STRATEGIES: Registry[SharingStrategy] = Registry("sharing", BUILT_IN)

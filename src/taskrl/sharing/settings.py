@@ -20,7 +20,8 @@ class SharingConfig:
             success test), ``hipi`` (other tasks' episodes weighted by the inverse-RL posterior of
             this task), ``conservative`` (CDS: other tasks' transitions whose Q-value under this task
             reaches the ``conservative_percentile``-th percentile of its own rows' Q-values) or
-            ``zero-reward`` (UDS: any other task's data with reward 0), or a strategy registered with
+            ``zero-reward`` (UDS: any other task's data with reward 0), ``mtopt`` (MT-Opt: other tasks'
+            successes and failures under this task, half and half), or a strategy registered with
             :func:`~taskrl.sharing.registry.register_sharing_strategy`. Needs an env whose tasks are
             reward functions (``gridtasks``, ``pointtasks``, or one with ``task_reward``,
             ``task_terminated`` and ``task_success``).
