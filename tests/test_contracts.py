@@ -217,3 +217,29 @@ def test_every_fitting_algorithm_builds_and_acts_on_the_mujoco_families(family, 
         assert env.single_action_space.contains(action[0].numpy().astype(env.single_action_space.dtype))
     finally:
         env.close()
+
+
+@pytest.mark.parametrize("strategy", [name for name, spec in SHARING_STRATEGIES.items() if spec.shares])
+def test_what_a_sharing_strategy_needs_is_refused_from_the_declarations_before_anything_is_built(strategy, monkeypatch):
+    from taskrl.config import validate
+
+    refused = 0
+    for family in ENV_FAMILIES.values():
+        if family.task_rewards is False and family.kind == "multitask" and family.name not in HEAVY:
+            settings = {"env": family.name, "algo": "sac", "her": "none", "sampling": "task_balanced", "sharing": strategy}
+            config = with_overrides(TrainConfig(), {**settings, **SMALLEST[family.name]})
+            with pytest.raises(ConfigError, match="reward functions"):
+                validate(config)
+            refused += 1
+    assert refused >= 2
+    # an algorithm that declares no Q-values, on a strategy that ranks rows by them
+    monkeypatch.setitem(ALGORITHMS, "sac", dataclasses.replace(ALGORITHMS["sac"], q_values=False))
+    config = with_overrides(
+        TrainConfig(),
+        {"env": "pointtasks", "algo": "sac", "her": "none", "sampling": "task_balanced", "sharing": strategy, "num_envs": 6},
+    )
+    if SHARING_STRATEGIES[strategy].needs_q_value:
+        with pytest.raises(ConfigError, match="ranks shared data by Q-values"):
+            validate(config)
+    else:
+        validate(config)

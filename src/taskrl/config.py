@@ -263,6 +263,22 @@ def check_roles(config: TrainConfig) -> None:
         "offline",
         "an offline run steps no env: it has no collectors; drop --distributed",
     )
+    strategy = sharing_strategy(c.data_sharing.sharing)
+    if strategy.shares:  # what the strategy needs, as the family and the algorithm declare it
+        family = env_family(c.env)
+        rewarded = ", ".join(f.name for f in ENV_FAMILIES.values() if f.task_rewards)
+        require(
+            family.task_rewards is not False,
+            "sharing",
+            f"needs an env whose tasks are reward functions (task_reward, task_terminated, task_success); "
+            f"{_env_label(c)!r} has none; allowed envs: {rewarded}",
+        )
+        ranked = ", ".join(a.name for a in ALGORITHMS.values() if a.q_values)
+        require(
+            not strategy.needs_q_value or spec.q_values,
+            "sharing",
+            f"{strategy.name} ranks shared data by Q-values; {c.algo} has no q_value; use {ranked}",
+        )
     if c.data_sharing.sharing != "none":
         require(
             c.sampling == "task_balanced",

@@ -248,4 +248,5 @@ SPEC = AlgorithmSpec(
     actions=("discrete",),
     multitask=True,
     compiles=True,
+    q_values=True,
 )

@@ -382,4 +382,5 @@ SPEC = AlgorithmSpec(
     actions=("box",),
     multitask=True,
     compiles=True,
+    q_values=True,
 )

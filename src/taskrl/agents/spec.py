@@ -43,6 +43,8 @@ class AlgorithmSpec:
             updaters can compute targets apart from the trainer (QT-Opt).
         compiles: whether its update runs as one compiled graph (``--compile``; its agent
             implements ``learn``, see :mod:`taskrl.agents.compiled`).
+        q_values: whether its agent has ``q_value(obs, action) -> [B]``, the Q of each row under the row's task
+            (what a sharing strategy that ranks rows by Q reads).
     """
 
     name: str
@@ -54,3 +56,4 @@ class AlgorithmSpec:
     multitask: bool = False
     bellman_updaters: bool = False
     compiles: bool = False
+    q_values: bool = False

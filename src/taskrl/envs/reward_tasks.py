@@ -234,6 +234,7 @@ def reward_task_family(
         actions=actions,
         per_task_success="any",  # episodes end at success
         video_env=lambda settings: gym.make(gym_id, render_mode="rgb_array"),
+        task_rewards=True,
         demos=demos if actions == "box" else None,  # demonstration datasets hold actions in [-1, 1]
     )
 

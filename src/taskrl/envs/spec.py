@@ -115,6 +115,8 @@ class EnvFamily:
             matched against, and the paraphrases held-out prompts are tested with.
         video_env: ``video_env(settings) -> gymnasium.Env`` with ``render_mode="rgb_array"``: one copy to
             record videos of (``taskrl eval --video``); None where the family cannot render.
+        task_rewards: whether its tasks are reward functions (``task_reward``, ``task_terminated``, ``task_success`` on
+            the env: what data sharing scores rows with); None where only the built env can tell (a user's env).
         demos: families with a scripted expert: ``demos(task names or None) -> DemoSource`` of the named tasks (None:
             the family's own set), what ``taskrl demos collect FAMILY`` (or ``FAMILY:task,task``) records.
     """
@@ -135,6 +137,7 @@ class EnvFamily:
     video_env: Callable[[Any], Any] | None = None
     tasks_env: Callable[[Any, EnvRequest, Sequence[str]], BatchedEnv] | None = None
     task_sentences: Callable[[Any], dict[str, list[str]]] | None = None
+    task_rewards: bool | None = False
     demos: Callable[[Sequence[str] | None], DemoSource] | None = None
 
     def success_criterion(self, settings: Any) -> str:

@@ -95,21 +95,16 @@ def _add_replay(parts: RunParts, needs: int) -> None:
 
 def _task_sharing(config: TrainConfig, env: BatchedEnv, agent: Any, replay: EpisodeReplay) -> TaskSharing | None:
     """Task-balanced batches with the run's sharing strategy, on an env that scores any task; None
-    (plain task-balanced sampling) on one that cannot, where ``--sharing`` other than none is an error."""
-    strategy = config.data_sharing.sharing
+    (plain task-balanced sampling) on one that cannot. What a strategy needs was checked by ``validate``
+    from the family's and the algorithm's declarations; the built env is held to its family's."""
+    chosen = sharing_strategy(config.data_sharing.sharing)
     if not task_functions(env):
         require(
-            strategy == "none",
+            not chosen.shares,
             "sharing",
             f"needs an env whose tasks are reward functions (task_reward, task_terminated, task_success); "
-            f"{config.env!r} has none; allowed envs: gridtasks, pointtasks",
+            f"the env {config.env!r} built has none",
         )
         return None
-    chosen = sharing_strategy(strategy)
-    q_value = getattr(agent, "q_value", None)
-    require(
-        not chosen.needs_q_value or q_value is not None,
-        "sharing",
-        f"{strategy} ranks shared data by Q-values; {config.algo} has no q_value; use dqn or sac",
-    )
+    q_value = agent.q_value if algorithm(config.algo).q_values else None
     return TaskSharing(replay, env, len(env.task_set), config.data_sharing, q_value, strategy=chosen)
