@@ -6,7 +6,16 @@ import pytest
 
 from taskrl.agents.registry import ALGORITHMS
 from taskrl.conditioning.networks import ConditioningConfig
-from taskrl.config import TrainConfig, field_help, from_dict, leaf_fields, load, to_dict, validate, with_overrides
+from taskrl.config import (
+    TrainConfig,
+    field_help,
+    from_dict,
+    leaf_fields,
+    load,
+    to_dict,
+    validate,
+    with_overrides,
+)
 from taskrl.envs.registry import ENV_FAMILIES
 from taskrl.errors import ConfigError
 from taskrl.presets import PRESETS, preset_config
@@ -108,6 +117,26 @@ def test_switching_algorithm_keeps_shared_settings_and_says_so():
     notes = []
     with_overrides(preset_config("bitflip-her"), {"env": "pointreach", "algo": "sac"}, notes)
     assert notes == []  # nothing the preset changed is lost: bitflip's section was at its defaults
+
+
+def test_a_variant_algorithm_keeps_its_parents_settings_when_switched_to(monkeypatch):
+    import dataclasses as dc
+
+    from taskrl.agents.registry import register_algorithm
+
+    @dc.dataclass
+    class VariantConfig(ALGORITHMS["dqn"].config):
+        extra: float = 1.0
+
+    for parent in (None, "dqn"):
+        variant = dc.replace(ALGORITHMS["dqn"], name="dqn-variant", config=VariantConfig, parent=parent)
+        monkeypatch.setitem(ALGORITHMS, "dqn-variant", variant) if parent is None else register_algorithm(variant, replace=True)
+        base = with_overrides(preset_config("bitflip-her"), {"epsilon_end": 0.2, "epsilon_decay_steps": 500, "double_q": False})
+        exploration = {"epsilon_end", "epsilon_decay_steps", "double_q"}  # DQN's own, not shared by every algorithm
+        c = with_overrides(base, {"algo": "dqn-variant"})
+        kept = {k for k in exploration if getattr(c.algo_settings, k) == getattr(base.algo_settings, k)}
+        assert kept == (exploration if parent == "dqn" else set())
+    ALGORITHMS.pop("dqn-variant")
 
 
 def test_moving_a_multitask_preset_to_an_env_without_tasks_turns_its_conditioning_off():

@@ -432,12 +432,22 @@ def _listed(settings: dict[str, Any]) -> str:
     return ", ".join(f"{k}={v}" for k, v in settings.items())
 
 
+def _lineage(name: str) -> set[str]:
+    """The algorithm and the parents it declares (``AlgorithmSpec.parent``)."""
+    seen: set[str] = set()
+    while name and name not in seen:
+        seen.add(name)
+        name = algorithm(name).parent or ""
+    return seen
+
+
 def _switch_algorithm(old: Any, old_name: str, new_name: str, notes: list[str]) -> Any:
     """The new algorithm's section, keeping the shared settings the old section had changed."""
     new_cls = algorithm(new_name).config
     new_fields = {f.name for f in dataclasses.fields(new_cls)}
     changed = _changed(old)
-    kept = {k: v for k, v in changed.items() if k in SHARED_ALGO_SETTINGS and k in new_fields}
+    kin = _lineage(old_name) & _lineage(new_name)  # a variant and its parent, or two variants of one parent
+    kept = {k: v for k, v in changed.items() if (kin or k in SHARED_ALGO_SETTINGS) and k in new_fields}
     dropped = sorted(set(changed) - set(kept))
     section = new_cls(**kept)
     if kept:
@@ -466,7 +476,8 @@ def with_overrides(config: TrainConfig, overrides: dict[str, Any], notes: list[s
 
     Names are those of :func:`leaf_fields` for the resulting ``env`` and ``algo``. Changing ``env``
     starts its family's section from defaults (families sharing a section keep it); changing
-    ``algo`` keeps the :data:`SHARED_ALGO_SETTINGS` the old section had changed. What was kept
+    ``algo`` keeps the :data:`SHARED_ALGO_SETTINGS` the old section had changed (every setting both sections
+    have, between a variant and its ``parent``). What was kept
     or dropped is appended to ``notes``.
     """
     notes = [] if notes is None else notes

@@ -45,6 +45,9 @@ class AlgorithmSpec:
             implements ``learn``, see :mod:`taskrl.agents.compiled`).
         q_values: whether its agent has ``q_value(obs, action) -> [B]``, the Q of each row under the row's task
             (what a sharing strategy that ranks rows by Q reads).
+        parent: the registered algorithm this one is a variant of: switching ``--algo`` between the two (or two
+            variants of one parent) keeps every setting their sections share by name (exploration included),
+            not only the settings every algorithm shares.
     """
 
     name: str
@@ -57,3 +60,4 @@ class AlgorithmSpec:
     bellman_updaters: bool = False
     compiles: bool = False
     q_values: bool = False
+    parent: str | None = None
