@@ -11,7 +11,7 @@ from typing import Any
 from taskrl.checkpoint import load_checkpoint
 from taskrl.config import TrainConfig
 from taskrl.envs.base import BatchedEnv
-from taskrl.envs.registry import env_family
+from taskrl.envs.registry import ENV_FAMILIES, env_family
 from taskrl.envs.reward_tasks import parse_qualities
 from taskrl.errors import ConfigError, reason, require
 from taskrl.replay import EpisodeReplay
@@ -39,6 +39,11 @@ def dataset_steps(config: TrainConfig, env: Any) -> int:
     return len(env.task_set) * -(-settings.dataset_steps // copies) * copies
 
 
+def _dataset_families() -> list[str]:
+    """The families whose settings name datasets (``dataset_quality``)."""
+    return [f.name for f in ENV_FAMILIES.values() if "dataset_quality" in {x.name for x in dataclasses.fields(f.settings)}]
+
+
 def check_preload_fits(replay: EpisodeReplay, transitions: int, what: str) -> None:
     """A :class:`ConfigError` on ``buffer_size`` when ``transitions`` more would evict stored data: a
     preload is never cut silently."""
@@ -64,7 +69,7 @@ def preload_datasets(parts: RunParts) -> int:
         require(
             callable(getattr(maker, "expert_action", None)) and getattr(maker, "slot_tasks", None) is not None,
             "dataset_quality",
-            f"{config.env!r} has no scripted expert to make datasets with; allowed envs: gridtasks, pointtasks",
+            f"{config.env!r} has no scripted expert to make datasets with; allowed envs: {', '.join(_dataset_families())}",
         )
         check_preload_fits(parts.replay, dataset_steps(config, env), "--dataset-quality's datasets")
         episodes = collect_task_datasets(maker, qualities, settings.dataset_steps, config.seed)
