@@ -15,7 +15,7 @@ from taskrl.envs.metaworld_tasks import (
     metaworld_task_set,
     version_free,
 )
-from taskrl.training.per_task import evaluate_per_task
+from taskrl.training.per_task import TooManyEpisodes, evaluate_per_task
 
 
 # ------------------------------------------------------------------ no Meta-World needed
@@ -161,7 +161,7 @@ def test_per_task_evaluation_on_a_tiny_budget(tmp_path):
         assert result["mean_success_rate"] == pytest.approx(sum(rates) / 2)  # the headline is the mean over tasks
         assert json.loads((tmp_path / "eval.json").read_text())["tasks"]["push"]["index"] == 1
         assert "reach" in (tmp_path / "t.txt").read_text()
-        with pytest.raises(ValueError, match="distinct goal positions"):
+        with pytest.raises(TooManyEpisodes, match="distinct goal positions"):  # prompted eval: one line on --episodes
             evaluate_per_task(policy, env, episodes_per_task=6)
         # After evaluation, goals are random again.
         obs = env.reset(seed=0)

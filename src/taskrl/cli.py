@@ -297,7 +297,11 @@ def cmd_eval(argv: Sequence[str]) -> int:
     parser = _Parser(prog="taskrl eval", description="Re-evaluate a saved agent: success with a 95% interval, per task.")
     parser.add_argument("run_dir", help="a run directory written by `taskrl train`")
     parser.add_argument(
-        "--episodes", type=int, default=100, help="evaluation episodes, per task on multi-task envs (default 100)"
+        "--episodes",
+        type=int,
+        default=None,
+        help="evaluation episodes, per task on multi-task envs (default 100; 50 with --held-out, --tasks or --task, "
+        "as many as Meta-World has goal positions per task)",
     )
     parser.add_argument("--seed", type=int, default=None, help="evaluation seed (default: the run's evaluation seed)")
     parser.add_argument("--device", default="cpu", help="cpu, cuda, cuda:N or auto")
@@ -324,7 +328,7 @@ def cmd_eval(argv: Sequence[str]) -> int:
     )
     prompted.add_argument("--dataset", default=None, help="demonstrations for --prompt demo (default the run's dataset)")
     args = _parse(parser, argv)
-    if args.episodes < 1:
+    if args.episodes is not None and args.episodes < 1:
         raise UsageError(f"--episodes must be >= 1 (got {args.episodes})")
     if args.video < 0:
         raise UsageError(f"--video must be >= 0 episodes (got {args.video})")
@@ -334,7 +338,7 @@ def cmd_eval(argv: Sequence[str]) -> int:
 
     result = evaluate_run(
         args.run_dir,
-        args.episodes,
+        100 if args.episodes is None else args.episodes,
         args.seed,
         args.device,
         env_module=args.env_module,
@@ -378,7 +382,7 @@ def _eval_prompted(args: argparse.Namespace) -> int:
         sentence=args.task,
         prompt=args.prompt,
         dataset=args.dataset,
-        episodes=args.episodes,
+        episodes=50 if args.episodes is None else args.episodes,
         seed=args.seed,
         device=args.device,
     )

@@ -31,7 +31,7 @@ from taskrl.envs.registry import env_family
 from taskrl.errors import ConfigError
 from taskrl.loading import load_run, per_task_intervals
 from taskrl.training.evaluation import ActingPolicy
-from taskrl.training.per_task import evaluate_per_task
+from taskrl.training.per_task import TooManyEpisodes, evaluate_per_task
 from taskrl.wiring.parts import EVAL_SEED_OFFSET, env_request, use_run_threads
 
 __all__ = ["PROMPTS", "evaluate_prompted", "nearest_task"]
@@ -142,7 +142,10 @@ def evaluate_prompted(
     env = family.tasks_env(config.env_settings, request, tasks)
     try:
         criterion = family.success_criterion(config.env_settings)
-        result = evaluate_per_task(ActingPolicy(agent), env, episodes, seed, success=criterion)
+        try:
+            result = evaluate_per_task(ActingPolicy(agent), env, episodes, seed, success=criterion)
+        except TooManyEpisodes as error:
+            raise ConfigError("episodes", f"{error}: use --episodes with fewer") from None
     finally:
         env.close()
         agent.reset_prompts()

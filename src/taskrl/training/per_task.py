@@ -21,10 +21,14 @@ from taskrl.tasks import TaskSet
 from taskrl.training.evaluation import UNLIMITED_EPISODE_STEPS, episodes_ended
 from taskrl.types import Obs
 
-__all__ = ["evaluate_per_task"]
+__all__ = ["TooManyEpisodes", "evaluate_per_task"]
 
 #: Meta-World draws 50 goal positions per task; its protocol evaluates one episode on each.
 DEFAULT_EPISODES_PER_TASK = 50
+
+
+class TooManyEpisodes(ValueError):
+    """More episodes per task than the env has distinct goal positions to run them on."""
 
 
 @torch.no_grad()
@@ -115,7 +119,7 @@ def _evaluate_per_task(policy, env, n, seed, task_set, save_to, max_steps, crite
         if callable(getattr(env, "set_goal_schedules", None)):
             available = env.goal_positions() if callable(getattr(env, "goal_positions", None)) else n
             if n > available:
-                raise ValueError(f"episodes_per_task={n} exceeds the {available} distinct goal positions per task")
+                raise TooManyEpisodes(f"episodes_per_task={n} exceeds the {available} distinct goal positions per task")
             env.set_goal_schedules([g or None for g in goals])
             pinned = True
     if max_steps is None:
