@@ -193,8 +193,8 @@ class DistributedLoop:
         # a free call slot of each collector; first back, first sent again
         self.idle = collections.deque(i for _ in range(CALLS_PER_COLLECTOR) for i in range(collectors.size))
         self.dead_collectors: set[int] = set()
-        # steps of each collector's running episodes (and the process they are in); lost when it dies
-        self.running, self.running_pid = [0] * collectors.size, [None] * collectors.size
+        # steps of each collector's running episodes; lost when it dies
+        self.running = [0] * collectors.size
         self.lost_env_steps = 0
         self.label_calls: dict[Any, tuple[int, int]] = {}  # handle -> (updater, its life when sent)
         self.labelled: collections.deque[Labelled] = collections.deque()
@@ -225,7 +225,7 @@ class DistributedLoop:
             return
         while self.idle:
             ahead = state.env_steps + self.in_flight_steps()
-            owed_at = ahead - self.lost_env_steps + self.call_steps
+            owed_at = self.data_steps(state) + self.in_flight_steps() + self.call_steps
             if ahead >= self.total_steps or not self.limiter.may_collect(state.updates, owed_at):
                 return
             i = self.idle.popleft()
@@ -251,10 +251,11 @@ class DistributedLoop:
                 self.lose_running(i)
                 self.collector_lost(i)
                 continue
+            deaths = self.collector_lives.epoch[i]
             self.collector_lives.answered(i, got.pid)
-            if self.running_pid[i] not in (None, got.pid):  # it died between calls: its running episodes too
+            if self.collector_lives.epoch[i] != deaths:  # a new process: it died between calls, running episodes too
                 self.lose_running(i)
-            self.running[i], self.running_pid[i] = got.running, got.pid
+            self.running[i] = got.running
             self.idle.append(i)
             self.store(got)
             self.meters.steps[i] += got.steps
@@ -265,7 +266,7 @@ class DistributedLoop:
     def lose_running(self, i: int) -> None:
         """Collector i died: the steps of its running episodes (counted in ``env_steps``) never reach the replay."""
         self.lost_env_steps += self.running[i]
-        self.running[i], self.running_pid[i] = 0, None
+        self.running[i] = 0
 
     def data_steps(self, state: LoopState) -> int:
         """Env steps whose transitions exist (stored, or in a live collector's running episodes): what the
