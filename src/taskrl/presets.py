@@ -14,7 +14,9 @@ from taskrl.errors import ConfigError
 # 0.3 -> 0.1 over 20k env steps.
 _CONTINUOUS_HER = {"her": "future", "her_k": 4, "batch_size": 256}
 _SAC = {"algo": "sac"}
-_QTOPT = {"algo": "qtopt"}
+# QT-Opt bounds Q as its paper does; the goal envs' rewards are -1 / 0, so by clipping targets to
+# [-1/(1-gamma), 0] (the hindsight paper's clip), not by the paper's sigmoid for 0/1 rewards.
+_QTOPT = {"algo": "qtopt", "clip_target": True}
 _POINTREACH = {
     **_CONTINUOUS_HER,
     "env": "pointreach",

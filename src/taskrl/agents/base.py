@@ -163,13 +163,21 @@ class Agent:
 
     def counted_step(self, batch: Any, *args: Any) -> dict[str, torch.Tensor]:
         """One update: count it, then :meth:`step` on ``batch`` with its :meth:`schedule` flags and ``args``."""
+        if self.updates == 0:
+            self.check_batch(batch)
         self.updates += 1
         return self.step(batch, *self.schedule(self.updates), *args)
+
+    def check_batch(self, batch: Any) -> None:
+        """Called with the first update's batch: raise ``ConfigError`` (one line naming the setting) for data
+        these settings cannot learn from, e.g. rewards outside the range a bounded Q assumes. Default: accept."""
 
     def update_many(self, batch: Any, k: int) -> list[dict[str, torch.Tensor]]:
         """``k`` updates in one call, one on each of the ``k`` batches ``batch.split(k)`` makes, in order (after
         :meth:`compile`: one graph for all of them, the split included, which saves the per-call overhead
         ``k - 1`` times and the split's own small operations); the metrics of each."""
+        if self.updates == 0:
+            self.check_batch(batch)
         flags = tuple(self.schedule(self.updates + i + 1) for i in range(k))
         self.updates += k
         return self.step_many(batch, flags)

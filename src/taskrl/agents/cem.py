@@ -5,7 +5,7 @@ CEM, both to act and inside every Bellman target. For each of B states independe
 
     mu_0 = centre of the box (or a warm start), sigma_0 = init_std * half-width (or a warm start)
     for i = 1 .. iterations:
-        a_1..a_N ~ clip(N(mu, diag(sigma^2)), low, high)        N samples per state
+        a_1..a_N ~ N(mu, diag(sigma^2)) kept in [low, high]        N samples per state
         s_n = score(a_n)                                          ONE call for all B x N samples
         E = the K samples with the highest scores                 (elites)
         mu, sigma = mean(E), std(E)                               (refit, per action dimension)
@@ -15,6 +15,11 @@ Returning the best *evaluated* sample rather than the final mean is deliberate: 
 already known (a Bellman target needs max_a Q(s', a), so this saves a forward pass), it is
 never worse than any sample scored, and the final mean may be a point that no sample tested
 (e.g. between two modes). The refit distribution is still available for warm starts.
+
+Keeping samples in the box (``truncate``): by default CEM clips each normal sample to the box, so every
+sample that falls outside lands exactly on a bound (with the initial spread of a whole half-width,
+about a third of them per dimension); ``truncate`` draws from the normal truncated to the box
+(inverse-CDF sampling), so no mass piles up on the bounds and a bound is reached only as a limit.
 
 The caller's ``score_fn`` receives ``actions [B, N, A]`` and returns ``scores [B, N]``; it should
 flatten to one forward pass of B * N rows (``QTOptAgent`` does, and evaluates the state part of
@@ -30,9 +35,39 @@ from typing import Any
 import numpy as np
 import torch
 
-from taskrl.errors import require
+from taskrl.errors import one_of, require
 
 ScoreFn = Callable[[torch.Tensor], torch.Tensor]
+SAMPLINGS = ("clip", "truncated")
+
+
+def sample_in_box(
+    mean: torch.Tensor,
+    std: torch.Tensor,
+    n: int,
+    low: torch.Tensor,
+    high: torch.Tensor,
+    sampling: str = "clip",
+    generator: torch.Generator | None = None,
+) -> torch.Tensor:
+    """``n`` samples per row of ``N(mean [B, A], std [B, A])`` inside ``[low, high]``: ``[B, n, A]``.
+
+    ``clip``: clip each sample to the box. ``truncated``: the normal truncated to the box, by inverse CDF
+    (u uniform between the CDF at the two bounds, a = mean + std * Phi^-1(u)).
+    """
+    one_of(sampling, SAMPLINGS, "sampling", "sampling")
+    b, a = mean.shape
+    mean, std = mean.unsqueeze(1), std.unsqueeze(1)
+    if sampling == "clip":
+        noise = torch.randn(b, n, a, generator=generator, device=mean.device, dtype=mean.dtype)
+        return torch.maximum(torch.minimum(mean + std * noise, high), low)
+    std = std.clamp_min(1e-6)
+    lo = torch.special.ndtr((low - mean) / std)
+    hi = torch.special.ndtr((high - mean) / std)
+    u = torch.rand(b, n, a, generator=generator, device=mean.device, dtype=mean.dtype)
+    # in float32 the CDF saturates 5-6 std out: keep u strictly inside (0, 1) and the result in the box
+    p = (lo + u * (hi - lo)).clamp(1e-7, 1 - 1e-7)
+    return torch.maximum(torch.minimum(mean + std * torch.special.ndtri(p), high), low)
 
 
 @dataclasses.dataclass
@@ -51,6 +86,8 @@ class CEMConfig:
         warm_std: initial standard deviation (fraction of the half-width) around a warm-start
             mean, e.g. the argmax found for the same states by a previous call.
         warm_iterations: rounds when warm-started (0 = ``iterations``).
+        truncate: sample the normal truncated to the box, instead of clipping normal samples to it
+            (which puts the mass beyond a bound on the bound).
     """
 
     iterations: int = 2
@@ -60,6 +97,7 @@ class CEMConfig:
     first_samples: int = 0
     warm_std: float = 0.1
     warm_iterations: int = 1
+    truncate: bool = False
 
     def validate(self) -> None:
         """Raise :class:`~taskrl.errors.ConfigError` naming the first bad setting."""
@@ -118,6 +156,7 @@ def maximize(
     init_std: torch.Tensor | float | None = None,
     generator: torch.Generator | None = None,
     return_distribution: bool = False,
+    sampling: str = "clip",
 ):
     """Approximate ``argmax_a score(a)`` for ``batch_size`` independent problems.
 
@@ -133,6 +172,7 @@ def maximize(
         generator: random generator for reproducible sampling.
         return_distribution: also return the final refitted ``(mean, std)``, e.g. to warm-start
             the next call.
+        sampling: ``clip`` or ``truncated``, see :func:`sample_in_box`.
 
     Returns:
         ``(best_actions [B, A], best_scores [B])``, plus ``(mean [B, A], std [B, A])`` when
@@ -152,8 +192,7 @@ def maximize(
 
     best_actions = best_scores = None
     for n in counts:
-        noise = torch.randn(batch_size, n, low.shape[-1], generator=generator, device=low.device, dtype=low.dtype)
-        actions = torch.maximum(torch.minimum(mean.unsqueeze(1) + std.unsqueeze(1) * noise, high), low)
+        actions = sample_in_box(mean, std, n, low, high, sampling, generator)
         scores = score_fn(actions)  # [B, N], one call
         top_scores, top_idx = scores.topk(elites, dim=1)  # sorted: column 0 is the best
         elite = actions.gather(1, top_idx.unsqueeze(-1).expand(-1, -1, actions.shape[-1]))  # [B, K, A]
@@ -224,6 +263,7 @@ class CrossEntropyMethod:
             init_std,
             generator,
             return_distribution,
+            "truncated" if cfg.truncate else "clip",
         )
 
     __call__ = maximize

@@ -6,19 +6,27 @@ actions is found by the cross-entropy method (``agents/cem.py``):
     a* = CEM-argmax_a Q_target1(s', a)
     y  = r + gamma * (1 - terminated) * min(Q_target1(s', a*), Q_target2(s', a*))
 
-Two target networks, one lagging the other, as in the paper: ``target1`` is a Polyak average of
-the online network (the paper: averaging constant 0.9999, i.e. tau = 1e-4), ``target2`` is a
-copy of ``target1`` taken every ``target2_interval`` updates (the paper: lagged by about 6000
-gradient steps), so it trails ``target1`` by 0 to ``target2_interval`` - 1 updates.
+Two target networks (``twin``):
+
+- ``lagged`` (the paper's): one online network; ``target1`` is its Polyak average (the paper:
+  averaging constant 0.9999, i.e. tau = 1e-4) and ``target2`` a copy of ``target1`` taken every
+  ``target2_interval`` updates (the paper: lagged by about 6000 gradient steps), so it trails
+  ``target1`` by 0 to ``target2_interval`` - 1 updates. The two differ only by that lag.
+- ``independent`` (as TD3 and SAC twin their critics): two online networks with their own
+  initialisations, both regressed onto the same target y; ``target1`` and ``target2`` are their
+  Polyak averages, so the minimum is over two estimates that err independently.
 
 In the paper the targets come from separate "Bellman updater" processes and the regression from
 the "trainer": :meth:`QTOptAgent.bellman_target` reads only the batch, the target networks and
 the shared input normaliser, and :meth:`QTOptAgent.regress` takes the batch with its targets.
 :meth:`QTOptAgent.update` runs one after the other.
 
-Loss: ``huber`` / ``mse`` on Q directly, or ``cross_entropy`` as in the paper for rewards in
-[0, 1]: the network outputs a logit, Q = sigmoid(logit), targets are clipped to [0, 1] and the
-loss is the log loss -(y log Q + (1 - y) log(1 - Q)).
+Bounded Q. Loss ``cross_entropy`` is the paper's for rewards in [0, 1]: the network outputs a logit,
+Q = sigmoid(logit), targets are clipped to [0, 1] and the loss is the log loss
+-(y log Q + (1 - y) log(1 - Q)). For rewards in {-1, 0} (the goal envs' sparse reward) ``huber`` /
+``mse`` regress Q directly and ``clip_target`` clips targets to [-1/(1-gamma), 0], as the hindsight
+paper does; every QT-Opt preset turns it on. The first update checks that the batch's rewards lie
+in the range the chosen bound assumes and otherwise stops with one line naming the setting.
 
 Actions: the networks see actions rescaled from the box [low, high] to [-1, 1]; CEM searches in
 that normalised box and acting maps the result back.
@@ -67,9 +75,13 @@ class QTOptConfig:
         hidden_sizes: widths of the Q-network's hidden layers.
         loss: ``huber``, ``mse``, or ``cross_entropy`` (log loss on Q = sigmoid(logit), rewards
             in [0, 1], targets clipped to [0, 1], as in the paper).
-        tau: Polyak factor of the first target network at every update.
-        target2_interval: updates between copies of the first target network into the second.
-        clip_target: clip targets to [-1/(1-gamma), 0] (for rewards in {-1, 0}; huber/mse only).
+        tau: Polyak factor of the target networks at every update.
+        twin: ``lagged`` (the paper's: the second target network is a copy of the first taken every
+            ``target2_interval`` updates) or ``independent`` (two online networks regressed to the
+            same target, each with its own Polyak target network).
+        target2_interval: with ``twin=lagged``, updates between copies of the first target network into the second.
+        clip_target: clip targets to [-1/(1-gamma), 0], bounding Q for rewards in {-1, 0} (huber/mse;
+            on in every QT-Opt preset; ``cross_entropy`` bounds Q to [0, 1] for rewards in [0, 1]).
         max_grad_norm: gradient-norm clip (0 disables).
         normalize_inputs: standardise observation inputs with running mean/std (clipped to +-5).
         noise_std: while collecting, std of Gaussian noise added to the CEM action (half-widths of the box).
@@ -84,6 +96,7 @@ class QTOptConfig:
     hidden_sizes: tuple[int, ...] = (256, 256)
     loss: Literal["huber", "mse", "cross_entropy"] = "huber"
     tau: float = 0.005
+    twin: Literal["lagged", "independent"] = "lagged"
     target2_interval: int = 200
     clip_target: bool = False
     max_grad_norm: float = 10.0
@@ -98,6 +111,12 @@ class QTOptConfig:
         """Raise :class:`~taskrl.errors.ConfigError` naming the first bad setting."""
         check_learning_settings(self)
         one_of(self.loss, ("huber", "mse", "cross_entropy"), "loss", "loss")
+        one_of(self.twin, ("lagged", "independent"), "twin", "twin")
+        require(
+            not (self.clip_target and self.loss == "cross_entropy"),
+            "clip_target",
+            "bounds Q to [-1/(1-gamma), 0] for huber/mse; loss=cross_entropy bounds it to [0, 1] already: turn one off",
+        )
         require(self.target2_interval >= 1, "target2_interval", f"must be >= 1 (got {self.target2_interval})")
         check_non_negative(self, "noise_std", "random_action_decay_steps")
         check_probability(self, "random_action_prob", "random_action_prob_end")
@@ -138,14 +157,24 @@ class QTOptAgent(Agent):
         self.box = ActionBox(action_space, self.device)
         self.action_dim = self.box.dim
         self.unit_low, self.unit_high = -torch.ones_like(self.box.low), torch.ones_like(self.box.high)
-        self.q = StateActionQ(input_dim, self.action_dim, config.hidden_sizes).to(self.device)
-        self.q_target1 = StateActionQ(input_dim, self.action_dim, config.hidden_sizes).to(self.device)
-        self.q_target2 = StateActionQ(input_dim, self.action_dim, config.hidden_sizes).to(self.device)
+        def q_net() -> StateActionQ:
+            return StateActionQ(input_dim, self.action_dim, config.hidden_sizes).to(self.device)
+
+        self.q = q_net()
+        self.independent = config.twin == "independent"
+        # the second online network (independent twins only); lagged twins copy target1 instead
+        self.q2 = q_net() if self.independent else None
+        self.q_target1, self.q_target2 = q_net(), q_net()
+        self.q_target1.load_state_dict(self.q.state_dict())
+        self.q_target2.load_state_dict((self.q2 or self.q).state_dict())
         for target in (self.q_target1, self.q_target2):
-            target.load_state_dict(self.q.state_dict())
             target.requires_grad_(False)
+        if self.independent:
+            self.checkpointed = {**type(self).checkpointed, "q2": "q2"}
         self.cem = CrossEntropyMethod(config.cem)
-        self._params = list(self.q.parameters())
+        self._q1_params = list(self.q.parameters())
+        self._q2_params = list(self.q2.parameters()) if self.independent else []
+        self._params = self._q1_params + self._q2_params
         self._target1_params, self._target2_params = list(self.q_target1.parameters()), list(self.q_target2.parameters())
         self.optimizer = torch.optim.Adam(self._params, lr=config.lr, fused=True)
         self.updates = 0
@@ -229,8 +258,8 @@ class QTOptAgent(Agent):
         return self.counted_step(batch, target, generator)
 
     def schedule(self, update: int) -> tuple[bool]:
-        """``(copy_target2,)``: every ``target2_interval`` updates."""
-        return (update % self.config.target2_interval == 0,)
+        """``(copy_target2,)``: every ``target2_interval`` updates (never with independent twins)."""
+        return (not self.independent and update % self.config.target2_interval == 0,)
 
     def learn(
         self,
@@ -244,26 +273,52 @@ class QTOptAgent(Agent):
         if target is None:
             target = self.bellman_target(batch, generator)
         self.inputs.update_statistics(batch.obs)
-        out = self.q(self.inputs(batch.obs), self.box.to_unit(batch.action))
-        if cfg.loss == "cross_entropy":
-            loss = F.binary_cross_entropy_with_logits(out, target)
-        elif cfg.loss == "huber":
-            loss = F.smooth_l1_loss(out, target)
-        else:
-            loss = F.mse_loss(out, target)
+        x, action = self.inputs(batch.obs), self.box.to_unit(batch.action)
+        out = self.q(x, action)
+        loss = self.loss(out, target)
+        if self.independent:  # both twins regress onto the same target
+            loss = loss + self.loss(self.q2(x, action), target)
 
         gradient_step(self.optimizer, loss, self._params, cfg.max_grad_norm)
         self.update_targets(copy_target2)
         return {"loss": loss.detach(), "q_mean": self.q_value(out.detach()).mean(), "target_mean": target.mean()}
+
+    def loss(self, out: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+        """The regression loss of network outputs ``out`` towards ``target`` (``loss`` setting)."""
+        if self.config.loss == "cross_entropy":
+            return F.binary_cross_entropy_with_logits(out, target)
+        if self.config.loss == "huber":
+            return F.smooth_l1_loss(out, target)
+        return F.mse_loss(out, target)
+
+    def check_batch(self, batch: Batch) -> None:
+        """Refuse rewards outside the range the chosen bound on Q assumes (one line naming the setting)."""
+        cfg, reward = self.config, batch.reward
+        if cfg.loss == "cross_entropy":
+            low, high, setting, what = 0.0, 1.0, "loss", "cross_entropy bounds Q to [0, 1]"
+        elif cfg.clip_target:
+            low, high, setting, what = -1.0, 0.0, "clip_target", "clip_target bounds Q to [-1/(1-gamma), 0]"
+        else:
+            return
+        lo, hi = reward.min().item(), reward.max().item()
+        require(
+            low <= lo and hi <= high,
+            setting,
+            f"{what} and needs rewards in [{low:g}, {high:g}], but a batch has rewards in [{lo:g}, {hi:g}]: "
+            + ("use --loss huber" if setting == "loss" else "use --no-clip-target"),
+        )
 
     def update(self, batch: Batch, generator: torch.Generator | None = None) -> dict[str, torch.Tensor]:
         """Bellman target then regression: ``regress(batch, bellman_target(batch))``."""
         return self.regress(batch, None, generator)
 
     def update_targets(self, copy_target2: bool | None = None) -> None:
-        """target1 <- tau * online + (1 - tau) * target1; every target2_interval updates (or as
-        ``copy_target2`` says) target2 <- target1."""
-        polyak_update(self._target1_params, self._params, self.config.tau)
+        """target1 <- tau * q + (1 - tau) * target1. Lagged twins: every target2_interval updates (or
+        as ``copy_target2`` says) target2 <- target1. Independent twins: target2 <- tau * q2 + (1 - tau) * target2."""
+        polyak_update(self._target1_params, self._q1_params, self.config.tau)
+        if self.independent:
+            polyak_update(self._target2_params, self._q2_params, self.config.tau)
+            return
         if copy_target2 is None:
             copy_target2 = self.updates % self.config.target2_interval == 0
         if copy_target2:
