@@ -159,3 +159,30 @@ def test_action_bounds_accepts_a_box_or_a_pair_and_rejects_bad_bounds():
         action_bounds(([1.0], [1.0]))
     with pytest.raises(ValueError, match="Box"):
         action_bounds(3)
+
+
+def test_truncated_sampling_puts_no_mass_on_the_bounds_and_matches_the_truncated_normal():
+    from taskrl.agents.cem import sample_in_box
+
+    g = torch.Generator().manual_seed(0)
+    mean, std = torch.full((1, 3), 0.5), torch.ones(1, 3)
+    low, high = -torch.ones(3), torch.ones(3)
+    clipped = sample_in_box(mean, std, 20_000, low, high, "clip", g)
+    truncated = sample_in_box(mean, std, 20_000, low, high, "truncated", g)
+    assert (clipped == 1.0).float().mean() > 0.25  # P(N(0.5, 1) > 1) = 0.31 lands on the bound
+    assert (truncated.abs() > 0.999).float().mean() < 0.002
+    assert ((truncated >= low) & (truncated <= high)).all()
+    # mean of N(0.5, 1) truncated to [-1, 1]: mu + (phi(alpha) - phi(beta)) / (Phi(beta) - Phi(alpha)) * sigma
+    normal = torch.distributions.Normal(0.0, 1.0)
+    alpha, beta = torch.tensor(-1.5), torch.tensor(0.5)
+    pdf = lambda z: normal.log_prob(z).exp()  # noqa: E731
+    expected = 0.5 + (pdf(alpha) - pdf(beta)) / (normal.cdf(beta) - normal.cdf(alpha))
+    assert truncated.mean().item() == pytest.approx(expected.item(), abs=0.01)
+
+
+def test_truncated_cem_still_finds_interior_and_boundary_optima():
+    cem = CrossEntropyMethod(CEMConfig(iterations=4, samples=128, elites=8, truncate=True))
+    optimum = torch.tensor([[0.3, -0.2], [2.0, -3.0]])  # the second is outside the box: its max is at the corner
+    a, _ = cem.maximize(quadratic(optimum), 2, -torch.ones(2), torch.ones(2), generator=torch.Generator().manual_seed(0))
+    assert a[0].tolist() == pytest.approx([0.3, -0.2], abs=0.05)
+    assert a[1].tolist() == pytest.approx([1.0, -1.0], abs=0.05)

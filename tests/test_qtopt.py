@@ -192,3 +192,45 @@ def test_state_dict_round_trips_through_the_checkpoint_format():
     x, a = torch.eye(2), torch.zeros(2, 1)
     for name in ("q", "q_target1", "q_target2"):
         torch.testing.assert_close(getattr(other, name)(x, a), getattr(agent, name)(x, a))
+
+
+def test_independent_twins_are_two_networks_both_regressed_onto_one_target_with_their_own_polyak_targets():
+    agent = make_agent(twin="independent", tau=0.5, lr=1e-2, loss="mse")
+    x, a = torch.eye(2), torch.zeros(2, 1)
+    with torch.no_grad():
+        assert not torch.allclose(agent.q(x, a), agent.q2(x, a))  # own initialisations
+        torch.testing.assert_close(agent.q_target2(x, a), agent.q2(x, a))  # target2 starts as q2, not q
+    before = [p.clone() for p in agent.q2.parameters()]
+    target2_before = [p.clone() for p in agent.q_target2.parameters()]
+    b = onehot_batch([-1.0, 0.0], [True, True], [False, False], [0, 1])  # terminated: y = r
+    y = torch.tensor([-1.0, 0.0])
+    for _ in range(300):
+        agent.regress(b, y)
+    with torch.no_grad():
+        # both twins learnt y: the second one is in the loss
+        torch.testing.assert_close(agent.q(x, a), y, atol=0.05, rtol=0)
+        torch.testing.assert_close(agent.q2(x, a), y, atol=0.05, rtol=0)
+        # target2 follows q2 by Polyak averaging (tau = 0.5), never by copying target1
+        for p, p0, t, t0 in zip(agent.q2.parameters(), before, agent.q_target2.parameters(), target2_before):
+            assert not torch.equal(p, p0) and not torch.equal(t, t0)
+        torch.testing.assert_close(agent.q_target2(x, a), agent.q2(x, a), atol=1e-3, rtol=0)
+        assert not torch.allclose(agent.q_target2(x, torch.ones(2, 1)), agent.q_target1(x, torch.ones(2, 1)))
+    # checkpoints carry the second twin
+    tensors, skeleton = flatten_state(agent.state_dict())
+    other = make_agent(twin="independent")
+    other.load_state_dict(unflatten_state(tensors, skeleton))
+    with torch.no_grad():
+        torch.testing.assert_close(other.q2(x, a), agent.q2(x, a))
+
+
+def test_the_first_update_refuses_rewards_outside_the_range_the_bound_on_q_assumes():
+    from taskrl.errors import ConfigError
+
+    positive = onehot_batch([1.0, 0.0], [True, True], [False, False], [0, 1])
+    with pytest.raises(ConfigError, match="clip_target"):
+        make_agent(clip_target=True).update(positive)
+    negative = onehot_batch([-1.0, 0.0], [True, True], [False, False], [0, 1])
+    with pytest.raises(ConfigError, match="loss"):
+        make_agent(loss="cross_entropy").update(negative)
+    make_agent(clip_target=True).update(negative)  # in range
+    make_agent().update(positive)  # unbounded Huber takes any reward
