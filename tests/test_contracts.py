@@ -183,14 +183,44 @@ def test_every_sharing_strategy_runs(strategy, tmp_path):
     assert run.metrics["updates"] >= 1
 
 
-def test_no_two_settings_sections_share_a_flag():
-    """Every family's section beside every algorithm's and the run's: each flag names one setting."""
-    clashes = {}
+def test_every_setting_of_every_section_pair_has_its_own_flag_and_reaches_its_own_field():
+    """Every family's section beside every algorithm's and the run's: each setting's dotted flag sets that
+    setting and nothing else, whatever the other sections are called."""
+    from taskrl.cli import _add_config_flags, _Parser
+    from taskrl.config import dotted_name, setting_names
+
+    unreached = {}
     for env, algo in itertools.product(ENV_FAMILIES, ALGORITHMS):
-        names = [path[-1] for path, _, _ in leaf_fields(env, algo)]
-        if len(names) != len(set(names)):
-            clashes[env, algo] = sorted({n for n in names if names.count(n) > 1})
-    assert not clashes
+        parser = _Parser()
+        _add_config_flags(parser, env, algo)
+        dests = {f: a.dest for a in parser._actions for f in a.option_strings}
+        names = setting_names(env, algo)
+        for path, _, _ in leaf_fields(env, algo):
+            dotted = dotted_name(path, env, algo)
+            flag = "--" + dotted.replace("_", "-")
+            if dests.get(flag) != dotted or names.resolve(dotted, env, algo) != path:
+                unreached.setdefault((env, algo), []).append(flag)
+    assert not unreached
+
+
+def test_a_short_name_two_sections_share_is_refused_in_one_line_naming_both_dotted_flags(monkeypatch, capsys):
+    """A variant algorithm with a setting named like the env's (``n_bits``): both stay reachable by their
+    dotted names, the short name is no alias of either, and using it names both spellings."""
+    import dataclasses as dc
+
+    from taskrl.cli import main
+
+    @dc.dataclass
+    class Clashing(ALGORITHMS["dqn"].config):
+        n_bits: int = 3
+
+    monkeypatch.setitem(ALGORITHMS, "dqn-clash", dc.replace(ALGORITHMS["dqn"], name="dqn-clash", config=Clashing))
+    config = with_overrides(TrainConfig(), {"algo": "dqn-clash", "env.n_bits": 7, "algo.n_bits": 5})
+    assert config.env_settings.n_bits == 7 and config.algo_settings.n_bits == 5
+    with pytest.raises(ConfigError, match=r"n_bits.*env\.n_bits or algo\.n_bits"):
+        with_overrides(TrainConfig(), {"algo": "dqn-clash", "n_bits": 7})
+    assert main(["train", "bitflip-her", "--algo", "dqn-clash", "--n-bits", "7", "--print-config"]) == 2
+    assert "--n-bits is a setting of several sections here: say --env.n-bits or --algo.n-bits" in capsys.readouterr().err
 
 
 HEAVY_CASES = [

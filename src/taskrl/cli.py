@@ -60,41 +60,46 @@ def _flag(name: str) -> str:
     return "--" + name.replace("_", "-")
 
 
-def _add_config_flags(parser: argparse.ArgumentParser, env: str, algo: str, base: Any = None) -> None:
+def _add_config_flags(parser: argparse.ArgumentParser, env: str, algo: str, base: Any = None) -> dict[str, list[str]]:
+    """One flag per setting, in sections (``--algo.lr``, ``--env.n-bits``, ``--algo.cem.samples``,
+    ``--data-sharing.cql-alpha``), each also under its short name (``--lr``) where no other setting
+    has it; the ``dest`` is the dotted name :func:`taskrl.config.with_overrides` reads. Returns the
+    ambiguous short names (``{short flag: [its dotted flags]}``) for the error that names them."""
     from taskrl.agents.registry import ALGORITHMS
-    from taskrl.config import field_help, leaf_fields, to_dict
+    from taskrl.config import dotted_name, leaf_fields, setting_help, setting_names, to_dict
     from taskrl.envs.registry import ENV_FAMILIES
     from taskrl.sharing.registry import SHARING_STRATEGIES
 
-    docs = field_help(env, algo)
+    docs = setting_help(env, algo)
+    names = setting_names(env, algo)
     values = to_dict(base) if base is not None and base.env == env and base.algo == algo else {}
-    docs["env"] += " Choices: " + "; ".join(f"{f.name} ({f.description})" for f in ENV_FAMILIES.values())
-    docs["algo"] += " Choices: " + "; ".join(f"{a.name} ({a.description})" for a in ALGORITHMS.values())
+    docs[("env",)] += " Choices: " + "; ".join(f"{f.name} ({f.description})" for f in ENV_FAMILIES.values())
+    docs[("algo",)] += " Choices: " + "; ".join(f"{a.name} ({a.description})" for a in ALGORITHMS.values())
     choices = {"env": tuple(ENV_FAMILIES), "algo": tuple(ALGORITHMS), "sharing": tuple(SHARING_STRATEGIES)}
     family = ENV_FAMILIES[env]
     titles = {
         "conditioning": "task conditioning (multi-task networks)",
         "cluster": "where the roles run (--distributed)",
         "data_sharing": "data sharing between tasks",
-        family.section: f"env family '{env}' ({family.section} section)",
-        algo: f"algorithm '{algo}' ({algo} section)",
+        family.section: f"env family '{env}' (--env.* flags, {family.section} section)",
+        algo: f"algorithm '{algo}' (--algo.* flags, {algo} section)",
     }
     groups: dict[str, Any] = {}
     for path, _field, tp in leaf_fields(env, algo):
         section = path[0] if len(path) > 1 else "run"
         if section not in groups:  # one block per section of config.json, so --help reads as the reference does
             groups[section] = parser.add_argument_group(f"settings: {titles.get(section, 'run')}")
-        name = path[-1]
-        text = docs.get(name, "").replace("%", "%%")
+        name, dotted = path[-1], dotted_name(path, env, algo)
+        text = docs.get(path, "").replace("%", "%%")
         node: Any = values
         for key in path:
             node = node.get(key, {}) if isinstance(node, dict) else {}
         if values and not isinstance(node, dict):  # this run's value (the preset's, or the resumed run's)
             shown = " ".join(map(str, node)) if isinstance(node, list) else node
             text += f" [here: {shown}]"
-        kwargs: dict[str, Any] = {"dest": name, "default": argparse.SUPPRESS, "help": text}
+        kwargs: dict[str, Any] = {"dest": dotted, "default": argparse.SUPPRESS, "help": text}
         origin = typing.get_origin(tp)
-        if name in choices:
+        if name in choices and len(path) == 1 or path == ("data_sharing", "sharing"):
             kwargs["choices"] = choices[name]
         elif tp is bool:
             kwargs["action"] = argparse.BooleanOptionalAction
@@ -104,7 +109,13 @@ def _add_config_flags(parser: argparse.ArgumentParser, env: str, algo: str, base
             kwargs.update(type=int, nargs="+", metavar="N")
         else:
             kwargs["type"] = tp
-        groups[section].add_argument(_flag(name), **kwargs)
+        if "choices" not in kwargs and "action" not in kwargs and "metavar" not in kwargs:
+            kwargs["metavar"] = name.upper()
+        flags = [_flag(dotted)] if "." in dotted else []
+        if names.paths.get(name) == path:
+            flags.append(_flag(name))
+        groups[section].add_argument(*flags, **kwargs)
+    return {_flag(short): [_flag(d) for d in dotted] for short, dotted in names.ambiguous.items()}
 
 
 def _config_file(argv: Sequence[str]) -> tuple[dict[str, Any], Any]:
@@ -185,11 +196,16 @@ def _active_sections(argv: Sequence[str], file_base: Any = None, file_settings: 
     return env, known.algo or base.algo, base
 
 
-def _parse(parser: argparse.ArgumentParser, argv: Sequence[str]) -> argparse.Namespace:
+def _parse(
+    parser: argparse.ArgumentParser, argv: Sequence[str], ambiguous: dict[str, list[str]] | None = None
+) -> argparse.Namespace:
     args, unknown = parser.parse_known_args(argv)
     if unknown:
         flags = sorted(f for a in parser._actions for f in a.option_strings if f.startswith("--"))
         bad = unknown[0]
+        spelled = bad.split("=")[0].replace("--no-", "--")
+        if ambiguous and spelled in ambiguous:
+            raise UsageError(f"{spelled} is a setting of several sections here: say {' or '.join(ambiguous[spelled])}")
         close = difflib.get_close_matches(bad.split("=")[0], flags, n=1)
         hint = f" (did you mean {close[0]}?)" if close else ""
         raise UsageError(f"unknown option {bad!r}{hint}; allowed: {', '.join(flags)}")
@@ -238,8 +254,8 @@ def cmd_train(argv: Sequence[str]) -> int:
     argv = _numbers_as_values(argv)
     file_settings, file_base = _config_file(argv)
     env, algo, base = _active_sections(argv, file_base, file_settings)
-    _add_config_flags(parser, env, algo, base)
-    args = vars(_parse(parser, argv))
+    ambiguous = _add_config_flags(parser, env, algo, base)
+    args = vars(_parse(parser, argv, ambiguous))
     args.pop("config")
     print_config = args.pop("print_config")
     preset, out, resume = args.pop("preset"), args.pop("out"), args.pop("resume")
@@ -254,8 +270,7 @@ def cmd_train(argv: Sequence[str]) -> int:
     if resume is not None and out is not None:
         raise UsageError("--out does not apply with --resume (a run continues in its own directory)")
     seeds, parallel = args.pop("seeds"), args.pop("parallel")
-    if "hidden_sizes" in args:
-        args["hidden_sizes"] = tuple(args["hidden_sizes"])
+    args = {k: tuple(v) if isinstance(v, list) else v for k, v in args.items()}  # nargs="+" settings are tuples
     args = {**file_settings, **args}  # flags override the file
     if seeds is not None:
         if preset is None or resume is not None:

@@ -39,6 +39,8 @@ __all__ = [
     "TrainConfig",
     "check_fit",
     "field_help",
+    "setting_help",
+    "setting_names",
     "from_dict",
     "leaf_fields",
     "load",
@@ -389,6 +391,80 @@ def _leaves(cls: type, prefix: tuple[str, ...]) -> list[Leaf]:
     return out
 
 
+def _leaves_with_help(cls: type, prefix: tuple[str, ...]) -> dict[tuple[str, ...], str]:
+    hints, docs = typing.get_type_hints(cls), field_docs(cls)
+    out: dict[tuple[str, ...], str] = {}
+    for f in dataclasses.fields(cls):
+        if dataclasses.is_dataclass(hints[f.name]):
+            out.update(_leaves_with_help(hints[f.name], prefix + (f.name,)))
+        else:
+            out[prefix + (f.name,)] = docs.get(f.name, "")
+    return out
+
+
+def setting_help(env: str = "bitflip", algo: str = "dqn") -> dict[tuple[str, ...], str]:
+    """``{path: description}`` of every setting of a run on ``env`` with ``algo`` (paths as :func:`leaf_fields`)."""
+    family = env_family(env)
+    return {
+        **_leaves_with_help(TrainConfig, ()),
+        **_leaves_with_help(family.settings, (family.section,)),
+        **_leaves_with_help(algorithm(algo).config, (algo,)),
+    }
+
+
+def dotted_name(path: tuple[str, ...], env: str, algo: str) -> str:
+    """A setting's name in sections: ``algo.lr``, ``algo.cem.samples``, ``env.n_bits``,
+    ``data_sharing.cql_alpha``; a run-level setting is its own name (``total_steps``)."""
+    if len(path) == 1:
+        return path[0]
+    head = "env" if path[0] == env_family(env).section else "algo" if path[0] == algo else path[0]
+    return ".".join((head, *path[1:]))
+
+
+@dataclasses.dataclass(frozen=True)
+class SettingNames:
+    """What each setting answers to on a run of one env family and algorithm.
+
+    Attributes:
+        paths: name -> path in ``config.json``: every dotted name (``algo.lr``; the section's own name
+            works too, ``qtopt.lr``) and every short name (``lr``) that is not ambiguous. A run-level
+            setting keeps its short name whatever a section has.
+        ambiguous: short name -> the dotted names it could mean, for short names two sections share.
+    """
+
+    paths: dict[str, tuple[str, ...]]
+    ambiguous: dict[str, list[str]]
+
+    def resolve(self, name: str, env: str, algo: str) -> tuple[str, ...]:
+        """The path ``name`` means; ``ConfigError`` naming the setting and the allowed names otherwise."""
+        if name in self.paths:
+            return self.paths[name]
+        if name in self.ambiguous:
+            raise ConfigError(name, f"is a setting of several sections here: say {' or '.join(self.ambiguous[name])}")
+        short = sorted(n for n in self.paths if "." not in n)
+        raise ConfigError(name, f"unknown setting for env {env!r} and algo {algo!r}; allowed: {', '.join(short)}")
+
+
+def setting_names(env: str = "bitflip", algo: str = "dqn") -> SettingNames:
+    """The names settings answer to on a run of ``env`` with ``algo``, see :class:`SettingNames`."""
+    leaves = [path for path, _, _ in leaf_fields(env, algo)]
+    paths: dict[str, tuple[str, ...]] = {}
+    by_short: dict[str, list[tuple[str, ...]]] = {}
+    for path in leaves:
+        paths[dotted_name(path, env, algo)] = path
+        if len(path) > 1:
+            paths[".".join(path)] = path
+        by_short.setdefault(path[-1], []).append(path)
+    ambiguous = {}
+    for short, owners in by_short.items():
+        run_level = [p for p in owners if len(p) == 1]
+        if run_level or len(owners) == 1:
+            paths[short] = (run_level or owners)[0]
+        else:
+            ambiguous[short] = [dotted_name(p, env, algo) for p in owners]
+    return SettingNames(paths, ambiguous)
+
+
 def leaf_fields(env: str = "bitflip", algo: str = "dqn") -> list[Leaf]:
     """The settings of a run on ``env`` with ``algo``: ``(path, field, type)`` of every run-level
     field, every field of the conditioning section, of the env family's and of the algorithm's
@@ -464,7 +540,8 @@ def _selected_family(config: TrainConfig, overrides: dict[str, Any]) -> str:
     if "env" in overrides:
         return overrides["env"]
     for family in ENV_FAMILIES.values():  # --env-id X alone means the gym family, --task-file F the tasks one
-        if family.selected_by and family.selected_by in overrides and family.name != config.env:
+        spellings = (family.selected_by, f"env.{family.selected_by}", f"{family.section}.{family.selected_by}")
+        if family.selected_by and any(k in overrides for k in spellings) and family.name != config.env:
             current = dataclasses.fields(env_family(config.env).settings)
             if family.selected_by not in {f.name for f in current}:
                 return family.name
@@ -474,7 +551,8 @@ def _selected_family(config: TrainConfig, overrides: dict[str, Any]) -> str:
 def with_overrides(config: TrainConfig, overrides: dict[str, Any], notes: list[str] | None = None) -> TrainConfig:
     """A copy of ``config`` with settings replaced by name (``{"n_bits": 30, "lr": 1e-3}``).
 
-    Names are those of :func:`leaf_fields` for the resulting ``env`` and ``algo``. Changing ``env``
+    Names are those :func:`setting_names` gives for the resulting ``env`` and ``algo``: in sections
+    (``{"algo.lr": 1e-3, "env.n_bits": 30, "algo.cem.samples": 32}``) or short where unambiguous. Changing ``env``
     starts its family's section from defaults (families sharing a section keep it); changing
     ``algo`` keeps the :data:`SHARED_ALGO_SETTINGS` the old section had changed (every setting both sections
     have, between a variant and its ``parent``). What was kept
@@ -508,14 +586,11 @@ def with_overrides(config: TrainConfig, overrides: dict[str, Any], notes: list[s
             config, env=env, algo=algo, her=her, env_settings=env_settings, algo_settings=algo_settings, conditioning=conditioning
         )
     )
-    paths = {path[-1]: path for path, _, _ in leaf_fields(env, algo)}
+    names = setting_names(env, algo)
     overrides.pop("env", None), overrides.pop("algo", None)
-    unknown = sorted(set(overrides) - set(paths))
-    if unknown:
-        raise ConfigError(unknown[0], f"unknown setting for env {env!r} and algo {algo!r}; allowed: {', '.join(sorted(paths))}")
     for name, value in overrides.items():
         node = data
-        *parents, leaf = paths[name]
+        *parents, leaf = names.resolve(name, env, algo)
         for p in parents:
             node = node[p]
         node[leaf] = list(value) if isinstance(value, tuple) else value
