@@ -62,7 +62,7 @@ def _flag(name: str) -> str:
 
 def _add_config_flags(parser: argparse.ArgumentParser, env: str, algo: str, base: Any = None) -> dict[str, list[str]]:
     """One flag per setting, in sections (``--algo.lr``, ``--env.n-bits``, ``--algo.cem.samples``,
-    ``--data-sharing.cql-alpha``), each also under its short name (``--lr``) where no other setting
+    ``--data-sharing.share-fraction``), each also under its short name (``--lr``) where no other setting
     has it; the ``dest`` is the dotted name :func:`taskrl.config.with_overrides` reads. Returns the
     ambiguous short names (``{short flag: [its dotted flags]}``) for the error that names them."""
     from taskrl.agents.registry import ALGORITHMS

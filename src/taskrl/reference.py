@@ -47,8 +47,11 @@ def _cell(text: str) -> str:
     return " ".join(text.split()).replace("|", "\\|")
 
 
-def settings_table(cls: type, skip: tuple[str, ...] = ()) -> str:
-    """A markdown table of a settings dataclass: flag, type, default, meaning (nested sections inlined)."""
+def settings_table(cls: type, skip: tuple[str, ...] = (), section: str = "") -> str:
+    """A markdown table of a settings dataclass: flag, type, default, meaning (nested sections inlined).
+
+    ``section`` is the flags' dotted prefix (``algo``, ``env``, ``data_sharing``); each row gives the
+    dotted flag and the short one, which works where no other section of the run has the name."""
     from taskrl.config import field_docs
 
     hints = typing.get_type_hints(cls)
@@ -59,11 +62,12 @@ def settings_table(cls: type, skip: tuple[str, ...] = ()) -> str:
             continue
         tp = hints[f.name]
         if dataclasses.is_dataclass(tp):
-            nested = settings_table(tp).splitlines()[2:]
+            nested = settings_table(tp, section=f"{section}.{f.name}" if section else f.name).splitlines()[2:]
             rows += nested
             continue
-        flag = "--" + f.name.replace("_", "-")
-        rows.append(f"| `{flag}` | {_type_name(tp)} | {_shown(_default(f))} | {_cell(docs.get(f.name, ''))} |")
+        short = "--" + f.name.replace("_", "-")
+        flag = f"`--{section.replace('_', '-')}.{f.name.replace('_', '-')}` (`{short}`)" if section else f"`{short}`"
+        rows.append(f"| {flag} | {_type_name(tp)} | {_shown(_default(f))} | {_cell(docs.get(f.name, ''))} |")
     return "\n".join(rows)
 
 
@@ -111,13 +115,17 @@ def _settings_page() -> str:
         "# Settings",
         "",
         "Every setting is a `--kebab-case` flag of `taskrl train` and a keyword of `taskrl.train(...)`; `config.json` "
-        "nests them by section. The env family's and the algorithm's own settings are on the "
+        "nests them by section. A section's setting has a dotted flag (`--algo.lr`, `--env.n-bits`, `--algo.cem.samples`, "
+        "`--data-sharing.share-fraction`; in Python `taskrl.train(..., **{'algo.lr': 1e-3})`) and also answers to its short "
+        "name (`--lr`, `lr=1e-3`) wherever no other section of the run has a setting of that name; a short name two "
+        "sections share is refused with one line naming both dotted flags. The env family's and the algorithm's own settings are on the "
         "[env families](env_families.md) and [algorithms](algorithms.md) pages. `taskrl train PRESET --help` lists the "
         "ones that apply to a preset with its values.",
     ]
     for title, text, cls in sections:
         skip = ("conditioning", "cluster", "data_sharing", "env_settings", "algo_settings") if cls is TrainConfig else ()
-        out += ["", f"## {title}", "", text, "", settings_table(cls, skip)]
+        section = "" if cls is TrainConfig else title.split("`")[1]
+        out += ["", f"## {title}", "", text, "", settings_table(cls, skip, section)]
     return "\n".join(out) + "\n"
 
 
@@ -146,7 +154,7 @@ def _env_families_page() -> str:
             out.append(f"Settings: the `{family.section}` section, as above.")
             continue
         done.add(family.section)
-        out.append(settings_table(family.settings) if dataclasses.fields(family.settings) else "No settings of its own.")
+        out.append(settings_table(family.settings, section="env") if dataclasses.fields(family.settings) else "No settings of its own.")
     return "\n".join(out) + "\n"
 
 
@@ -169,7 +177,7 @@ def _algorithms_page() -> str:
             f"{yes[a.bellman_updaters]} | {_cell(a.description)} |"
         )
     for a in ALGORITHMS.values():
-        out += ["", f'<a id="{a.name}"></a>', "", f"## `{a.name}`", "", _cell(a.description), "", settings_table(a.config)]
+        out += ["", f'<a id="{a.name}"></a>', "", f"## `{a.name}`", "", _cell(a.description), "", settings_table(a.config, section="algo")]
     return "\n".join(out) + "\n"
 
 
