@@ -291,7 +291,7 @@ def costs(args: argparse.Namespace, folder: Path) -> str:
     step_ms = timed(collect_step, 2_000)  # also fills the replay
     from taskrl.training.offpolicy import batch_sampler
 
-    sample = batch_sampler(replay, parts.relabel, config.batch_size, parts.generator, parts.sampler)
+    sample = batch_sampler(parts.sampler, config.batch_size, parts.generator)
     batch = sample()
     sample_ms = timed(sample, 200)
     target_ms = timed(lambda: agent.bellman_target(batch, g), 50)

@@ -65,7 +65,7 @@ def measure_updaters(source: Path, count: int, label_seconds: float, seconds: fl
         LoopState(), lambda: {"success_rate": 0.0}, lambda row: None, lambda s: None, 10**12, 10**12, 10**12, 0.0, parts.device
     )
     limiter = UpdateToDataLimiter(config.updates_per_step, 0, offline_updates=10**12)  # learn only: the offline phase
-    sample = batch_sampler(parts.replay, parts.relabel, config.batch_size, parts.generator, parts.sampler)
+    sample = batch_sampler(parts.sampler, config.batch_size, parts.generator)
     loop = DistributedLoop(
         parts.agent, parts.replay, sample, LocalPool([]), pool, config.cluster, config.total_steps, limiter, 1, books
     )

@@ -282,7 +282,7 @@ def test_k_batches_drawn_together_are_k_task_balanced_batches():
         replay.start(obs)
         for t in range(10):
             replay.add(torch.zeros(4), -torch.ones(4), torch.zeros(4, dtype=torch.bool), torch.full((4,), t == 9), obs, obs)
-    draw = batch_sampler(replay, None, 4 * 32, g, TaskBalancedSampler(replay, 4))
+    draw = batch_sampler(TaskBalancedSampler(replay, 4), 4 * 32, g)
     batches = draw().split(4)
     assert [len(b) for b in batches] == [32] * 4
     for b in batches:  # each of the 4 keeps the balance: 8 rows of every task

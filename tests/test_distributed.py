@@ -135,7 +135,7 @@ def _local_loop(tmp_path, config, updaters: int, evaluated: bool = False, pool=L
         config.stop_at_success,
         parts.device,
     )
-    sample = batch_sampler(parts.replay, parts.relabel, config.batch_size, parts.generator, parts.sampler)
+    sample = batch_sampler(parts.sampler, config.batch_size, parts.generator)
     loop = DistributedLoop(
         parts.agent, parts.replay, sample, collectors, labellers, config.cluster, config.total_steps, limiter, each, books
     )

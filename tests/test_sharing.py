@@ -462,11 +462,28 @@ def test_a_grid_run_under_capacity_stores_every_step_it_collected(tmp_path):
     assert episodes.num_episodes > (4_000 + 2 * run.config.num_envs * 30) / 30
 
 
-def test_a_recent_window_mixes_with_task_balanced_sampling_and_is_refused_beside_a_strategy(tmp_path, capsys):
-    code, _, err = run_cli(capsys, "train", "grid-sharing-dqn", "--recent-fraction", "0.3", "--out", str(tmp_path / "refused"))
-    assert code == 2 and "--recent-fraction does not combine with --sharing all" in err
-    assert not (tmp_path / "refused").exists()
-    run = small_run(
-        "grid-sharing-dqn", tmp_path / "mixed", sharing="none", recent_fraction=0.3, total_steps=600, eval_interval=300
-    )
-    assert run.metrics["updates"] > 0
+def test_a_recent_window_composes_with_a_sharing_strategy_in_the_sampler_pipeline(tmp_path):
+    """Recent-mix over ``all`` sharing: the window's rows train the task they were collected for, with their
+    stored reward; the rest are the strategy's, relabelled with the task they train."""
+    from taskrl.replay.pipeline import SamplerPipeline
+    from taskrl.replay.sampling import RecentMixSampler
+
+    env, replay = filled_replay(GridTasks)
+    sharing = TaskSharing(replay, env, env.num_tasks, SharingConfig(sharing="all", share_fraction=1.0))
+    pipeline = SamplerPipeline(replay, RecentMixSampler(replay, 0.25, 20, sharing), [sharing.to_task])
+    batch = pipeline(240, torch.Generator().manual_seed(0))
+    source = replay.observation_at("task", batch.episode, 0)
+    window, rest = slice(0, 60), slice(60, 240)
+    newest = set(replay.newest_episodes(20).tolist())
+    assert set(batch.episode[window].tolist()) <= newest
+    assert torch.equal(batch.obs["task"][window], source[window])  # own task
+    assert torch.equal(batch.reward[window], replay.gather(batch.episode[window], batch.step[window]).reward)
+    assert (batch.obs["task"][rest] != source[rest]).all()  # share_fraction 1: all shared
+    expected = env.task_reward(batch.obs, batch.action, batch.next_obs, batch.obs["task"])
+    assert torch.equal(batch.reward, expected.to(batch.reward.dtype))
+    assert (batch.reward[rest] != replay.gather(batch.episode[rest], batch.step[rest]).reward).any()
+    # and a run with both trains
+    run = small_run("grid-sharing-dqn", tmp_path / "mixed", recent_fraction=0.3, total_steps=600, eval_interval=300)
+    assert run.config.data_sharing.sharing == "all" and run.metrics["updates"] > 0
+
+

@@ -357,12 +357,6 @@ def validate(config: TrainConfig) -> TrainConfig:
         )
     require(0.0 <= c.recent_fraction <= 1.0, "recent_fraction", f"must be in [0, 1] (got {c.recent_fraction})")
     require(c.recent_episodes >= 1, "recent_episodes", f"must be >= 1 (got {c.recent_episodes})")
-    require(
-        c.recent_fraction == 0 or c.data_sharing.sharing == "none",
-        "recent_fraction",
-        f"does not combine with --sharing {c.data_sharing.sharing} (a sharing strategy draws every task's rows itself); "
-        "use --recent-fraction 0 or --sharing none",
-    )
     c.conditioning.validate()
     c.cluster.validate()
     c.data_sharing.validate()

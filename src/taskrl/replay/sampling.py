@@ -15,6 +15,7 @@ from __future__ import annotations
 import torch
 
 from taskrl.replay.batch import Batch
+from taskrl.replay.pipeline import Draw, Rows, UniformDraw
 from taskrl.replay.storage import EpisodeReplay, draw_transitions
 
 __all__ = ["RecentMixSampler", "TaskBalancedSampler"]
@@ -85,13 +86,18 @@ class TaskBalancedSampler:
         flat = torch.arange(T * per, device=r.device).view(T, per).t().reshape(-1)[:batch_size].sort().values
         return episode.reshape(-1)[flat], step.reshape(-1)[flat]
 
+    def rows(self, n: int, generator: torch.Generator | None = None) -> Rows:
+        """:meth:`indices` as a :class:`~taskrl.replay.pipeline.Draw`."""
+        return Rows(*self.indices(n, generator))
+
     def __call__(self, batch_size: int, generator: torch.Generator | None = None) -> Batch:
         return self.replay.gather(*self.indices(batch_size, generator))
 
 
 class RecentMixSampler:
-    """``sampler(batch_size, generator) -> Batch``: a fixed share of each batch from the most recent
-    episodes (the "on-policy" window), the rest from everything stored (the "off-policy" store).
+    """A :class:`~taskrl.replay.pipeline.Draw`: a fixed share of each batch from the most recent
+    episodes (the "on-policy" window), the rest from another draw over everything stored (the
+    "off-policy" store: uniform, task-balanced, or a sharing strategy's).
 
     QT-Opt trains on a mix of its store of all past grasps and a buffer of fresh on-policy data
     (Kalashnikov et al., 2018, sec. 4.2); with data preloaded from an earlier run (``--offline-data``)
@@ -101,16 +107,17 @@ class RecentMixSampler:
         replay: the episode storage.
         recent_fraction: share of each batch drawn from the window, in [0, 1].
         recent_episodes: the window: this many most recently stored episodes.
-        sample_all: ``(n, generator) -> (episode, step)`` for the rest (default uniform over all stored transitions).
+        rest: the draw for the rest of the batch (default uniform over all stored transitions); rows
+            of the window train the task they were collected for.
     """
 
-    def __init__(self, replay: EpisodeReplay, recent_fraction: float, recent_episodes: int, sample_all=None) -> None:
+    def __init__(self, replay: EpisodeReplay, recent_fraction: float, recent_episodes: int, rest: Draw | None = None) -> None:
         if not 0.0 <= recent_fraction <= 1.0:
             raise ValueError(f"recent_fraction: must be in [0, 1] (got {recent_fraction})")
         if recent_episodes < 1:
             raise ValueError(f"recent_episodes: must be >= 1 (got {recent_episodes})")
         self.replay, self.recent_fraction, self.recent_episodes = replay, recent_fraction, recent_episodes
-        self.sample_all = sample_all if sample_all is not None else replay.sample_indices
+        self.rest = rest if rest is not None else UniformDraw(replay)
 
     def recent_indices(self, n: int, generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """``n`` transitions uniform over the window's transitions."""
@@ -119,13 +126,13 @@ class RecentMixSampler:
         at, step = draw_transitions(lengths.cumsum(0), lengths, n, generator)
         return episodes[at], step
 
-    def indices(self, batch_size: int, generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    def rows(self, n: int, generator: torch.Generator | None = None) -> Rows:
+        """The window's rows first, then the rest's."""
         if self.replay.num_episodes == 0:
             raise RuntimeError("cannot sample from an empty replay: no episode has finished yet")
-        n_recent = round(batch_size * self.recent_fraction)
-        recent_episode, recent_step = self.recent_indices(n_recent, generator)
-        episode, step = self.sample_all(batch_size - n_recent, generator)
-        return torch.cat([recent_episode, episode]), torch.cat([recent_step, step])
+        n_recent = round(n * self.recent_fraction)
+        return Rows.cat([Rows(*self.recent_indices(n_recent, generator)), self.rest.rows(n - n_recent, generator)])
 
     def __call__(self, batch_size: int, generator: torch.Generator | None = None) -> Batch:
-        return self.replay.gather(*self.indices(batch_size, generator))
+        rows = self.rows(batch_size, generator)
+        return self.replay.gather(rows.episode, rows.step)

@@ -12,6 +12,7 @@ from taskrl.envs.base import BatchedEnv
 from taskrl.envs.registry import env_family
 from taskrl.errors import require
 from taskrl.replay import EpisodeReplay, RecentMixSampler, TaskBalancedSampler
+from taskrl.replay.pipeline import Draw, SamplerPipeline, Stage, UniformDraw, hindsight_stage
 from taskrl.runmodes.spec import RunMode
 from taskrl.sharing import TaskSharing
 from taskrl.sharing.registry import sharing_strategy
@@ -82,15 +83,27 @@ def _add_replay(parts: RunParts, needs: int) -> None:
         env.single_observation_space, env.single_action_space, capacity, num_envs=env.num_envs, device=device, horizon=horizon
     )
     parts.relabel = make_relabeler(config, env)
+    parts.sampler = sampler_pipeline(config, env, parts)
+
+
+def sampler_pipeline(config: TrainConfig, env: BatchedEnv, parts: RunParts) -> SamplerPipeline:
+    """The run's batches: a draw (uniform, task-balanced, or a sharing strategy's), optionally mixed with a
+    window of recent episodes, then the stages (the sharing strategy's task relabel, hindsight relabelling)."""
+    replay = parts.replay
+    draw: Draw = UniformDraw(replay)
+    stages: list[Stage] = []
     if config.sampling == "task_balanced":
-        # a recent window mixes with plain task-balanced draws (validate() refuses it beside a strategy)
-        sharing = _task_sharing(config, env, parts.agent, parts.replay) if config.recent_fraction == 0 else None
-        parts.sampler = parts.sharing = sharing
-        if parts.sampler is None:
-            parts.sampler = TaskBalancedSampler(parts.replay, len(env.task_set))
+        parts.sharing = _task_sharing(config, env, parts.agent, replay)
+        if parts.sharing is not None:
+            draw = parts.sharing
+            stages.append(parts.sharing.to_task)
+        else:
+            draw = TaskBalancedSampler(replay, len(env.task_set))
     if config.recent_fraction > 0:
-        balanced = parts.sampler.indices if parts.sampler is not None else None
-        parts.sampler = RecentMixSampler(parts.replay, config.recent_fraction, config.recent_episodes, balanced)
+        draw = RecentMixSampler(replay, config.recent_fraction, config.recent_episodes, draw)
+    if parts.relabel is not None:
+        stages.append(hindsight_stage(parts.relabel, replay))
+    return SamplerPipeline(replay, draw, stages)
 
 
 def _task_sharing(config: TrainConfig, env: BatchedEnv, agent: Any, replay: EpisodeReplay) -> TaskSharing | None:

@@ -97,7 +97,7 @@ def distributed_loop(parts: RunParts, books: Bookkeeping, pool: PoolFactory = ra
         lead_steps=CALLS_PER_COLLECTOR * cluster.collectors * each * cluster.collector_steps,
         enabled=cluster.limit_updates,
     )
-    sample_batch = batch_sampler(parts.replay, parts.relabel, c.batch_size, parts.generator, parts.sampler)
+    sample_batch = batch_sampler(parts.sampler, c.batch_size, parts.generator)
     return DistributedLoop(
         parts.agent, parts.replay, sample_batch, collectors, updaters, cluster, c.total_steps, limiter, each, books
     )

@@ -23,9 +23,7 @@ def off_policy_loop(parts: RunParts, books: Bookkeeping) -> OffPolicyLoop:
         offline_updates=c.offline_updates,
         updates_per_call=c.updates_per_call,
     )
-    return OffPolicyLoop(
-        parts.env, parts.agent, parts.replay, parts.relabel, schedule, books, parts.generator, sample=parts.sampler
-    )
+    return OffPolicyLoop(parts.env, parts.agent, parts.replay, parts.sampler, schedule, books, parts.generator)
 
 
 def on_policy_loop(parts: RunParts, books: Bookkeeping) -> OnPolicyLoop:

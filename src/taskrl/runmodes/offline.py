@@ -45,7 +45,7 @@ def dataset_loop(parts: RunParts, books: Bookkeeping) -> OfflineLoop:
 def stored_data_loop(parts: RunParts, books: Bookkeeping) -> OfflineLoop:
     """An off-policy agent's updates on what the replay holds, relabelled and sampled as online."""
     c = parts.config
-    sample_batch = batch_sampler(parts.replay, parts.relabel, c.batch_size, parts.generator, parts.sampler)
+    sample_batch = batch_sampler(parts.sampler, c.batch_size, parts.generator)
     return OfflineLoop(parts.agent, lambda size, generator: sample_batch(), c.total_steps, c.batch_size, books, parts.generator)
 
 

@@ -37,6 +37,7 @@ from typing import Any
 import torch
 
 from taskrl.replay.batch import Batch
+from taskrl.replay.pipeline import Rows
 from taskrl.replay.storage import EpisodeReplay
 from taskrl.sharing.registry import sharing_strategy
 from taskrl.sharing.settings import SharingConfig
@@ -164,6 +165,21 @@ class TaskSharing:
         )
 
     def __call__(self, batch_size: int, generator: torch.Generator | None = None) -> Batch:
+        """A batch on its own: :meth:`rows`, gathered, then :meth:`to_task` (what the run's pipeline does)."""
+        rows = self.rows(batch_size, generator)
+        return self.to_task(self.replay.gather(rows.episode, rows.step), rows, generator)
+
+    def to_task(self, batch: Batch, rows: Rows, generator: torch.Generator | None = None) -> Batch:
+        """The pipeline stage after :meth:`rows`: each row as data of the task it trains (its own where
+        ``rows.task`` is -1, e.g. rows of a recent window), reward 0 where ``rows.zero_reward``."""
+        own = batch.obs[self.task_key].long()
+        task = own if rows.task is None else torch.where(rows.task >= 0, rows.task, own)
+        return self.relabel(batch, task, rows.zero_reward)
+
+    def rows(self, n: int, generator: torch.Generator | None = None) -> Rows:
+        """``n`` rows (a :class:`~taskrl.replay.pipeline.Draw`): ``n / T`` for every task, a strategy's share of
+        them from other tasks' data, each marked with the task it trains."""
+        batch_size = n
         r, T, s = self.replay, self.num_tasks, self.settings
         if r.num_episodes == 0:
             raise RuntimeError("cannot sample from an empty replay: no episode has finished yet")
@@ -192,8 +208,7 @@ class TaskSharing:
         lent = ~(has_own | has_shared)[target]
         target = torch.where(lent, source[episode], target)
         self.counts.index_put_((target, source[episode]), torch.ones_like(target, dtype=torch.float), accumulate=True)
-        zero = from_shared if self.strategy.zero_reward else None
-        return self.relabel(r.gather(episode, step), target, zero)
+        return Rows(episode, step, target, from_shared if self.strategy.zero_reward else None)
 
     def q_under_task(self, episode: torch.Tensor, step: torch.Tensor) -> torch.Tensor:
         """``[T, n]`` Q-values of the rows at ``(episode, step)`` ``[T, n]``, row t scored under task t."""

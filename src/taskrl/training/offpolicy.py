@@ -33,22 +33,14 @@ class OffPolicyAgent(Protocol):
     def update_many(self, batch: Batch, k: int) -> list[dict[str, torch.Tensor]]: ...
 
 
-Relabel = Callable[[Batch, EpisodeReplay, torch.Generator], Batch]
-
-
 def batch_sampler(
-    replay: EpisodeReplay,
-    relabel: Relabel | None,
-    batch_size: int,
-    generator: torch.Generator,
-    sample: Callable[[int, torch.Generator], Batch] | None = None,
+    sample: Callable[[int, torch.Generator], Batch], batch_size: int, generator: torch.Generator
 ) -> Callable[[], Batch]:
-    """``() -> Batch``: a sampled (``sample``, default uniform) and relabelled batch of ``batch_size``."""
-    draw = sample if sample is not None else replay.sample
+    """``() -> Batch``: a batch of ``batch_size`` from ``sample`` (the run's
+    :class:`~taskrl.replay.pipeline.SamplerPipeline`: drawn, gathered and relabelled)."""
 
     def sample_batch() -> Batch:
-        batch = draw(batch_size, generator)
-        return relabel(batch, replay, generator) if relabel else batch
+        return sample(batch_size, generator)
 
     return sample_batch
 
@@ -85,12 +77,11 @@ class OffPolicyLoop:
         env: training environments.
         agent: anything with ``act``, ``exploration`` and ``update``.
         replay: episode storage shared by collection and sampling.
-        relabel: optional ``relabel(batch, replay, generator)`` applied to every sampled batch.
+        sample: ``sample(batch_size, generator) -> Batch`` drawing from ``replay`` and relabelling (a
+            :class:`~taskrl.replay.pipeline.SamplerPipeline`; ``replay.sample`` is uniform, unrelabelled).
         schedule: step counts for learning.
         books: the run's bookkeeping (metric rows, evaluation, early stop, checkpoints).
         generator: generator for sampling and exploration.
-        sample: ``sample(batch_size, generator) -> Batch`` drawing from ``replay`` (default
-            ``replay.sample``: uniform over transitions; e.g. a ``TaskBalancedSampler``).
     """
 
     def __init__(
@@ -98,17 +89,15 @@ class OffPolicyLoop:
         env: BatchedEnv,
         agent: OffPolicyAgent,
         replay: EpisodeReplay,
-        relabel: Relabel | None,
+        sample: Callable[[int, torch.Generator], Batch],
         schedule: LoopSchedule,
         books: Bookkeeping,
         generator: torch.Generator,
-        sample: Callable[[int, torch.Generator], Batch] | None = None,
     ) -> None:
-        self.env, self.agent, self.replay, self.relabel = env, agent, replay, relabel
-        self.sample_batch = batch_sampler(replay, relabel, schedule.batch_size, generator, sample)
-        self.sample_k_batches = batch_sampler(  # one batch of k x batch_size rows, split by the agent
-            replay, relabel, schedule.batch_size * schedule.updates_per_call, generator, sample
-        )
+        self.env, self.agent, self.replay = env, agent, replay
+        self.sample_batch = batch_sampler(sample, schedule.batch_size, generator)
+        # one batch of k x batch_size rows, split by the agent
+        self.sample_k_batches = batch_sampler(sample, schedule.batch_size * schedule.updates_per_call, generator)
         self.schedule, self.books, self.generator = schedule, books, generator
 
     def run(self, env_seed: int) -> LoopState:
