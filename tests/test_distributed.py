@@ -403,7 +403,7 @@ def test_data_sharing_runs_through_collectors(tmp_path):
         loop.run()
     finally:
         parts.close()
-    assert parts.sharing is not None and parts.sampler is parts.sharing
+    assert parts.sharing is not None and parts.sampler.draw is parts.sharing
     assert rows[-1]["shared/top-left-avoid"] == pytest.approx(0.5, abs=0.03)
     last_two = [r["success/top-left-avoid"] for r in rows[-2:]]
     assert sum(last_two) / 2 >= 0.7, [r["success/top-left-avoid"] for r in rows]
