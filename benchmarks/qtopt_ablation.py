@@ -36,9 +36,14 @@ ARMS: dict[str, tuple[str, dict]] = {
         "all four changes above",
         {"clip_target": True, "twin": "independent", "truncate": True, **HER_EXPLORATION},
     ),
-    "sac-network": ("SAC's preset network (256, 256, 256) and 0.25 updates per env step", {
-        **BEFORE, "hidden_sizes": (256, 256, 256), "updates_per_step": 0.25,
-    }),
+    "sac-network": (
+        "SAC's preset network (256, 256, 256) and 0.25 updates per env step",
+        {
+            **BEFORE,
+            "hidden_sizes": (256, 256, 256),
+            "updates_per_step": 0.25,
+        },
+    ),
 }
 DEFAULT_ARMS = ("combined", "clip-target", "independent-twins", "her-exploration", "truncated-cem", "before")
 
@@ -108,6 +113,14 @@ def main() -> None:
     parser.add_argument("--report", action="store_true", help="train nothing; report the runs as they stand")
     parser.add_argument("--out", type=Path, default=OUT)
     parser.add_argument("--figure", type=Path, default=HERE / "figures" / "qtopt_ablation_fetchpush.png")
+    parser.add_argument(
+        "--diagnose",
+        type=int,
+        default=0,
+        metavar="EPISODES",
+        help="also measure each arm's last checkpoint with qtopt_diagnose.py over this many greedy episodes",
+    )
+    parser.add_argument("--trained-with", default="", help="the training commands, for the written section")
     parser.add_argument("--write", action="store_true")
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
@@ -120,6 +133,18 @@ def main() -> None:
     (HERE / "results" / "qtopt_ablation_fetchpush.json").write_text(json.dumps(results, indent=2))
     curves_png(results, args.figure)
     text = table(results, present)
+    if args.diagnose:
+        from qtopt_diagnose import diagnose
+        from qtopt_diagnose import table as diagnose_table
+
+        found = [diagnose(args.out / f"{a}-s{args.seed}", args.diagnose) for a in present]
+        (HERE / "results" / "qtopt_diagnose_fetchpush.json").write_text(json.dumps(found, indent=2))
+        text += (
+            f"\n\nEach arm's last checkpoint measured by `qtopt_diagnose.py` over {args.diagnose} greedy episodes "
+            "(see its docstring for each column):\n\n" + diagnose_table(found)
+        )
+    if args.trained_with:
+        text = f"Trained with {args.trained_with}.\n\n{text}"
     print(text)
     if args.write:
         from common import append_results

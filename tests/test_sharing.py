@@ -9,7 +9,7 @@ import pytest
 import torch
 
 import taskrl
-from helpers import run_cli, small_run
+from helpers import small_run
 from taskrl.agents.dqn import DQNAgent, DQNConfig
 from taskrl.agents.sac import SACAgent, SACConfig
 from taskrl.config import TrainConfig, validate, with_overrides
@@ -485,5 +485,3 @@ def test_a_recent_window_composes_with_a_sharing_strategy_in_the_sampler_pipelin
     # and a run with both trains
     run = small_run("grid-sharing-dqn", tmp_path / "mixed", recent_fraction=0.3, total_steps=600, eval_interval=300)
     assert run.config.data_sharing.sharing == "all" and run.metrics["updates"] > 0
-
-

@@ -154,7 +154,9 @@ def _env_families_page() -> str:
             out.append(f"Settings: the `{family.section}` section, as above.")
             continue
         done.add(family.section)
-        out.append(settings_table(family.settings, section="env") if dataclasses.fields(family.settings) else "No settings of its own.")
+        out.append(
+            settings_table(family.settings, section="env") if dataclasses.fields(family.settings) else "No settings of its own."
+        )
     return "\n".join(out) + "\n"
 
 
@@ -177,7 +179,16 @@ def _algorithms_page() -> str:
             f"{yes[a.bellman_updaters]} | {_cell(a.description)} |"
         )
     for a in ALGORITHMS.values():
-        out += ["", f'<a id="{a.name}"></a>', "", f"## `{a.name}`", "", _cell(a.description), "", settings_table(a.config, section="algo")]
+        out += [
+            "",
+            f'<a id="{a.name}"></a>',
+            "",
+            f"## `{a.name}`",
+            "",
+            _cell(a.description),
+            "",
+            settings_table(a.config, section="algo"),
+        ]
     return "\n".join(out) + "\n"
 
 

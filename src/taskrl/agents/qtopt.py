@@ -157,6 +157,7 @@ class QTOptAgent(Agent):
         self.box = ActionBox(action_space, self.device)
         self.action_dim = self.box.dim
         self.unit_low, self.unit_high = -torch.ones_like(self.box.low), torch.ones_like(self.box.high)
+
         def q_net() -> StateActionQ:
             return StateActionQ(input_dim, self.action_dim, config.hidden_sizes).to(self.device)
 
