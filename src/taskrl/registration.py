@@ -17,6 +17,7 @@ NATIVE_IDS: dict[str, tuple[str, int | None]] = {
     "taskrl/MultiTaskPointReach-v0": ("taskrl.envs.multitask_point:MultiTaskPointReachGymEnv", 50),
     "taskrl/GridTasks-v0": ("taskrl.envs.grid_tasks:GridTasksGymEnv", 30),
     "taskrl/PointTasks-v0": ("taskrl.envs.point_tasks:PointTasksGymEnv", 40),
+    "taskrl/Grasp-v0": ("taskrl.envs.grasp:GraspGymEnv", None),
 }
 
 

@@ -1,0 +1,116 @@
+"""The grasp env: its hold rule, episodes, object sets, camera and success detector."""
+
+from __future__ import annotations
+
+import math
+
+import gymnasium as gym
+import pytest
+import torch
+from gymnasium.utils.env_checker import check_env
+
+import taskrl  # noqa: F401  (registers taskrl/Grasp-v0)
+from taskrl.envs.grasp import COLOURS, FLOOR, GRASP_OBJECT_SETS, SHAPES, Grasp, GraspSettings
+from taskrl.errors import ConfigError
+
+CLOSE = torch.tensor([[0.0, 0.0, 0.0, 1.0]])
+
+
+def one_object(shape: str, half: tuple[float, float], angle: float = 0.0, **settings) -> Grasp:
+    """A bin with one object of ``shape`` at the centre, turned by ``angle``."""
+    env = Grasp(GraspSettings(num_objects=1, **settings), num_envs=1, seed=0)
+    env.reset(seed=0)
+    env.shape[:] = SHAPES.index(shape)
+    env.half[:] = torch.tensor(half)
+    env.centre[:] = 0.5
+    env.angle[:] = angle
+    return env
+
+
+def attempt(env: Grasp, at: tuple[float, float], yaw: float):
+    env.gripper[:] = torch.tensor(at)
+    env.yaw[:] = yaw
+    return env.step(CLOSE)
+
+
+@pytest.mark.parametrize("objects", list(GRASP_OBJECT_SETS))
+def test_the_gymnasium_env_passes_the_checker(objects):
+    env = gym.make("taskrl/Grasp-v0", objects=objects)
+    check_env(env.unwrapped)
+    obs, _ = env.reset(seed=0)
+    assert obs["image"].shape == (64, 64, 3) and obs["image"].dtype.name == "uint8"
+
+
+def test_a_bar_is_held_across_the_fingers_only_and_on_its_spine():
+    bar = (0.1, 0.025)  # 0.2 long: wider than the 0.14 opening along it
+    # the jaws close along the gripper's yaw: across the bar (yaw = bar + 90 degrees) it fits
+    _, reward, terminated, _, info = attempt(one_object("bar", bar), (0.5, 0.5), math.pi / 2)
+    assert reward.item() == 1.0 and terminated.item() and info["is_success"].item()
+    _, reward, terminated, _, _ = attempt(one_object("bar", bar), (0.5, 0.5), 0.0)  # along the bar: too long
+    assert reward.item() == 0.0 and terminated.item()
+    assert attempt(one_object("bar", bar), (0.56, 0.5), math.pi / 2)[1].item() == 1.0  # elsewhere on the spine
+    assert attempt(one_object("bar", bar), (0.5, 0.54), math.pi / 2)[1].item() == 0.0  # off the spine
+
+
+def test_a_disc_is_held_at_any_yaw_and_a_wide_square_only_turned_to_fit():
+    for yaw in (0.0, 0.7, 1.9):
+        assert attempt(one_object("disc", (0.05, 0.05)), (0.5, 0.5), yaw)[1].item() == 1.0
+    square = (0.066, 0.066)  # fits face on (0.132), not corner to corner (0.187)
+    assert attempt(one_object("square", square), (0.5, 0.5), 0.0)[1].item() == 1.0
+    assert attempt(one_object("square", square), (0.5, 0.5), math.pi / 4)[1].item() == 0.0
+
+
+def test_an_attempt_ends_at_the_close_or_unsolved_at_the_horizon():
+    env = Grasp(GraspSettings(horizon=3), num_envs=4, seed=1)
+    env.reset(seed=1)
+    for t in range(3):
+        _, reward, terminated, truncated, info = env.step(torch.zeros(4, 4) - 0.5)  # never closes
+        assert not terminated.any() and reward.eq(0).all() and not info["attempted"].any()
+    assert truncated.all() and env.t.eq(0).all()  # reset in the same step
+
+
+def test_held_out_objects_share_no_shape_and_colour_pair_with_training_and_show_new_ones():
+    train, held_out = set(GRASP_OBJECT_SETS["train"]), set(GRASP_OBJECT_SETS["held_out"])
+    assert not train & held_out
+    unseen = {c for s, c in held_out} - {c for s, c in train}
+    env = Grasp(GraspSettings(objects="held_out", num_objects=8), num_envs=64, seed=0)
+    env.reset(seed=0)
+    colours = {tuple(c) for c in env.colour.reshape(-1, 3).int().tolist()}
+    assert {COLOURS[c] for c in unseen} & colours
+    assert any(SHAPES[int(s)] == "ellipse" for s in env.shape.reshape(-1))
+
+
+def test_the_camera_shows_each_object_in_its_colour_and_the_gripper():
+    env = one_object("disc", (0.06, 0.06))
+    env.colour[:], env.packed[:] = torch.tensor(COLOURS["blue"], dtype=torch.float32), 40 | 80 << 8 | 220 << 16
+    env.gripper[:] = torch.tensor([0.2, 0.8])
+    env.yaw[:] = 0.0
+    image = env.render()[0]
+    assert tuple(image[32, 32].tolist()) == COLOURS["blue"]  # the object's centre (row = y, column = x)
+    assert tuple(image[2, 60].tolist()) == FLOOR
+    finger = image[int(0.8 * 64), int(0.13 * 64)]  # left finger, 0.07 from the gripper's centre along x
+    assert tuple(finger.tolist()) == (40, 40, 40)
+
+
+def test_the_detector_reads_holds_from_the_two_pictures_and_can_label_the_reward():
+    env = Grasp(GraspSettings(reward="detector"), num_envs=1024, seed=3)
+    env.reset(seed=3)
+    g = torch.Generator().manual_seed(0)
+    env.gripper = env.centre[:, 0] + 0.01 * torch.randn(1024, 2, generator=g)
+    env.yaw = math.pi * torch.rand(1024, generator=g)
+    _, reward, _, _, info = env.step(CLOSE.expand(1024, 4))
+    held, detected = info["is_success"], info["detected"]
+    assert 0.3 < held.float().mean() < 0.95  # both outcomes occur
+    precision = (held & detected).sum() / detected.sum()
+    recall = (held & detected).sum() / held.sum()
+    assert precision > 0.98 and recall > 0.98
+    assert torch.equal(reward, detected.float())  # trained on the detector's labels
+    lit = info["bin_before"].float().mean((1, 2, 3)) / info["bin_after"].float().mean((1, 2, 3))
+    assert lit.std() > 0.05  # the two pictures are lit differently, so a plain difference would not do
+
+
+def test_bad_settings_name_the_setting():
+    with pytest.raises(ConfigError, match="objects"):
+        Grasp(GraspSettings(objects="unseen"))
+    with pytest.raises(ConfigError, match="image_size"):
+        Grasp(GraspSettings(image_size=8))
