@@ -63,7 +63,7 @@ def test_a_disc_is_held_at_any_yaw_and_a_wide_square_only_turned_to_fit():
 def test_an_attempt_ends_at_the_close_or_unsolved_at_the_horizon():
     env = Grasp(GraspSettings(horizon=3), num_envs=4, seed=1)
     env.reset(seed=1)
-    for t in range(3):
+    for _ in range(3):
         _, reward, terminated, truncated, info = env.step(torch.zeros(4, 4) - 0.5)  # never closes
         assert not terminated.any() and reward.eq(0).all() and not info["attempted"].any()
     assert truncated.all() and env.t.eq(0).all()  # reset in the same step
