@@ -43,6 +43,7 @@ SMALLEST: dict[str, dict[str, Any]] = {
     "pointreach-mt": {"num_envs": 5},
     "gridtasks": {"num_envs": 4},
     "pointtasks": {"num_envs": 4},
+    "grasp": {"image_size": 16},
     "mt1": {},
     "mt10": {"num_envs": 10},
     "mt50": {"num_envs": 50},
@@ -75,7 +76,7 @@ def _fits(family: str, algo: str, mode: str) -> bool:
         return False  # an offline algorithm learns from demonstrations of the family's scripted expert
     config = with_overrides(TrainConfig(), {"env": family, "algo": algo, "her": "none"})
     try:
-        check_fit(config, env.kind, env.actions)
+        check_fit(config, env.kind, env.actions, env.images)
     except ConfigError:
         return False
     return True

@@ -192,7 +192,7 @@ def field_docs(cls: type) -> dict[str, str]:
 
 
 # ---------------------------------------------------------------------- validation
-def check_fit(config: TrainConfig, kind: str | None, actions: str | None) -> None:
+def check_fit(config: TrainConfig, kind: str | None, actions: str | None, images: bool = False) -> None:
     """The rules between the env and the algorithm, checked before building (with what the family
     declares) and again once the env is built (with what it is): the same rules both times."""
     c, spec = config, algorithm(config.algo)
@@ -203,6 +203,9 @@ def check_fit(config: TrainConfig, kind: str | None, actions: str | None) -> Non
     if actions is not None and actions not in spec.actions:
         need = " or ".join("continuous (Box)" if a == "box" else "discrete" for a in spec.actions)
         raise ConfigError("algo", f"{c.algo} needs {need} actions but {name!r} has {actions} actions; allowed: {fitting}")
+    if images and not spec.images:
+        seeing = ", ".join(a.name for a in ALGORITHMS.values() if a.images and (actions is None or actions in a.actions))
+        raise ConfigError("algo", f"{c.algo!r} cannot read the camera pictures of {name!r}; allowed: {seeing}")
     if kind == "multitask" and not spec.multitask:
         raise ConfigError("algo", f"{c.algo!r} does not run on the multi-task env {name!r}; allowed: {fitting}")
     if c.her != "none":
@@ -363,7 +366,7 @@ def validate(config: TrainConfig) -> TrainConfig:
     check_roles(c)
     c.env_settings.validate()
     c.algo_settings.validate()
-    check_fit(c, family.kind, family.actions)
+    check_fit(c, family.kind, family.actions, family.images)
     if family.check is not None:
         family.check(c.env_settings, c)
     return config

@@ -143,16 +143,24 @@ class StateActionQ(nn.Module):
     ``score_actions(x, actions)`` evaluates N actions for each of B states in one call. It splits
     the first layer, W [x; a] + b = (W_x x + b) + W_a a, so the state's share is computed once
     per state instead of once per sample and no [B * N, in] copy of the states is built.
+
+    ``state_input`` (e.g. :class:`~taskrl.encoders.ImageStateInput`) maps ``x`` first, once per state: an
+    image is encoded once however many actions are scored, and the action joins after the encoder.
     """
 
-    def __init__(self, in_dim: int, action_dim: int, hidden_sizes: tuple[int, ...]) -> None:
+    def __init__(self, in_dim: int, action_dim: int, hidden_sizes: tuple[int, ...], state_input: nn.Module | None = None) -> None:
         super().__init__()
-        self.in_dim = in_dim
-        self.body = mlp(in_dim + action_dim, hidden_sizes, 1)
+        self.state_input = state_input
+        self.in_dim = state_input.out_dim if state_input is not None else in_dim
+        self.body = mlp(self.in_dim + action_dim, hidden_sizes, 1)
+
+    def state(self, x: torch.Tensor) -> torch.Tensor:
+        """The state's features: ``state_input(x)``, or ``x``."""
+        return self.state_input(x) if self.state_input is not None else x
 
     def forward(self, x: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
         """x [B, D], action [B, A] -> [B]."""
-        return self.body(torch.cat([x, action], dim=-1)).squeeze(-1)
+        return self.body(torch.cat([self.state(x), action], dim=-1)).squeeze(-1)
 
     def score_actions(self, x: torch.Tensor, actions: torch.Tensor, chunk_rows: int | None = None) -> torch.Tensor:
         """x [B, D], actions [B, N, A] -> [B, N]: Q(x_b, a_bn) for all B * N pairs, for ``no_grad`` use (CEM).
@@ -164,6 +172,7 @@ class StateActionQ(nn.Module):
         stay 2-D (a 3-D input makes ``Linear`` ~35% slower on CPU) and ReLUs run in place.
         """
         b, n, _ = actions.shape
+        x = self.state(x)
         if chunk_rows is None:
             chunk_rows = 0 if x.is_cuda or torch.compiler.is_compiling() else 2048 * torch.get_num_threads()
         per_chunk = b if chunk_rows <= 0 else max(1, chunk_rows // n)

@@ -243,6 +243,28 @@ PRESETS: dict[str, Preset] = {
             "hidden_sizes": (256, 256, 256),
         },
     ),
+    "grasp-qtopt-pixels": Preset(
+        "QT-Opt from the camera: grasp objects in a bin from 64x64 pictures (conv encoder, random shifts, the paper's "
+        "sigmoid Q with a log loss on the 0/1 grasp reward)",
+        {
+            **_QTOPT,
+            "env": "grasp",
+            "her": "none",
+            "loss": "cross_entropy",
+            "clip_target": False,  # the sigmoid bounds Q to [0, 1] for the 0/1 reward
+            "gamma": 0.9,
+            "lr": 3e-4,
+            "hidden_sizes": (256, 256),
+            "num_envs": 16,
+            "batch_size": 64,
+            "buffer_size": 100_000,
+            "learning_starts": 1_000,
+            "updates_per_step": 0.25,
+            "total_steps": 200_000,
+            "eval_interval": 5_000,
+            "eval_episodes": 100,
+        },
+    ),
     "pointreach-mt-sac-onehot": Preset(
         "multi-task SAC on the native multi-task PointReach (5 regions named in words), one-hot task context",
         {**_POINTREACH_MT, "task_encoder": "onehot", "architecture": "concat"},

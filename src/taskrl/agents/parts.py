@@ -35,21 +35,26 @@ class ObservationInput(nn.Module):
         keys: observation keys the networks read, e.g. ``("observation", "desired_goal")``.
         dim: total flattened size of those keys.
         normalize: standardise with running statistics from the training batches.
+        raw_dim: trailing columns passed on as they are (an image's 0-255 values, which its encoder scales).
     """
 
-    def __init__(self, keys: Sequence[str], dim: int, normalize: bool) -> None:
+    def __init__(self, keys: Sequence[str], dim: int, normalize: bool, raw_dim: int = 0) -> None:
         super().__init__()
-        self.keys, self.dim = tuple(keys), int(dim)
+        self.keys, self.dim, self.raw_dim = tuple(keys), int(dim), int(raw_dim)
         self.encode = ObsConcat(keys)
-        self.normalize = RunningNorm(dim) if normalize else nn.Identity()
+        self.normalize = RunningNorm(dim - raw_dim) if normalize else nn.Identity()
 
     def forward(self, obs: Obs) -> torch.Tensor:
-        return self.normalize(self.encode(obs))
+        x = self.encode(obs)
+        if not self.raw_dim:
+            return self.normalize(x)
+        cut = self.dim - self.raw_dim
+        return torch.cat([self.normalize(x[:, :cut]), x[:, cut:]], dim=1)
 
     def update_statistics(self, obs: Obs) -> None:
         """Merge a training batch into the running statistics (no-op without normalisation)."""
         if isinstance(self.normalize, RunningNorm):
-            self.normalize.update(self.encode(obs))
+            self.normalize.update(self.encode(obs)[:, : self.dim - self.raw_dim])
 
 
 class ActionBox:

@@ -60,6 +60,7 @@ from taskrl.agents.parts import (
     td_target,
 )
 from taskrl.agents.spec import AlgorithmSpec
+from taskrl.encoders import ENCODERS, ImageStateInput, image_size, random_shift
 from taskrl.errors import one_of, require
 from taskrl.nets import StateActionQ
 from taskrl.replay.batch import Batch, Obs
@@ -89,6 +90,12 @@ class QTOptConfig:
         random_action_prob_end: that probability after ``random_action_decay_steps``.
         random_action_decay_steps: environment steps over which it decays linearly (0: ``random_action_prob_end`` throughout).
         cem: cross-entropy-method settings, used both to act and in the Bellman target.
+        encoder: on envs with a camera, the picture's encoder in every Q-network: ``conv`` (four 3x3
+            convolutions) or ``resnet`` (a small ResNet); the action joins after it, so CEM encodes a
+            picture once per state however many actions it scores.
+        image_features: the encoded picture's size (a linear layer, LayerNorm and tanh after the encoder).
+        augment_pad: on envs with a camera, DrQ's random shift in every update: pictures padded by this many
+            pixels and cropped back at a random offset (0: none).
     """
 
     lr: float = 1e-3
@@ -106,12 +113,18 @@ class QTOptConfig:
     random_action_prob_end: float = 0.1
     random_action_decay_steps: int = 20_000
     cem: CEMConfig = dataclasses.field(default_factory=CEMConfig)
+    encoder: Literal["conv", "resnet"] = "conv"
+    image_features: int = 50
+    augment_pad: int = 4
 
     def validate(self) -> None:
         """Raise :class:`~taskrl.errors.ConfigError` naming the first bad setting."""
         check_learning_settings(self)
         one_of(self.loss, ("huber", "mse", "cross_entropy"), "loss", "loss")
         one_of(self.twin, ("lagged", "independent"), "twin", "twin")
+        one_of(self.encoder, ENCODERS, "encoder", "encoder")
+        require(self.image_features >= 1, "image_features", f"must be >= 1 (got {self.image_features})")
+        check_non_negative(self, "augment_pad")
         require(
             not (self.clip_target and self.loss == "cross_entropy"),
             "clip_target",
@@ -132,6 +145,7 @@ class QTOptAgent(Agent):
         action_space: a gymnasium ``Box`` or a ``(low, high)`` pair of tensors / arrays.
         config: hyperparameters, see :class:`QTOptConfig`.
         device: torch device of the networks.
+        image_shape: ``(H, W, C)`` of an ``image`` observation (the last of ``input_keys``), or None.
     """
 
     acting = ("q", "normalize")
@@ -152,14 +166,20 @@ class QTOptAgent(Agent):
         action_space: Any,
         config: QTOptConfig,
         device: str | torch.device = "cpu",
+        image_shape: tuple[int, ...] | None = None,
     ) -> None:
-        self.setup(config, device, input_keys, input_dim)
+        self.image_shape = tuple(image_shape) if image_shape is not None else None
+        raw = image_size(self.image_shape) if self.image_shape is not None else 0
+        self.setup(config, device, input_keys, input_dim, raw_dim=raw)
         self.box = ActionBox(action_space, self.device)
         self.action_dim = self.box.dim
         self.unit_low, self.unit_high = -torch.ones_like(self.box.low), torch.ones_like(self.box.high)
 
         def q_net() -> StateActionQ:
-            return StateActionQ(input_dim, self.action_dim, config.hidden_sizes).to(self.device)
+            state_input = None
+            if self.image_shape is not None:  # every network, targets included, has its own encoder
+                state_input = ImageStateInput(input_dim - raw, self.image_shape, config.encoder, config.image_features)
+            return StateActionQ(input_dim, self.action_dim, config.hidden_sizes, state_input).to(self.device)
 
         self.q = q_net()
         self.independent = config.twin == "independent"
@@ -271,6 +291,9 @@ class QTOptAgent(Agent):
     ) -> dict[str, torch.Tensor]:
         """The update itself (what ``--compile`` compiles): the target if not given, the regression, the target networks."""
         cfg = self.config
+        if self.image_shape is not None and cfg.augment_pad:  # DrQ: every picture shifted on its own
+            shift = lambda obs: {**obs, "image": random_shift(obs["image"], cfg.augment_pad, generator)}  # noqa: E731
+            batch = batch.replace(obs=shift(batch.obs), next_obs=shift(batch.next_obs))
         if target is None:
             target = self.bellman_target(batch, generator)
         self.inputs.update_statistics(batch.obs)
@@ -330,9 +353,12 @@ SPEC = AlgorithmSpec(
     name="qtopt",
     description="QT-Opt: Q-learning over continuous actions with a CEM argmax and clipped double-Q targets",
     config=QTOptConfig,
-    build=lambda inputs, config, device, conditioning: QTOptAgent(inputs.keys, inputs.dim, inputs.action_space, config, device),
+    build=lambda inputs, config, device, conditioning: QTOptAgent(
+        inputs.keys, inputs.dim, inputs.action_space, config, device, inputs.image_shape
+    ),
     loop="off_policy",
     actions=("box",),
     bellman_updaters=True,
     compiles=True,
+    images=True,
 )

@@ -17,11 +17,13 @@ LoopKind = Literal["off_policy", "on_policy", "offline"]
 @dataclasses.dataclass(frozen=True)
 class AgentInputs:
     """What an agent is built for: the observation keys its networks read, their flattened size,
-    and the action space."""
+    and the action space; on envs with a camera, the picture's shape ``(H, W, C)`` (its key ``image`` comes
+    last in ``keys``, its values the last columns of the flat input)."""
 
     keys: tuple[str, ...]
     dim: int
     action_space: gym.spaces.Space
+    image_shape: tuple[int, ...] | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -45,6 +47,7 @@ class AlgorithmSpec:
             implements ``learn``, see :mod:`taskrl.agents.compiled`).
         q_values: whether its agent has ``q_value(obs, action) -> [B]``, the Q of each row under the row's task
             (what a sharing strategy that ranks rows by Q reads).
+        images: whether its networks encode an ``image`` observation (a conv encoder); others refuse envs with a camera.
         parent: the registered algorithm this one is a variant of: switching ``--algo`` between the two (or two
             variants of one parent) keeps every setting their sections share by name (exploration included),
             not only the settings every algorithm shares.
@@ -61,3 +64,4 @@ class AlgorithmSpec:
     compiles: bool = False
     q_values: bool = False
     parent: str | None = None
+    images: bool = False

@@ -3,7 +3,8 @@
 Each copy is a square bin ``[0, 1]^2`` holding ``num_objects`` objects of varied shape, size, colour and
 orientation, and a parallel-jaw gripper above it. The observation is what an over-the-shoulder camera
 would give at a small scale: a ``image_size x image_size`` RGB picture of the bin from above, gripper
-included (uint8, channels last as gymnasium's image spaces are), beside a small state vector.
+included (uint8, channels last as gymnasium's image spaces are), beside a small state vector
+(``observation``: the gripper's pose and the time left).
 
 Actions (QT-Opt's, in the plane): ``[dx, dy, dyaw, close]`` in ``[-1, 1]^4``: the gripper moves by up to
 ``max_move`` in x and y and turns by up to ``max_turn`` about the vertical axis; ``close > 0`` closes the
@@ -41,6 +42,7 @@ import numpy as np
 import torch
 
 from taskrl.envs.base import NativeEnv, Obs, StepResult
+from taskrl.envs.spec import EnvFamily, EnvRequest
 from taskrl.errors import one_of, require
 
 __all__ = ["GRASP_OBJECT_SETS", "Grasp", "GraspGymEnv", "GraspSettings", "detect_grasp"]
@@ -147,7 +149,7 @@ def detect_grasp(
 class Grasp(NativeEnv):
     """``num_envs`` bins at once (see the module docstring).
 
-    Observations: ``image`` ``[B, H, W, 3]`` uint8 and ``state`` ``[B, 5]`` (gripper x, y in [0, 1], cos and
+    Observations: ``image`` ``[B, H, W, 3]`` uint8 and ``observation`` ``[B, 5]`` (gripper x, y in [0, 1], cos and
     sin of twice its yaw, as a parallel jaw is the same turned by pi, and the share of the attempt's steps
     left). ``info`` at every step: ``is_success`` (held, by the simulator), ``attempted`` (closed this
     step); where an attempt ended, ``detected`` (:func:`detect_grasp`'s answer) and the two pictures
@@ -166,7 +168,7 @@ class Grasp(NativeEnv):
         self.single_observation_space = gym.spaces.Dict(
             {
                 "image": gym.spaces.Box(0, 255, (size, size, 3), np.uint8),
-                "state": gym.spaces.Box(-1.0, 1.0, (5,), np.float32),
+                "observation": gym.spaces.Box(-1.0, 1.0, (5,), np.float32),
             }
         )
         self.single_action_space = gym.spaces.Box(-1.0, 1.0, (4,), np.float32)
@@ -222,7 +224,7 @@ class Grasp(NativeEnv):
             ],
             1,
         )
-        return {"image": self.render(), "state": state}
+        return {"observation": state, "image": self.render()}
 
     # ------------------------------------------------------------------ grasping
     def holdable(self) -> torch.Tensor:
@@ -387,3 +389,20 @@ class GraspGymEnv(gym.Env):
 
     def render(self):
         return self._env.render_rgb(0) if self.render_mode == "rgb_array" else None
+
+
+def _make_grasp(settings: GraspSettings, request: EnvRequest) -> Grasp:
+    return Grasp(settings, num_envs=request.copies, seed=request.seed, device=request.device)
+
+
+FAMILY = EnvFamily(
+    name="grasp",
+    description="QT-Opt's bin from above: grasp one of several objects from a 64x64 camera picture (native torch)",
+    section="grasp",
+    settings=GraspSettings,
+    make=_make_grasp,
+    kind="plain",
+    actions="box",
+    images=True,
+    video_env=lambda s: gym.make("taskrl/Grasp-v0", render_mode="rgb_array", **dataclasses.asdict(s)),
+)

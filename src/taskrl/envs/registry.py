@@ -12,6 +12,7 @@ from typing import Any
 from taskrl.envs import (
     bitflip,
     fetch,
+    grasp,
     grid_tasks,
     gymnasium_family,
     metaworld_tasks,
@@ -33,6 +34,7 @@ BUILT_IN: tuple[EnvFamily, ...] = (
     multitask_point.FAMILY,
     grid_tasks.FAMILY,
     point_tasks.FAMILY,
+    grasp.FAMILY,
     *metaworld_tasks.FAMILIES,
     gymnasium_family.FAMILY,
     task_sets.FAMILY,

@@ -117,6 +117,8 @@ class EnvFamily:
             record videos of (``taskrl eval --video``); None where the family cannot render.
         task_rewards: whether its tasks are reward functions (``task_reward``, ``task_terminated``, ``task_success`` on
             the env: what data sharing scores rows with); None where only the built env can tell (a user's env).
+        images: whether its observations carry a camera picture (``image``), which only algorithms that
+            declare ``images`` can read.
         demos: families with a scripted expert: ``demos(task names or None) -> DemoSource`` of the named tasks (None:
             the family's own set), what ``taskrl demos collect FAMILY`` (or ``FAMILY:task,task``) records.
     """
@@ -139,6 +141,7 @@ class EnvFamily:
     task_sentences: Callable[[Any], dict[str, list[str]]] | None = None
     task_rewards: bool | None = False
     demos: Callable[[Sequence[str] | None], DemoSource] | None = None
+    images: bool = False
 
     def success_criterion(self, settings: Any) -> str:
         """``any`` or ``final``: when a multi-task evaluation episode counts as a success."""

@@ -25,7 +25,7 @@ from taskrl.training.per_task import evaluate_per_task
 __all__ = ["RunParts", "make_agent", "make_env", "make_evaluator", "make_relabeler", "resolve_device"]
 
 #: Observation keys the networks read, where the env has them (the task index is read separately).
-AGENT_INPUT_KEYS = ("observation", "desired_goal")
+AGENT_INPUT_KEYS = ("observation", "desired_goal", "image")  # the image last: its columns end the flat input
 
 
 EVAL_SEED_OFFSET = 1_000_003
@@ -95,7 +95,7 @@ def make_agent(config: TrainConfig, env: Any, device: torch.device) -> Any:
     The env is checked against the algorithm with the same rules as before building
     (:func:`taskrl.config.check_fit`), now with the env's real kind and action space.
     """
-    check_fit(config, env_kind(env), action_kind(env.single_action_space))
+    check_fit(config, env_kind(env), action_kind(env.single_action_space), "image" in env.single_observation_space.spaces)
     if action_kind(env.single_action_space) is None:
         raise ConfigError("env", f"actions must be Box or Discrete; {config.env!r} has {env.single_action_space}")
     space = env.single_observation_space
@@ -111,8 +111,9 @@ def make_agent(config: TrainConfig, env: Any, device: torch.device) -> Any:
     conditioning = None
     if env_kind(env) == "multitask" and task_set is not None and len(task_set) > 1:  # one task needs no context
         conditioning = make_conditioning(config.conditioning, len(task_set), task_set.descriptions)
+    image_shape = tuple(space["image"].shape) if "image" in keys else None
     check_network_memory(config, input_dim, device)
-    inputs = AgentInputs(keys, input_dim, env.single_action_space)
+    inputs = AgentInputs(keys, input_dim, env.single_action_space, image_shape)
     return algorithm(config.algo).build(inputs, config.algo_settings, device, conditioning)
 
 
