@@ -80,3 +80,28 @@ def test_qtopt_from_pixels_trains_its_encoder_and_each_target_has_its_own(encode
     agent.update(batch, generator=g)
     assert all(not torch.equal(a, b) for a, b in zip(agent.q.state_input.parameters(), before))
     assert agent.q_target1.state_input is not agent.q.state_input and agent.q_target2.state_input is not agent.q.state_input
+
+
+def test_every_update_shifts_the_pictures_of_both_states_unless_turned_off(monkeypatch):
+    import taskrl.agents.qtopt as qtopt
+
+    seen = []
+    monkeypatch.setattr(qtopt, "random_shift", lambda images, pad, generator: seen.append(pad) or images)
+    env = Grasp(GraspSettings(image_size=16), num_envs=4, seed=0)
+    obs = env.reset(seed=0)
+    _, reward, terminated, truncated, info = env.step(torch.zeros(4, 4))
+    batch = Batch(
+        obs,
+        torch.zeros(4, 4),
+        reward,
+        info["final_obs"],
+        terminated,
+        truncated,
+        torch.zeros(4, dtype=torch.long),
+        torch.zeros(4, dtype=torch.long),
+    )
+    for pad, expected in ((4, [4, 4]), (0, [])):
+        seen.clear()
+        config = QTOptConfig(hidden_sizes=(8,), augment_pad=pad)
+        QTOptAgent(("observation", "image"), 5 + 768, env.single_action_space, config, image_shape=(16, 16, 3)).update(batch)
+        assert seen == expected
