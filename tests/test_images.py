@@ -13,6 +13,13 @@ from taskrl.nets import StateActionQ
 from taskrl.replay.batch import Batch
 
 
+def one_step(env: Grasp, obs: dict, action: torch.Tensor) -> Batch:
+    """The batch of one step of every copy of ``env`` from ``obs``."""
+    _, reward, terminated, truncated, info = env.step(action)
+    index = torch.zeros(env.num_envs, dtype=torch.long)
+    return Batch(obs, action, reward, info["final_obs"], terminated, truncated, index, index)
+
+
 def test_random_shift_moves_each_picture_by_its_own_offset_within_the_pad():
     images = torch.zeros(64, 12, 12, 3, dtype=torch.uint8)
     images[:, 6, 5] = 255  # one bright pixel, away from the border
@@ -64,18 +71,7 @@ def test_qtopt_from_pixels_trains_its_encoder_and_each_target_has_its_own(encode
     )
     assert space["image"].shape == (16, 16, 3)
     g = torch.Generator().manual_seed(0)
-    action = agent.act(obs, explore=True, generator=g)
-    next_obs, reward, terminated, truncated, info = env.step(action)
-    batch = Batch(
-        obs,
-        action,
-        reward,
-        info["final_obs"],
-        terminated,
-        truncated,
-        torch.zeros(8, dtype=torch.long),
-        torch.zeros(8, dtype=torch.long),
-    )
+    batch = one_step(env, obs, agent.act(obs, explore=True, generator=g))
     before = [p.clone() for p in agent.q.state_input.parameters()]
     agent.update(batch, generator=g)
     assert all(not torch.equal(a, b) for a, b in zip(agent.q.state_input.parameters(), before))
@@ -88,18 +84,7 @@ def test_every_update_shifts_the_pictures_of_both_states_unless_turned_off(monke
     seen = []
     monkeypatch.setattr(qtopt, "random_shift", lambda images, pad, generator: seen.append(pad) or images)
     env = Grasp(GraspSettings(image_size=16), num_envs=4, seed=0)
-    obs = env.reset(seed=0)
-    _, reward, terminated, truncated, info = env.step(torch.zeros(4, 4))
-    batch = Batch(
-        obs,
-        torch.zeros(4, 4),
-        reward,
-        info["final_obs"],
-        terminated,
-        truncated,
-        torch.zeros(4, dtype=torch.long),
-        torch.zeros(4, dtype=torch.long),
-    )
+    batch = one_step(env, env.reset(seed=0), torch.zeros(4, 4))
     for pad, expected in ((4, [4, 4]), (0, [])):
         seen.clear()
         config = QTOptConfig(hidden_sizes=(8,), augment_pad=pad)
