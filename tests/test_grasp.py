@@ -63,10 +63,11 @@ def test_a_disc_is_held_at_any_yaw_and_a_wide_square_only_turned_to_fit():
 def test_an_attempt_ends_at_the_close_or_unsolved_at_the_horizon():
     env = Grasp(GraspSettings(horizon=3), num_envs=4, seed=1)
     env.reset(seed=1)
-    for _ in range(3):
+    for step in range(1, 4):
         _, reward, terminated, truncated, info = env.step(torch.zeros(4, 4) - 0.5)  # never closes
-        assert not terminated.any() and reward.eq(0).all() and not info["attempted"].any()
-    assert truncated.all() and env.t.eq(0).all()  # reset in the same step
+        assert reward.eq(0).all() and not info["attempted"].any() and not truncated.any()
+        assert terminated.all() == (step == 3)  # the time left is observed: running out is terminal
+    assert env.t.eq(0).all()  # reset in the same step
 
 
 def test_held_out_objects_share_no_shape_and_colour_pair_with_training_and_show_new_ones():

@@ -18,7 +18,7 @@ A closed gripper holds an object when both hold:
   elongated object fits only across the fingers, a square only when turned so that its width fits.
 
 Reward 1 at the end of a successful attempt, 0 otherwise; an episode is one attempt (it ends at the close
-or after ``horizon`` steps without one).
+or after ``horizon`` steps without one; either way it terminates: the time left is part of the state).
 
 Object sets: ``train`` objects are discs, squares and bars in red, green, blue and yellow; ``held_out``
 objects are never seen in training: ellipses in any colour, and the training shapes in purple, cyan,
@@ -258,7 +258,10 @@ class Grasp(NativeEnv):
             before, after = self._drop_pictures(holdable, closed)
             detected[closed] = detect_grasp(before[closed], after[closed])
         label = detected if s.reward == "detector" else held
-        obs, reward, terminated, truncated, info = self._end_step(label.float(), held, failed=closed & ~held)
+        # the time left is in the observation, so an attempt that runs out of steps ends in a terminal
+        # state (value 0), not a cut-off one to bootstrap from
+        failed = (closed & ~held) | (self.t >= self.horizon)
+        obs, reward, terminated, truncated, info = self._end_step(label.float(), held, failed=failed)
         info.update(extra, is_success=held, detected=detected)
         zeros = torch.zeros(self.num_envs, *self.single_observation_space["image"].shape, dtype=torch.uint8, device=self.device)
         info["bin_before"] = before if before is not None else zeros
