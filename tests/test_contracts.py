@@ -141,23 +141,20 @@ def test_every_fitting_family_algorithm_and_run_mode_trains_saves_and_loads(fami
         request.getfixturevalue("local_roles")
     num_envs = settings.pop("num_envs", 2)
     budget = 60 * num_envs if mode != "on_policy" else 8 * num_envs  # past the first complete episodes
-    run = taskrl.train(
-        None,
-        base=TrainConfig(),
-        out=tmp_path / "run",
+    smallest_run = dict(
         tensorboard=False,
-        env=env,
-        algo=algo,
         her="none",
         hidden_sizes=(16,),
-        num_envs=num_envs,
         total_steps=budget if mode not in ("dataset", "stored_data") else 3,
         learning_starts=num_envs,
         updates_per_step=1,
         batch_size=4,
         eval_episodes=1,
         eval_interval=10**6,
-        **settings,
+    )
+    # a mode's own settings win over the smallest run's (a mode may need, say, its own update ratio)
+    run = taskrl.train(
+        None, base=TrainConfig(), out=tmp_path / "run", env=env, algo=algo, num_envs=num_envs, **{**smallest_run, **settings}
     )
     assert run_mode(run.config).name == mode
     assert run.metrics["updates"] >= 1, run.metrics  # it learned from something
