@@ -53,11 +53,15 @@ class NativeEnv(BatchedEnv):
     ``terminate_on_success`` flag, and implement ``_obs()`` (the current observation) and
     ``_reset_where(mask)`` (new episodes in the masked copies); their ``step`` advances the state and
     returns ``self._end_step(reward, success)``.
+
+    ``horizon_is_terminal``: an env whose observation carries the time left sets it, so running out of
+    steps ends the episode in a terminal state (value 0) rather than a cut-off one to bootstrap from.
     """
 
     t: torch.Tensor
     generator: torch.Generator
     terminate_on_success: bool
+    horizon_is_terminal: bool = False
 
     def _obs(self) -> Obs:
         raise NotImplementedError
@@ -73,12 +77,15 @@ class NativeEnv(BatchedEnv):
 
     def _end_step(self, reward: torch.Tensor, success: torch.Tensor, failed: torch.Tensor | None = None) -> StepResult:
         """Termination on success (if enabled) or on ``failed`` (a hazard touched), truncation at
-        ``horizon``, same-step reset of the copies that ended, and their final observation in
-        ``info["final_obs"]``."""
+        ``horizon`` (termination where ``horizon_is_terminal``), same-step reset of the copies that ended,
+        and their final observation in ``info["final_obs"]``."""
         terminated = success if self.terminate_on_success else torch.zeros_like(success)
         if failed is not None:
             terminated = terminated | failed
-        truncated = (self.t >= self.horizon) & ~terminated
+        out_of_time = self.t >= self.horizon
+        if self.horizon_is_terminal:
+            terminated = terminated | out_of_time
+        truncated = out_of_time & ~terminated
         final_obs = self._obs()
         self._reset_where(terminated | truncated)
         info: dict[str, Any] = {"is_success": success, "final_obs": final_obs}

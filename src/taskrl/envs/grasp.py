@@ -156,6 +156,8 @@ class Grasp(NativeEnv):
     ``bin_before`` / ``bin_after`` (zeros elsewhere).
     """
 
+    horizon_is_terminal = True  # the time left is observed
+
     def __init__(
         self, settings: GraspSettings | None = None, num_envs: int = 1, seed: int = 0, device: str | torch.device = "cpu"
     ) -> None:
@@ -258,10 +260,7 @@ class Grasp(NativeEnv):
             before, after = self._drop_pictures(holdable, closed)
             detected[closed] = detect_grasp(before[closed], after[closed])
         label = detected if s.reward == "detector" else held
-        # the time left is in the observation, so an attempt that runs out of steps ends in a terminal
-        # state (value 0), not a cut-off one to bootstrap from
-        failed = (closed & ~held) | (self.t >= self.horizon)
-        obs, reward, terminated, truncated, info = self._end_step(label.float(), held, failed=failed)
+        obs, reward, terminated, truncated, info = self._end_step(label.float(), held, failed=closed & ~held)
         info.update(extra, is_success=held, detected=detected)
         zeros = torch.zeros(self.num_envs, *self.single_observation_space["image"].shape, dtype=torch.uint8, device=self.device)
         info["bin_before"] = before if before is not None else zeros
