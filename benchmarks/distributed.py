@@ -78,7 +78,7 @@ LAYOUTS = {  # name -> (collectors, bellman updaters); None: in one process
 def fetchreach(args: argparse.Namespace, folder: Path) -> str:
     rows_out = []
     for name, layout in LAYOUTS.items():
-        for seed in args.seeds if name in ("in-process", "2 collectors, 1 updater") else args.seeds[:1]:
+        for seed in args.seeds:
             cluster = {} if layout is None else dict(distributed=True, collectors=layout[0], bellman_updaters=layout[1])
             metrics, rows, wall = _train(
                 "fetchreach-qtopt-her",

@@ -152,6 +152,23 @@ def test_metaworld_experts_collect_successful_episodes(tmp_path):
         assert episode.infos["success"][first] and demos.lengths[e] == first + 1 + 5  # 5 steps kept after the first success
 
 
+def test_a_hidden_goal_run_trains_and_is_prompted_on_demonstrations_with_the_goal_hidden(tmp_path):
+    from taskrl.envs.metaworld_tasks import MetaWorldSettings
+
+    collect_demos("reach", 3, tmp_path / "mw", seed=1)
+    demos = read_demonstrations(tmp_path / "mw")
+    seen = demos.as_seen_under(MetaWorldSettings(hidden_goal=True)).observations
+    assert demos.observations[:, 36:39].abs().sum() > 0 and seen[:, 36:39].abs().sum() == 0
+    assert torch.equal(seen[:, :36], demos.observations[:, :36])
+    assert torch.equal(demos.as_seen_under(MetaWorldSettings()).observations, demos.observations)
+    run = small_run(
+        "bc-mt10-onehot", tmp_path / "run", env="mt1", task="reach", num_envs=1, dataset=str(tmp_path / "mw"),
+        hidden_goal=True, total_steps=20, eval_interval=10**6, eval_episodes=1, max_episode_steps=5,
+    )
+    normaliser = run.agent.inputs.normalize
+    assert normaliser.mean[36:39].abs().sum() == 0 and normaliser.mean[:3].abs().sum() > 0  # fit on what the policy sees
+
+
 # ---------------------------------------------------------------------- sampling
 def test_stratified_sampling_balances_tasks_and_masks_chunks(tmp_path):
     episodes = [_episode("big", 50, 1000.0 * i) for i in range(10)] + [_episode("small", 4, 99_000.0)]

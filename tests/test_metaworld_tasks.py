@@ -126,6 +126,31 @@ def test_success_comes_from_metaworld_info_success():
         assert not successes[0] and any(successes)
 
 
+def test_a_hidden_goal_is_zeroed_as_metaworlds_ml_benchmarks_zero_it_and_the_expert_is_still_told_it():
+    from taskrl.envs.metaworld_tasks import hide_goal, metaworld_expert
+
+    kwargs = dict(use_one_hot=True, max_episode_steps=150, seed=0, num_goals=5, terminate_on_success=True)
+    with MetaWorldMultiTaskEnv(["reach"], **kwargs) as seen, MetaWorldMultiTaskEnv(["reach"], hidden_goal=True, **kwargs) as hidden:
+        full, blind = seen.reset(seed=0)["observation"], hidden.reset(seed=0)["observation"]
+        assert full[0, 36:39].abs().min() > 0 and torch.equal(blind, hide_goal(full))
+        # Meta-World's own partially observable observation of the same state hides the same three numbers
+        raw = seen.vector_env.envs[0].unwrapped
+        previous = raw._prev_obs.copy()
+        raw._partially_observable = True
+        own = raw._get_obs()
+        raw._prev_obs, raw._partially_observable = previous, False
+        assert np.allclose(own, hide_goal(torch.as_tensor(raw._get_obs())).numpy())
+        # the scripted expert acts on the true goal, so demonstrations can be collected under the protocol
+        assert torch.equal(hidden.goals(), full[:, 36:39])
+        expert, obs, reached = metaworld_expert(hidden), {"observation": blind}, False
+        for _ in range(150):
+            obs, _, terminated, _, info = hidden.step(expert(obs))
+            reached = reached or bool(info["is_success"][0])
+            if terminated.any():
+                break
+        assert reached
+
+
 @pytest.mark.slow
 def test_seeding_repeats_and_horizons_past_500():
     def make():

@@ -132,6 +132,7 @@ def evaluate_prompted(
 
         shown = tasks[1:] + tasks[:1] if prompt == "other-task" else tasks
         demos = read_demonstrations(dataset or config.algo_settings.dataset, agent.device).select_tasks(shown)
+        demos = demos.as_seen_under(config.env_settings)
         agent.prompt_with_demos(prompt_frames(demos, agent.config.demo_frames))  # each task's first demonstration
         if prompt == "other-task":
             said = [f"one demonstration of {name}" for name in shown]

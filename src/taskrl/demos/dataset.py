@@ -229,6 +229,12 @@ class Demonstrations:
                 moved[name] = value.to(device)
         return Demonstrations(**moved)
 
+    def as_seen_under(self, env_settings: Any) -> Demonstrations:
+        """The demonstrations as a policy sees them under ``env_settings``: their ``policy_observation``
+        applied to every observation (the goal hidden by ML45's protocol, say); unchanged when the settings have none."""
+        view = getattr(env_settings, "policy_observation", None)
+        return self if view is None else dataclasses.replace(self, observations=view(self.observations))
+
     def episode(self, e: int) -> tuple[torch.Tensor, torch.Tensor]:
         """``(observations [T, D], actions [T, A])`` of episode ``e``."""
         s, n = int(self.starts[e]), int(self.lengths[e])

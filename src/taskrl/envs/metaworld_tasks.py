@@ -50,6 +50,7 @@ __all__ = [
     "metaworld_id",
     "metaworld_spec",
     "metaworld_task_set",
+    "hide_goal",
     "version_free",
 ]
 
@@ -58,6 +59,9 @@ METAWORLD_HORIZON = 500  # Meta-World's max_path_length
 METAWORLD_NUM_GOALS = 50  # goal positions Meta-World pre-draws per task
 METAWORLD_OBS_DIM = 39
 METAWORLD_ACTION_DIM = 4
+#: Where the goal position sits in the 39-d observation (Meta-World's ``_get_obs``: hand, gripper, objects,
+#: the previous frame's 18, then the goal). ML benchmarks zero it (``_partially_observable``).
+METAWORLD_GOAL = slice(36, 39)
 _INSTALL_HINT = "Meta-World environments need the `metaworld` extra: pip install 'taskrl[metaworld]'"
 
 # One sentence per task, written for taskrl from what each task asks of the robot (Yu et al.,
@@ -158,6 +162,14 @@ ML45_TEST_TASKS: tuple[str, ...] = ("bin-picking", "box-close", "hand-insert", "
 ML45_TRAIN_TASKS: tuple[str, ...] = tuple(n for n in MT50_TASKS if n not in ML45_TEST_TASKS)
 
 
+def hide_goal(observation: torch.Tensor) -> torch.Tensor:
+    """The 39-d observation (``[..., 39]``) with the goal position zeroed, as Meta-World's ML benchmarks
+    (``_partially_observable``) give it; a new tensor."""
+    hidden = observation.clone()
+    hidden[..., METAWORLD_GOAL] = 0.0
+    return hidden
+
+
 def version_free(name: str) -> str:
     """``"reach-v3"`` -> ``"reach"`` (a name without a version suffix is returned as is)."""
     head, sep, tail = name.rpartition("-v")
@@ -220,12 +232,15 @@ class MetaWorldSpec:
     task_set: TaskSet
     single_observation_space: gym.spaces.Dict
     single_action_space: gym.spaces.Box
+    hidden_goal: bool = False
 
     def close(self) -> None:
         """Nothing to release (the same call as on an env)."""
 
 
-def metaworld_spec(benchmark: str | Sequence[str] = "MT10", task: str | None = None) -> MetaWorldSpec:
+def metaworld_spec(
+    benchmark: str | Sequence[str] = "MT10", task: str | None = None, hidden_goal: bool = False
+) -> MetaWorldSpec:
     """The :class:`MetaWorldSpec` of a benchmark (arguments as :func:`metaworld_task_set`)."""
     task_set = metaworld_task_set(benchmark, task)
     observation = gym.spaces.Box(-np.inf, np.inf, shape=(METAWORLD_OBS_DIM,), dtype=np.float32)
@@ -233,6 +248,7 @@ def metaworld_spec(benchmark: str | Sequence[str] = "MT10", task: str | None = N
         task_set,
         gym.spaces.Dict({"observation": observation, "task": gym.spaces.Discrete(len(task_set))}),
         gym.spaces.Box(-1.0, 1.0, shape=(METAWORLD_ACTION_DIM,), dtype=np.float32),
+        hidden_goal,
     )
 
 
@@ -246,13 +262,24 @@ class MetaWorldTaskWrapper(gym.Wrapper):
     ``num_tasks`` entries of its observation) and checked against ``task_index``; otherwise it
     is ``task_index``. ``set_goal_schedules`` pins the goal positions of the next resets (used by
     :func:`~taskrl.training.per_task.evaluate_per_task` to visit distinct goals); ``None`` restores random goals.
+    With ``hidden_goal`` the goal position in the observation is zeroed (ML45's protocol); ``goal()`` still
+    tells it (the scripted experts read it).
     """
 
     def __init__(
-        self, env: gym.Env, slot: int, task_index: int, num_tasks: int, use_one_hot: bool, success_hold: int = 0
+        self,
+        env: gym.Env,
+        slot: int,
+        task_index: int,
+        num_tasks: int,
+        use_one_hot: bool,
+        success_hold: int = 0,
+        hidden_goal: bool = False,
     ) -> None:
         super().__init__(env)
         self.slot, self.task_index, self.num_tasks, self.use_one_hot = slot, task_index, num_tasks, use_one_hot
+        self.hidden_goal = hidden_goal
+        self._goal = np.zeros(3)
         self.success_hold = success_hold  # > 0: terminate this many steps after the first success
         self._since_success = -1
         space = env.observation_space
@@ -272,7 +299,15 @@ class MetaWorldTaskWrapper(gym.Wrapper):
             task = int(np.argmax(one_hot))
             if task != self.task_index or one_hot[task] != 1.0 or one_hot.sum() != 1.0:
                 raise RuntimeError(f"Meta-World one-hot {one_hot.tolist()} does not encode task index {self.task_index}")
-        return {"observation": obs[:METAWORLD_OBS_DIM], "task": np.int64(task)}
+        observation = obs[:METAWORLD_OBS_DIM].copy()
+        self._goal = observation[METAWORLD_GOAL].copy()
+        if self.hidden_goal:
+            observation[METAWORLD_GOAL] = 0.0
+        return {"observation": observation, "task": np.int64(task)}
+
+    def goal(self) -> np.ndarray:
+        """The goal position of the last observation, hidden or not."""
+        return self._goal
 
     def goal_positions(self) -> int:
         """How many pre-drawn goal positions this task has."""
@@ -371,10 +406,11 @@ class _MetaWorldFactory:
         seed: int | None,
         kwargs: dict[str, Any],
         success_hold: int = 0,
+        hidden_goal: bool = False,
     ) -> None:
         self.slot, self.name, self.env_cls, self.goals = slot, name, env_cls, goals
         self.task_index, self.num_tasks, self.seed, self.kwargs = task_index, num_tasks, seed, kwargs
-        self.success_hold = success_hold
+        self.success_hold, self.hidden_goal = success_hold, hidden_goal
         self.__name__ = f"Meta-World/{name}"
 
     def __call__(self) -> gym.Env:
@@ -396,7 +432,7 @@ class _MetaWorldFactory:
         if steps > env.unwrapped.max_path_length:  # Meta-World refuses steps past max_path_length
             env.unwrapped.max_path_length = steps
         return MetaWorldTaskWrapper(
-            env, self.slot, self.task_index, self.num_tasks, self.kwargs["use_one_hot"], self.success_hold
+            env, self.slot, self.task_index, self.num_tasks, self.kwargs["use_one_hot"], self.success_hold, self.hidden_goal
         )
 
 
@@ -427,6 +463,8 @@ class MetaWorldMultiTaskEnv(GymnasiumVectorEnv):
         reward_function_version: Meta-World's reward version, ``"v2"`` (its default) or ``"v1"``.
         num_goals: goal positions Meta-World pre-draws per task (its benchmarks: 50; fewer builds
             faster, e.g. in tests; Meta-World's ``make_vec(..., num_goals=n)`` does the same).
+        hidden_goal: zero the goal position in observations, as Meta-World's ML benchmarks do (their
+            ``_partially_observable``); the scripted experts still act on the true goal.
         vector_kwargs: extra keyword arguments of the gymnasium vector env.
 
     Attributes:
@@ -449,9 +487,11 @@ class MetaWorldMultiTaskEnv(GymnasiumVectorEnv):
         reward_function_version: Literal["v1", "v2"] = "v2",
         num_goals: int = METAWORLD_NUM_GOALS,
         success_hold: int = 0,
+        hidden_goal: bool = False,
         vector_kwargs: dict[str, Any] | None = None,
     ) -> None:
         self.task_set = metaworld_task_set(benchmark, task)
+        self.hidden_goal = bool(hidden_goal)
         if not isinstance(use_one_hot, bool):
             raise ValueError(f"use_one_hot must be True or False, got {use_one_hot!r}")
         if not isinstance(envs_per_task, int) or envs_per_task < 1:
@@ -475,7 +515,9 @@ class MetaWorldMultiTaskEnv(GymnasiumVectorEnv):
         num_tasks = len(self.task_set)
         goals = _benchmark_tasks(metaworld, benchmark, self.task_set.names, seed, num_goals)
         factories = [
-            _MetaWorldFactory(t.index * envs_per_task + c, t.name, *goals[t.name], t.index, num_tasks, seed, kwargs, hold)
+            _MetaWorldFactory(
+                t.index * envs_per_task + c, t.name, *goals[t.name], t.index, num_tasks, seed, kwargs, hold, self.hidden_goal
+            )
             for t in self.task_set
             for c in range(envs_per_task)
         ]
@@ -502,6 +544,10 @@ class MetaWorldMultiTaskEnv(GymnasiumVectorEnv):
         """Goal positions per task (Meta-World draws 50)."""
         return int(min(self.vector_env.call("goal_positions")))
 
+    def goals(self) -> torch.Tensor:
+        """``[num_envs, 3]`` each slot's goal position now, also when the observation hides it."""
+        return torch.as_tensor(np.stack(self.vector_env.call("goal")), dtype=torch.float32, device=self.device)
+
 
 class MetaWorldVideoEnv(gym.Env):
     """One renderable copy of each task of a Meta-World benchmark, for videos (``taskrl eval --video``).
@@ -518,6 +564,7 @@ class MetaWorldVideoEnv(gym.Env):
         task: str | None = None,
         max_episode_steps: int = METAWORLD_HORIZON,
         seed: int | None = 0,
+        hidden_goal: bool = False,
     ) -> None:
         import metaworld
 
@@ -525,10 +572,12 @@ class MetaWorldVideoEnv(gym.Env):
         goals = _benchmark_tasks(metaworld, benchmark, self.task_set.names, seed, METAWORLD_NUM_GOALS)
         kwargs = {**_slot_kwargs(max_episode_steps), "render_mode": "rgb_array"}
         n = len(self.task_set)
-        self._factories = [_MetaWorldFactory(t.index, t.name, *goals[t.name], t.index, n, seed, kwargs) for t in self.task_set]
+        self._factories = [
+            _MetaWorldFactory(t.index, t.name, *goals[t.name], t.index, n, seed, kwargs, 0, hidden_goal) for t in self.task_set
+        ]
         self._envs: dict[int, gym.Env] = {}
         self._current = 0
-        spec = metaworld_spec(benchmark, task)
+        spec = metaworld_spec(benchmark, task, hidden_goal)
         self.observation_space, self.action_space = spec.single_observation_space, spec.single_action_space
         self.render_mode = "rgb_array"
 
@@ -564,12 +613,20 @@ class MetaWorldSettings:
         eval_until_success: end evaluation episodes at their first success. Meta-World counts success at
             any step, so every episode's outcome is the same and evaluation is faster; the evaluation
             return and length then stop at the success (training episodes are unchanged).
+        hidden_goal: ML45's protocol: the goal position in the observation is zeroed (Meta-World's ML
+            benchmarks), in the env and in demonstrations read for training or prompting; the policy must
+            tell the goal from the scene and its task. Off: the goal is observed, as in MT1/MT10/MT50.
     """
 
     task: str = "reach"
     max_episode_steps: int = METAWORLD_HORIZON
     vector_strategy: Literal["sync", "async"] = "sync"
     eval_until_success: bool = False
+    hidden_goal: bool = False
+
+    def policy_observation(self, observation: torch.Tensor) -> torch.Tensor:
+        """A stored 39-d observation as the policy sees it under these settings (the goal hidden or not)."""
+        return hide_goal(observation) if self.hidden_goal else observation
 
     def validate(self) -> None:
         require(
@@ -598,6 +655,7 @@ def _metaworld_family(benchmark: str | Sequence[str], description: str, name: st
             device=request.device,
             vector_strategy=settings.vector_strategy,
             terminate_on_success=settings.eval_until_success and request.evaluation,
+            hidden_goal=settings.hidden_goal,
         )
 
     def check(settings: MetaWorldSettings, run: Any) -> None:
@@ -621,6 +679,7 @@ def _metaworld_family(benchmark: str | Sequence[str], description: str, name: st
             seed=request.run_seed,
             device=request.device,
             terminate_on_success=settings.eval_until_success,
+            hidden_goal=settings.hidden_goal,
         )
 
     label = name.upper() if name else str(benchmark)
@@ -638,8 +697,10 @@ def _metaworld_family(benchmark: str | Sequence[str], description: str, name: st
         kind="multitask",
         actions="box",
         per_task_success="any",
-        spec=lambda settings, request: metaworld_spec(benchmark, task_of(settings)),
-        video_env=lambda settings: MetaWorldVideoEnv(benchmark, task_of(settings), settings.max_episode_steps),
+        spec=lambda settings, request: metaworld_spec(benchmark, task_of(settings), settings.hidden_goal),
+        video_env=lambda settings: MetaWorldVideoEnv(
+            benchmark, task_of(settings), settings.max_episode_steps, hidden_goal=settings.hidden_goal
+        ),
         check=check,
     )
 
@@ -674,6 +735,8 @@ def metaworld_expert(env: Any) -> Expert:
 
     def act(obs: dict[str, torch.Tensor]) -> torch.Tensor:
         states = obs["observation"].detach().cpu().numpy().astype(np.float64)
+        if getattr(env, "hidden_goal", False):  # the expert is told the goal the policy does not see
+            states[:, METAWORLD_GOAL] = env.goals().cpu().numpy()
         with warnings.catch_warnings():  # the experts warn when their gains exceed the clipped range: noise
             warnings.filterwarnings("ignore", message="Constant\\(s\\) may be too high")
             actions = np.stack([p.get_action(s) for p, s in zip(policies, states)])

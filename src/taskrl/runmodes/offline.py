@@ -29,7 +29,7 @@ def use_dataset(parts: RunParts) -> None:
         )
     if not Path(path).exists():
         raise ConfigError("dataset", f"{path} does not exist; make it with: taskrl demos collect {config.env} --out {path}")
-    demos = read_demonstrations(path, parts.device)
+    demos = read_demonstrations(path, parts.device).as_seen_under(config.env_settings)
     task_set = getattr(parts.env, "task_set", None)
     if task_set is not None:
         demos = demos.select_tasks(task_set.names)
