@@ -3,12 +3,15 @@
 For each preset and seed: ``taskrl train PRESET --dataset DIR --seed S`` (its own process, so its peak
 memory is its own), then ``taskrl eval RUN --episodes 50 --json`` (Meta-World's protocol: 50 distinct
 goal positions per task, success at any step of a 500-step episode), then, for presets with held-out
-tasks, the held-out evaluation by description, by paraphrase and by one demonstration
-(``taskrl eval RUN --held-out --prompt ...``). Raw results go to ``benchmarks/results/bc_<name>.json``
-and a section to RESULTS.md.
+tasks, the held-out evaluation by description, by paraphrase and by one demonstration, with two controls
+beside them: a null prompt and another held-out task's description (``taskrl eval RUN --held-out --prompt
+...``). Raw results go to ``benchmarks/results/bc_<name>.json`` and a section to RESULTS.md; every figure
+is labelled with its protocol (goal observed, or hidden as ML45 hides it: ``--extra=--hidden-goal``).
 
     .venv/bin/python benchmarks/bc_metaworld.py --presets bc-mt10-onehot bc-mt10-language bc-mt10-demo \
         --dataset data/mt10 --seeds 0 1 --name mt10
+    .venv/bin/python benchmarks/bc_metaworld.py --presets bc-ml45-language --dataset data/ml45 --seeds 0 1 2 \
+        --train-episodes 10 --name ml45-hidden-goal --extra=--hidden-goal
 """
 
 from __future__ import annotations
@@ -24,8 +27,33 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))
 from common import append_results  # noqa: E402
+from taskrl.loading import wilson_interval  # noqa: E402
 
 TASKRL = str(Path(sys.executable).with_name("taskrl"))
+PROMPTS = ("description", "paraphrase", "demo", "none", "other-task")
+PROMPT_TITLES = {
+    "description": "description",
+    "paraphrase": "paraphrase",
+    "demo": "one demonstration",
+    "none": "control: null prompt",
+    "other-task": "control: another task's description",
+}
+
+
+def pooled(rows: list[dict], task: str | None = None) -> tuple[float, list[float]]:
+    """Success over every seed's episodes (of one task, or of all), and its 95% Wilson interval."""
+    cells = (
+        [(r["per_task"][task], r["episodes"]) for r in rows]
+        if task
+        else [(r["success_rate"], r["episodes"] * len(r["per_task"])) for r in rows]
+    )
+    n = sum(e for _, e in cells)
+    successes = sum(p * e for p, e in cells)
+    return successes / n, wilson_interval(successes, n)
+
+
+def cell(rate: float, interval: list[float]) -> str:
+    return f"{rate:.2f} [{interval[0]:.2f}, {interval[1]:.2f}]"
 
 
 def run(command: list[str]) -> tuple[str, float, float]:
@@ -45,7 +73,8 @@ def main() -> None:
     parser.add_argument("--presets", nargs="+", required=True)
     parser.add_argument("--dataset", required=True)
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1])
-    parser.add_argument("--episodes", type=int, default=50)
+    parser.add_argument("--episodes", type=int, default=50, help="evaluation episodes per held-out task")
+    parser.add_argument("--train-episodes", type=int, default=None, help="per training task (default: --episodes)")
     parser.add_argument("--name", required=True)
     parser.add_argument("--out", default="runs/bench-bc")
     parser.add_argument("--report", default=None, help="only write the section from this raw JSON (runs already made)")
@@ -79,7 +108,8 @@ def main() -> None:
                 ]
             )
             metrics = json.loads(train_out.strip().splitlines()[-1])
-            eval_out, eval_s, _ = run([TASKRL, "eval", str(run_dir), "--episodes", str(args.episodes), "--json"])
+            train_episodes = args.train_episodes or args.episodes
+            eval_out, eval_s, _ = run([TASKRL, "eval", str(run_dir), "--episodes", str(train_episodes), "--json"])
             result = json.loads(eval_out)
             entry = {
                 "preset": preset,
@@ -89,18 +119,21 @@ def main() -> None:
                 "updates": metrics["updates"],
                 "train_peak_mib": round(train_mib),
                 "eval_seconds": round(eval_s, 1),
+                "episodes": train_episodes,
                 "success_rate": result["success_rate"],
                 "per_task": {k: v["success_rate"] for k, v in result["tasks"].items()},
             }
             config = json.loads((run_dir / "config.json").read_text())
+            entry["hidden_goal"] = bool(config.get("metaworld", {}).get("hidden_goal", False))
             if config.get("env") == "ml45":
-                for prompt in ("description", "paraphrase", "demo"):
+                for prompt in PROMPTS:
                     out, seconds, _ = run(
                         [TASKRL, "eval", str(run_dir), "--held-out", "--prompt", prompt, "--dataset", args.dataset]
                         + ["--episodes", str(args.episodes), "--json"]
                     )
                     held = json.loads(out)
                     entry[f"held_out_{prompt}"] = {
+                        "episodes": args.episodes,
                         "success_rate": held["success_rate"],
                         "per_task": {k: v["success_rate"] for k, v in held["tasks"].items()},
                         "seconds": round(seconds, 1),
@@ -112,16 +145,22 @@ def main() -> None:
     raw.parent.mkdir(exist_ok=True)
     raw.write_text(json.dumps(results, indent=2) + "\n")
     info = card.get("card", {})
+    protocols = sorted(
+        {"goal hidden (ML45's protocol)" if r.get("hidden_goal") else "goal observed (MT protocol)" for r in results}
+    )
     lines = [
+        f"Protocol: {', '.join(protocols)}.",
+        "",
         f"Dataset `{args.dataset}`: {card['total_episodes']:,} episodes, {card['total_steps']:,} steps, "
         f"{card.get('dataset_size', '?')} MB, made by `taskrl demos collect {info.get('source')}` with noise "
         f"{info.get('noise_std')} and {info.get('after_success', 0)} steps after success in "
-        f"{info.get('collection_seconds', '?')} s. {args.episodes} evaluation episodes per task (distinct goal "
-        "positions, success at any step of 500); each preset's own settings"
+        f"{info.get('collection_seconds', '?')} s. {results[0].get('episodes', args.episodes)} evaluation episodes per "
+        f"training task and {args.episodes} per held-out task (distinct goal positions, success at any step of 500); "
+        "each preset's own settings"
         + (f" with `{' '.join(args.extra)}`" if args.extra else "")
-        + f". Raw: `benchmarks/results/bc_{args.name}.json`.",
+        + f". Intervals: 95% Wilson over every seed's episodes together. Raw: `benchmarks/results/bc_{args.name}.json`.",
         "",
-        "| preset | seeds | success (mean over tasks), per seed | mean | training s: updates only (whole command) | peak MiB |",
+        "| preset | seeds | success (mean over tasks), per seed | all seeds [95% interval] | training s: updates only (whole command) | peak MiB |",
         "|---|---|---|---|---|---|",
     ]
 
@@ -131,8 +170,10 @@ def main() -> None:
     for preset in args.presets:
         rows = [r for r in results if r["preset"] == preset]
         per_seed = ", ".join(f"{r['success_rate']:.3f}" for r in rows)
+        for r in rows:
+            r.setdefault("episodes", args.episodes)
         lines.append(
-            f"| {preset} | {len(rows)} | {per_seed} | {statistics.fmean(r['success_rate'] for r in rows):.3f} | "
+            f"| {preset} | {len(rows)} | {per_seed} | {cell(*pooled(rows))} | "
             f"{', '.join(seconds(r) for r in rows)} | "
             f"{max(r['train_peak_mib'] for r in rows)} |"
         )
@@ -147,26 +188,35 @@ def main() -> None:
     for task in tasks:
         cells = [f"{statistics.fmean(r['per_task'][task] for r in results if r['preset'] == p):.2f}" for p in args.presets]
         lines.append(f"| {task} | " + " | ".join(cells) + " |")
-    held = [r for r in results if "held_out_description" in r]
+    held = [r for r in results if "held_out_none" in r]
     if held:
+        prompts = [p for p in PROMPTS if all(f"held_out_{p}" in r for r in held)]
         lines += [
             "",
-            "Held-out tasks, zero-shot (mean over seeds):",
+            f"Held-out tasks, zero-shot, {len(held)} seeds pooled: success [95% interval]. The controls say what the "
+            "policy does on these tasks without being told them; the prompt's part is the gain over the better control.",
             "",
-            "| task | description | paraphrase | one demonstration |",
-            "|---|---|---|---|",
+            "| task | " + " | ".join(PROMPT_TITLES[p] for p in prompts) + " |",
+            "|---" * (len(prompts) + 1) + "|",
         ]
         for task in held[0]["held_out_description"]["per_task"]:
-            cells = [
-                f"{statistics.fmean(r[f'held_out_{p}']['per_task'][task] for r in held):.2f}"
-                for p in ("description", "paraphrase", "demo")
-            ]
+            cells = [cell(*pooled([r[f"held_out_{p}"] for r in held], task)) for p in prompts]
             lines.append(f"| {task} | " + " | ".join(cells) + " |")
-        means = [
-            f"{statistics.fmean(r[f'held_out_{p}']['success_rate'] for r in held):.3f}"
-            for p in ("description", "paraphrase", "demo")
+        means = {p: pooled([r[f"held_out_{p}"] for r in held]) for p in prompts}
+        lines.append("| **all** | " + " | ".join(f"**{cell(*means[p])}**" for p in prompts) + " |")
+        control = max(("none", "other-task"), key=lambda p: means[p][0])
+        per_seed = [
+            r["held_out_description"]["success_rate"]
+            - max(r["held_out_none"]["success_rate"], r["held_out_other-task"]["success_rate"])
+            for r in held
         ]
-        lines.append("| **mean** | " + " | ".join(means) + " |")
+        lines += [
+            "",
+            f"Gain of the description over the better control ({PROMPT_TITLES[control]}): "
+            f"{means['description'][0] - means[control][0]:+.3f} pooled; per seed (against that seed's better control) "
+            + ", ".join(f"{g:+.3f}" for g in per_seed)
+            + ".",
+        ]
     append_results(f"Multi-task behaviour cloning: {args.name}", "\n".join(lines))
 
 
