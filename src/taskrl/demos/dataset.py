@@ -277,26 +277,25 @@ class Demonstrations:
         return dataclasses.replace(picked, task_names=tuple(names), descriptions=tuple(self.descriptions[old[n]] for n in names))
 
 
-def read_demonstrations(path: str | Path, device: str | torch.device = "cpu") -> Demonstrations:
-    """Every episode of a Minari dataset (a folder written by ``taskrl demos collect``, or any Minari
-    data folder whose episodes carry a ``task`` in their metadata or observations)."""
+def _read_episodes(path: str | Path) -> tuple[dict[str, Any], list[Episode], dict[str, str]]:
+    """``(metadata, episodes, {task: description})`` of a Minari dataset, tasks in index order."""
     data = _data_path(path).resolve()
     metadata = dataset_card(data)
     MinariStorage, _ = _minari()
     try:
         storage = MinariStorage.read(data)
         total = storage.total_episodes
-        episodes = list(storage.get_episodes(range(total)))
+        raw = list(storage.get_episodes(range(total)))
         episode_meta = list(storage.get_episode_metadata(range(total)))
     except Exception as error:  # a damaged or foreign file is one line, not a traceback from h5py
         raise ConfigError("dataset", f"cannot read the dataset in {data}: {error}") from None
-    if not episodes:
+    if not raw:
         raise ConfigError("dataset", f"the dataset in {data} has no episodes")
     listed = metadata.get("tasks") or []
     names = [str(t["name"]) for t in listed if isinstance(t, dict) and "name" in t]
     descriptions = {str(t["name"]): str(t.get("description") or t["name"]) for t in listed if isinstance(t, dict) and "name" in t}
-    obs_rows, act_rows, task_rows, episode_tasks, lengths = [], [], [], [], []
-    for ep, meta in zip(episodes, episode_meta):
+    episodes = []
+    for ep, meta in zip(raw, episode_meta):
         obs = ep["observations"]
         states = obs["observation"] if isinstance(obs, dict) else obs
         task_name = meta.get("task")
@@ -305,14 +304,41 @@ def read_demonstrations(path: str | Path, device: str | torch.device = "cpu") ->
         if task_name is None:
             raise ConfigError("dataset", f"episode {meta.get('id')} of {data} does not say its task (episode metadata 'task')")
         task_name = str(task_name)
-        if task_name not in descriptions:
-            names.append(task_name)
-            descriptions[task_name] = task_name
+        descriptions.setdefault(task_name, task_name)
         actions = np.asarray(ep["actions"], dtype=np.float32)
         n = actions.shape[0]
-        obs_rows.append(np.asarray(states, dtype=np.float32).reshape(n + 1, -1)[:n])
-        act_rows.append(actions.reshape(n, -1))
-        episode_tasks.append(names.index(task_name))
+        actions = actions.reshape(n, -1)
+        success = (ep.get("infos") or {}).get("success")
+        terminations = np.asarray(ep.get("terminations", np.zeros(n, bool)))
+        episodes.append(
+            Episode(
+                task_name,
+                np.asarray(states, dtype=np.float32).reshape(n + 1, -1),
+                actions,
+                np.asarray(ep.get("rewards", np.zeros(n)), dtype=np.float32).reshape(n),
+                np.zeros(n, bool) if success is None else np.asarray(success, dtype=bool).reshape(n),
+                bool(terminations[-1]) if n else False,
+            )
+        )
+    return metadata, episodes, descriptions
+
+
+def read_episodes(path: str | Path) -> list[Episode]:
+    """Every episode of a Minari dataset as :class:`Episode` records (final states included)."""
+    return _read_episodes(path)[1]
+
+
+def read_demonstrations(path: str | Path, device: str | torch.device = "cpu") -> Demonstrations:
+    """Every episode of a Minari dataset (a folder written by ``taskrl demos collect``, or any Minari
+    data folder whose episodes carry a ``task`` in their metadata or observations)."""
+    metadata, episodes, descriptions = _read_episodes(path)
+    names = list(descriptions)
+    obs_rows, act_rows, task_rows, episode_tasks, lengths = [], [], [], [], []
+    for episode in episodes:
+        n = len(episode)
+        obs_rows.append(episode.observations[:n])
+        act_rows.append(episode.actions)
+        episode_tasks.append(names.index(episode.task))
         task_rows.append(np.full(n, episode_tasks[-1], dtype=np.int64))
         lengths.append(n)
     lengths_t = torch.tensor(lengths, dtype=torch.long)
