@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import gymnasium as gym
+import numpy as np
 import pytest
 import torch
 
+import taskrl
 from taskrl.agents.parts import ObservationInput
 from taskrl.agents.qtopt import QTOptAgent, QTOptConfig
 from taskrl.encoders import ImageStateInput, random_shift
@@ -90,3 +93,73 @@ def test_every_update_shifts_the_pictures_of_both_states_unless_turned_off(monke
         config = QTOptConfig(hidden_sizes=(8,), augment_pad=pad)
         QTOptAgent(("observation", "image"), 5 + 768, env.single_action_space, config, image_shape=(16, 16, 3)).update(batch)
         assert seen == expected
+
+
+# ---------------------------------------------------------------------- pixels from any env that renders
+class _DotEnv(gym.Env):
+    """A point on a 48x48 canvas: the frame is white with a black dot where the point is; a goal env."""
+
+    metadata = {"render_modes": ["rgb_array"]}
+
+    def __init__(self, render_mode: str | None = None) -> None:
+        box = gym.spaces.Box(0.0, 1.0, (2,), np.float32)
+        self.observation_space = gym.spaces.Dict({"observation": box, "achieved_goal": box, "desired_goal": box})
+        self.action_space = gym.spaces.Box(-1.0, 1.0, (2,), np.float32)
+        self.render_mode, self.point = render_mode, np.zeros(2, np.float32)
+
+    def _obs(self):
+        return {"observation": self.point.copy(), "achieved_goal": self.point.copy(), "desired_goal": np.full(2, 0.5, np.float32)}
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.point = self.np_random.uniform(0, 1, 2).astype(np.float32)
+        return self._obs(), {}
+
+    def step(self, action):
+        self.point = np.clip(self.point + 0.1 * np.asarray(action, np.float32), 0, 1)
+        return self._obs(), 0.0, False, False, {}
+
+    def render(self):
+        frame = np.full((48, 48, 3), 255, np.uint8)
+        r, c = (self.point * 44).astype(int)
+        frame[r : r + 4, c : c + 4] = 0
+        return frame
+
+
+def test_pixel_observations_render_the_scene_keep_the_goals_and_drop_the_state_unless_asked():
+    from taskrl.envs.pixels import PixelObservation, pixel_factory
+
+    env = pixel_factory(_DotEnv, "pixels", 24)()  # _DotEnv takes no size: its 48x48 frame is resized
+    assert set(env.observation_space.spaces) == {"achieved_goal", "desired_goal", "image"}
+    obs, _ = env.reset(seed=0)
+    assert env.observation_space.contains(obs) and obs["image"].shape == (24, 24, 3) and obs["image"].dtype == np.uint8
+    r, c = (env.unwrapped.point * 44).astype(int) // 2  # the dot, at half the scale, is where the point is
+    dark = 255 - obs["image"].astype(float)
+    assert obs["image"][r : r + 3, c : c + 3].min() == 0 and dark[r : r + 3, c : c + 3].sum() == pytest.approx(dark.sum())
+    assert dark.sum() == pytest.approx(4 * 4 * 255 * 3 / 4, rel=0.02)  # area averaging keeps the dot's ink
+    both = PixelObservation(_DotEnv(render_mode="rgb_array"), 48, keep_state=True)
+    assert set(both.observation_space.spaces) == {"observation", "achieved_goal", "desired_goal", "image"}
+    with pytest.raises(ValueError, match="rgb_array"):
+        PixelObservation(_DotEnv(), 48)
+
+
+@pytest.mark.timeout(300)
+def test_fetchreach_from_pixels_runs_with_the_picture_in_the_replay_and_through_a_conv_encoder(tmp_path):
+    pytest.importorskip("gymnasium_robotics")
+    run = taskrl.train(
+        "fetchreach-qtopt-her",
+        out=tmp_path / "run",
+        observation="pixels",
+        image_size=16,
+        total_steps=120,
+        learning_starts=60,
+        eval_interval=120,
+        eval_episodes=1,
+        num_envs=2,
+        tensorboard=False,
+        threads=1,
+    )
+    assert run.metrics["updates"] > 0
+    modules = [m for net in (run.agent.q, run.agent.q_target1) for m in net.modules()]
+    assert any(isinstance(m, ImageStateInput) and m.image_shape == (16, 16, 3) for m in modules)
+    assert run.agent.inputs.keys[-1] == "image" and "observation" not in run.agent.inputs.keys

@@ -10,8 +10,9 @@ import dataclasses
 from typing import Literal
 
 from taskrl.envs.gymnasium_adapter import VECTOR_STRATEGIES, GymnasiumGoalEnv
+from taskrl.envs.pixels import OBSERVATIONS, pixel_factory
 from taskrl.envs.spec import EnvFamily, EnvRequest
-from taskrl.errors import one_of
+from taskrl.errors import one_of, require
 
 __all__ = ["FAMILIES", "FETCH_IDS", "FetchSettings"]
 
@@ -30,18 +31,25 @@ class FetchSettings:
 
     Attributes:
         vector_strategy: ``sync`` (one process) or ``async`` (one process per copy).
+        observation: what the policy sees: ``state`` (the env's vectors), ``pixels`` (the rendered frame as
+            ``image``, the goals kept as vectors for relabelling) or ``pixels+state`` (both); see ``envs/pixels.py``.
+        image_size: the side of the rendered picture in pixels (``pixels`` modes).
     """
 
     vector_strategy: Literal["sync", "async"] = "sync"
+    observation: Literal["state", "pixels", "pixels+state"] = "state"
+    image_size: int = 64
 
     def validate(self) -> None:
         one_of(self.vector_strategy, VECTOR_STRATEGIES, "vector_strategy", "strategy")
+        one_of(self.observation, OBSERVATIONS, "observation", "observation")
+        require(16 <= self.image_size <= 512, "image_size", f"must be in 16..512 pixels (got {self.image_size})")
 
 
 def _maker(env_id: str):
     def make(settings: FetchSettings, request: EnvRequest) -> GymnasiumGoalEnv:
         return GymnasiumGoalEnv(
-            env_id,
+            env_id if settings.observation == "state" else pixel_factory(env_id, settings.observation, settings.image_size),
             num_envs=request.copies,
             device=request.device,
             vector_strategy=settings.vector_strategy,

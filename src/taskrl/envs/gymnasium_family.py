@@ -22,6 +22,7 @@ import gymnasium as gym
 
 from taskrl.envs.base import BatchedEnv
 from taskrl.envs.gymnasium_adapter import VECTOR_STRATEGIES, GymnasiumGoalEnv, GymnasiumVectorEnv
+from taskrl.envs.pixels import OBSERVATIONS, pixel_factory
 from taskrl.envs.spec import EnvFamily, EnvRequest
 from taskrl.errors import ConfigError, one_of, require
 
@@ -42,12 +43,18 @@ class GymnasiumSettings:
         success_key: step-info key of success; ``auto`` reads ``is_success`` or ``success`` where the
             env reports one (else no episode counts as a success; the return still measures learning).
         vector_strategy: ``sync`` (one process) or ``async`` (one process per copy).
+        observation: ``state`` (the env's own observation), ``pixels`` (its rendered frame as ``image``; a goal
+            env keeps its goals as vectors) or ``pixels+state``; a factory of yours is then called with
+            ``render_mode="rgb_array"`` (and ``width`` / ``height`` where it takes them). See ``envs/pixels.py``.
+        image_size: the side of the rendered picture in pixels (``pixels`` modes).
     """
 
     env_id: str = ""
     max_episode_steps: int = 0
     success_key: str = "auto"
     vector_strategy: Literal["sync", "async"] = "sync"
+    observation: Literal["state", "pixels", "pixels+state"] = "state"
+    image_size: int = 64
 
     def validate(self) -> None:
         require(
@@ -61,6 +68,8 @@ class GymnasiumSettings:
             f"must be >= 0 (0 = the registered limit; got {self.max_episode_steps})",
         )
         one_of(self.vector_strategy, VECTOR_STRATEGIES, "vector_strategy", "strategy")
+        one_of(self.observation, OBSERVATIONS, "observation", "observation")
+        require(16 <= self.image_size <= 512, "image_size", f"must be in 16..512 pixels (got {self.image_size})")
 
 
 def factory_name(obj: Any) -> str:
@@ -96,6 +105,8 @@ def _factory(settings: GymnasiumSettings, source: Any):
 
 def _make(settings: GymnasiumSettings, request: EnvRequest) -> BatchedEnv:
     factory = _factory(settings, request.source)
+    if settings.observation != "state":
+        factory = pixel_factory(factory if factory is not None else settings.env_id, settings.observation, settings.image_size)
     source = factory if factory is not None else settings.env_id
     probe = factory() if factory is not None else gym.make(settings.env_id)
     try:  # one copy tells whether this is a goal env (then hindsight relabelling uses its compute_reward)

@@ -238,9 +238,7 @@ class MetaWorldSpec:
         """Nothing to release (the same call as on an env)."""
 
 
-def metaworld_spec(
-    benchmark: str | Sequence[str] = "MT10", task: str | None = None, hidden_goal: bool = False
-) -> MetaWorldSpec:
+def metaworld_spec(benchmark: str | Sequence[str] = "MT10", task: str | None = None, hidden_goal: bool = False) -> MetaWorldSpec:
     """The :class:`MetaWorldSpec` of a benchmark (arguments as :func:`metaworld_task_set`)."""
     task_set = metaworld_task_set(benchmark, task)
     observation = gym.spaces.Box(-np.inf, np.inf, shape=(METAWORLD_OBS_DIM,), dtype=np.float32)

@@ -100,10 +100,10 @@ def make_agent(config: TrainConfig, env: Any, device: torch.device) -> Any:
         raise ConfigError("env", f"actions must be Box or Discrete; {config.env!r} has {env.single_action_space}")
     space = env.single_observation_space
     keys = tuple(k for k in AGENT_INPUT_KEYS if k in space.spaces)
-    if "observation" not in keys:
+    if "observation" not in keys and "image" not in keys:
         raise ConfigError(
             "env",
-            f"observations have keys {list(space.spaces)}; the networks read 'observation' "
+            f"observations have keys {list(space.spaces)}; the networks read 'observation' or 'image' "
             f"(with 'desired_goal' on goal envs and 'task' on multi-task envs)",
         )
     input_dim = sum(int(torch.tensor(space[k].shape).prod()) for k in keys)
