@@ -95,6 +95,62 @@ def test_every_update_shifts_the_pictures_of_both_states_unless_turned_off(monke
         assert seen == expected
 
 
+def test_sac_from_pixels_shares_one_encoder_trained_by_the_critics_only_and_targets_read_a_lagged_copy(monkeypatch):
+    import taskrl.agents.sac as sac
+
+    seen = []
+    shift = sac.random_shift
+    monkeypatch.setattr(sac, "random_shift", lambda images, pad, generator: seen.append(pad) or shift(images, pad, generator))
+    env = Grasp(GraspSettings(image_size=16), num_envs=8, seed=0)
+    config = sac.SACConfig(hidden_sizes=(32,), tau=0.5)
+    agent = sac.SACAgent(("observation", "image"), 5 + 768, env.single_action_space, config, image_shape=(16, 16, 3))
+    g = torch.Generator().manual_seed(0)
+    obs = env.reset(seed=0)
+    batch = one_step(env, obs, agent.act(obs, explore=True, generator=g))
+    assert agent.actor.body.body[0].in_features == agent.critics[0].body.body[0].in_features - 4 == 5 + 50  # features, not pixels
+    before = [p.clone() for p in agent.encoder.parameters()]
+    grads = {}  # the encoder's gradient when each optimiser steps: the actor's backward must add nothing to it
+    for name in ("critic", "actor"):
+        optimizer = getattr(agent, f"{name}_optimizer")
+        monkeypatch.setattr(
+            optimizer,
+            "step",
+            lambda o=optimizer, n=name: (
+                grads.__setitem__(n, [p.grad.clone() for p in agent.encoder.parameters()]) or type(o).step(o)
+            ),
+        )
+    target_reads = []
+    agent.encoder_target.register_forward_hook(lambda *args: target_reads.append(1))
+    agent.update(batch, generator=g)
+    assert target_reads == [1]  # the target critics read s' through the lagged encoder
+    assert seen == [4, 4]  # both states' pictures shifted
+    assert all(not torch.equal(a, b) for a, b in zip(agent.encoder.parameters(), before))  # the critic loss trains it
+    assert any(g.any() for g in grads["critic"]) and all(torch.equal(a, b) for a, b in zip(grads["critic"], grads["actor"]))
+    online, target = list(agent.encoder.parameters()), list(agent.encoder_target.parameters())
+    assert all(torch.allclose(t, 0.5 * o + 0.5 * b) for o, t, b in zip(online, target, before))  # Polyak, tau 0.5
+
+
+@pytest.mark.timeout(300)
+def test_sac_her_from_fetchreach_pixels_runs_and_saves_its_encoder(tmp_path):
+    pytest.importorskip("gymnasium_robotics")
+    run = taskrl.train(
+        "fetchreach-sac-her",
+        out=tmp_path / "run",
+        observation="pixels",
+        image_size=16,
+        total_steps=120,
+        learning_starts=60,
+        eval_interval=120,
+        eval_episodes=1,
+        num_envs=2,
+        tensorboard=False,
+        threads=1,
+    )
+    assert run.metrics["updates"] > 0 and run.agent.encoder.image_shape == (16, 16, 3)
+    loaded = taskrl.load(tmp_path / "run")
+    assert all(torch.equal(a, b) for a, b in zip(loaded.encoder.parameters(), run.agent.encoder.parameters()))
+
+
 # ---------------------------------------------------------------------- pixels from any env that renders
 class _DotEnv(gym.Env):
     """A point on a 48x48 canvas: the frame is white with a black dot where the point is; a goal env."""

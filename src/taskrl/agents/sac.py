@@ -28,6 +28,11 @@ sampled logsumexp over all actions, so Q-values of actions the data did not take
 Q_target_i follow Q_i by Polyak averaging. ``terminated`` stops bootstrapping; time-limit
 truncation still bootstraps. With rewards in {-1, 0}, targets may be clipped to [-1/(1-gamma), 0].
 
+From pixels (DrQ, Kostrikov et al., 2021): on an env with a camera, one conv encoder f (``--encoder``) turns
+the picture into features shared by the actor and both critics; the critic loss trains it, the actor reads
+f(s) as a constant; the target critics read a Polyak-averaged copy of it; every update shifts every picture
+of s and s' at random (``--augment-pad``).
+
 Multi-task SAC (Yu et al., 2019; Sodhani et al., 2021): given a
 :class:`~taskrl.conditioning.networks.TaskConditioning`, the actor and both critics take the task
 context c = encoder(task) as well (``concat``, ``film`` or ``care``; optionally one output head per
@@ -43,7 +48,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any
+from typing import Any, Literal
 
 import torch
 import torch.nn.functional as F
@@ -61,7 +66,8 @@ from taskrl.agents.parts import (
 )
 from taskrl.agents.spec import AlgorithmSpec
 from taskrl.conditioning.networks import TaskConditioning, network_for
-from taskrl.errors import require
+from taskrl.encoders import ENCODERS, ImageStateInput, image_size, random_shift
+from taskrl.errors import one_of, require
 from taskrl.replay.batch import Batch, Obs
 
 _LOG_2PI = math.log(2 * math.pi)
@@ -87,6 +93,10 @@ class SACConfig:
         per_task_alpha: multi-task runs: one learned temperature per task (else one shared).
         cql_alpha: weight of the conservative (CQL) penalty on the critics; 0 disables it.
         cql_samples: CQL: uniform and policy actions per state (N of each) in its logsumexp.
+        encoder: on envs with a camera, the picture's encoder shared by the actor and the critics: ``conv``
+            (four 3x3 convolutions of 32 channels) or ``resnet`` (a small ResNet).
+        image_features: the encoded picture's size (a linear layer, LayerNorm and tanh after the encoder).
+        augment_pad: on envs with a camera, DrQ's random shift in every update (pixels of padding; 0: none).
     """
 
     lr: float = 3e-4
@@ -104,10 +114,16 @@ class SACConfig:
     per_task_alpha: bool = True
     cql_alpha: float = 0.0
     cql_samples: int = 10
+    encoder: Literal["conv", "resnet"] = "conv"
+    image_features: int = 50
+    augment_pad: int = 4
 
     def validate(self) -> None:
         """Raise :class:`~taskrl.errors.ConfigError` naming the first bad setting."""
         check_learning_settings(self)
+        one_of(self.encoder, ENCODERS, "encoder", "encoder")
+        require(self.image_features >= 1, "image_features", f"must be >= 1 (got {self.image_features})")
+        require(self.augment_pad >= 0, "augment_pad", f"must be >= 0 (got {self.augment_pad})")
         require(self.init_alpha > 0, "init_alpha", f"must be > 0 (got {self.init_alpha})")
         require(self.cql_alpha >= 0, "cql_alpha", f"must be >= 0 (got {self.cql_alpha})")
         require(self.cql_samples >= 1, "cql_samples", f"must be >= 1 (got {self.cql_samples})")
@@ -196,10 +212,13 @@ class SACAgent(Agent):
         device: torch device of the networks.
         conditioning: multi-task runs: the task encoder and architecture the actor and critics
             use; observations then carry the task index under ``conditioning.task_key``.
+        image_shape: ``(H, W, C)`` of an ``image`` observation (the last of ``input_keys``), or None.
     """
 
-    acting = ("actor", "normalize", "task_encoder")
+    acting = ("actor", "normalize", "task_encoder", "encoder")
     checkpointed = {
+        "encoder": "encoder",
+        "encoder_target": "encoder_target",
         "actor": "actor",
         "critics": "critics",
         "critics_target": "critics_target",
@@ -219,12 +238,25 @@ class SACAgent(Agent):
         config: SACConfig,
         device: str | torch.device = "cpu",
         conditioning: TaskConditioning | None = None,
+        image_shape: tuple[int, ...] | None = None,
     ) -> None:
-        self.setup(config, device, input_keys, input_dim, conditioning)
+        self.image_shape = tuple(image_shape) if image_shape is not None else None
+        raw = image_size(self.image_shape) if self.image_shape is not None else 0
+        self.setup(config, device, input_keys, input_dim, conditioning, raw_dim=raw)
         self.box = ActionBox(action_space, self.device)
         self.action_dim = self.box.dim
         self.target_entropy = config.target_entropy_per_dim * self.action_dim
         self.num_tasks = conditioning.num_tasks if conditioning is not None else 1
+        # DrQ: one picture encoder for the actor and the critics (trained by the critic loss), a lagged copy for the targets
+        self.encoder = self.encoder_target = None
+        if self.image_shape is not None:
+            self.encoder = ImageStateInput(input_dim - raw, self.image_shape, config.encoder, config.image_features).to(
+                self.device
+            )
+            self.encoder_target = ImageStateInput(input_dim - raw, self.image_shape, config.encoder, config.image_features)
+            self.encoder_target = self.encoder_target.to(self.device).requires_grad_(False)
+            self.encoder_target.load_state_dict(self.encoder.state_dict())
+            input_dim = self.encoder.out_dim
         self.actor = SquashedGaussianActor(
             input_dim, self.action_dim, config.hidden_sizes, config.log_std_min, config.log_std_max, conditioning
         ).to(self.device)
@@ -240,6 +272,9 @@ class SACAgent(Agent):
         self.log_alpha = torch.full((alphas,), math.log(config.init_alpha), device=self.device, requires_grad=True)
         self._actor_params, self._critic_params = list(self.actor.parameters()), list(self.critics.parameters())
         self._target_params = list(self.critics_target.parameters())
+        if self.encoder is not None:  # the picture encoder follows the critics: trained by their loss, Polyak-averaged
+            self._critic_params += list(self.encoder.parameters())
+            self._target_params += list(self.encoder_target.parameters())
         # The task encoder's own parameters (learned embedding, language projection) learn from the critics' loss.
         encoder_params = list(self.task_encoder.parameters()) if self.task_encoder is not None else []
         self.actor_optimizer = torch.optim.Adam(self._actor_params, lr=config.lr, fused=True)
@@ -257,6 +292,14 @@ class SACAgent(Agent):
         """``(context, task index)`` of a batch of observations; ``(None, None)`` for single-task agents."""
         return (None, None) if self.conditioning is None else self.conditioning.task_inputs(obs)
 
+    def features(self, obs: Obs, target: bool = False) -> torch.Tensor:
+        """The networks' input for ``obs``: the normalised vector, and the encoded picture on envs with a camera
+        (by the target critics' copy of the encoder with ``target``)."""
+        x = self.inputs(obs)
+        if self.encoder is None:
+            return x
+        return (self.encoder_target if target else self.encoder)(x)
+
     def _row_alpha(self, task: torch.Tensor | None, log_alpha: torch.Tensor) -> torch.Tensor:
         """Each row's entry of ``log_alpha`` (or of its exp): its task's when per task, else the shared one."""
         return log_alpha[task] if task is not None and log_alpha.shape[0] > 1 else log_alpha[0]
@@ -265,7 +308,7 @@ class SACAgent(Agent):
     def policy(self, obs: Obs, explore: bool, generator: torch.Generator | None, env_steps: int) -> torch.Tensor:
         """Actions [B, A] in the action box: the deterministic tanh(mean) (evaluation), or a sample of
         the policy while exploring (SAC explores through its own entropy; there is no other setting)."""
-        x = self.inputs(obs)
+        x = self.features(obs)
         context, task = self.task_inputs(obs)
         unit = self.actor.sample(x, generator, context, task)[0] if explore else self.actor.mode(x, context, task)
         return self.box.from_unit(unit)
@@ -275,10 +318,11 @@ class SACAgent(Agent):
         """y = r + gamma (1 - terminated) (min_i Q_target_i(s', a') - alpha log pi(a'|s')), a' ~ pi(.|s')."""
         cfg = self.config
         with torch.no_grad():
-            next_x = self.inputs(batch.next_obs)
+            next_x = self.features(batch.next_obs)
             context, task = self.task_inputs(batch.next_obs)
             next_action, next_log_prob = self.actor.sample(next_x, generator, context, task)
-            next_q = torch.minimum(*(q(next_x, next_action, context, task) for q in self.critics_target))
+            target_x = next_x if self.encoder is None else self.features(batch.next_obs, target=True)
+            next_q = torch.minimum(*(q(target_x, next_action, context, task) for q in self.critics_target))
             soft_value = next_q - self._row_alpha(task, self.alpha) * next_log_prob
             clip = negative_return_bounds(cfg.gamma) if cfg.clip_target else None
             return td_target(batch.reward, batch.terminated, soft_value, cfg.gamma, clip)
@@ -291,9 +335,12 @@ class SACAgent(Agent):
     def learn(self, batch: Batch, generator: torch.Generator | None = None) -> dict[str, torch.Tensor]:
         """The update itself (what ``--compile`` compiles): critics, actor, temperature, target critics."""
         cfg = self.config
+        if self.encoder is not None and cfg.augment_pad:  # DrQ: every picture shifted on its own
+            shift = lambda obs: {**obs, "image": random_shift(obs["image"], cfg.augment_pad, generator)}  # noqa: E731
+            batch = batch.replace(obs=shift(batch.obs), next_obs=shift(batch.next_obs))
         self.inputs.update_statistics(batch.obs)
         target = self.bellman_target(batch, generator)
-        x, action = self.inputs(batch.obs), self.box.to_unit(batch.action)
+        x, action = self.features(batch.obs), self.box.to_unit(batch.action)
         context, task = self.task_inputs(batch.obs)
         alpha = self._row_alpha(task, self.alpha)  # each row's task's temperature
 
@@ -307,9 +354,11 @@ class SACAgent(Agent):
             extra["cql_gap"] = gap.detach()
         gradient_step(self.critic_optimizer, critic_loss, self._critic_params, self.config.max_grad_norm)
 
-        # actor: J_pi = alpha log pi(a~|s) - min_i Q_i(s, a~); the critics (and the context) are constants here
+        # actor: J_pi = alpha log pi(a~|s) - min_i Q_i(s, a~); the critics (and the context, and the picture's
+        # features) are constants here
         set_requires_grad(self._critic_params, False)
         context = context.detach() if context is not None else None
+        x = x.detach()
         new_action, log_prob = self.actor.sample(x, generator, context, task)
         q_new = torch.minimum(*(q(x, new_action, context, task) for q in self.critics))
         actor_loss = (alpha * log_prob - q_new).mean()
@@ -362,7 +411,7 @@ class SACAgent(Agent):
     @torch.no_grad()
     def q_value(self, obs: Obs, action: torch.Tensor) -> torch.Tensor:
         """``min_i Q_i(s, a)`` of each row (no gradient): what conservative data sharing ranks rows by."""
-        x, unit = self.inputs(obs), self.box.to_unit(action)
+        x, unit = self.features(obs), self.box.to_unit(action)
         context, task = self.task_inputs(obs)
         return torch.minimum(*(q(x, unit, context, task) for q in self.critics))
 
@@ -376,11 +425,12 @@ SPEC = AlgorithmSpec(
     description="soft actor-critic: twin critics, learned temperature (per task on multi-task envs)",
     config=SACConfig,
     build=lambda inputs, config, device, conditioning: SACAgent(
-        inputs.keys, inputs.dim, inputs.action_space, config, device, conditioning
+        inputs.keys, inputs.dim, inputs.action_space, config, device, conditioning, inputs.image_shape
     ),
     loop="off_policy",
     actions=("box",),
     multitask=True,
     compiles=True,
     q_values=True,
+    images=True,
 )
