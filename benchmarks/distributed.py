@@ -76,9 +76,15 @@ LAYOUTS = {  # name -> (collectors, bellman updaters); None: in one process
 
 
 def fetchreach(args: argparse.Namespace, folder: Path) -> str:
-    rows_out = []
+    # --rows-from: rows of runs already made (JSON lines as printed below), e.g. of a benchmark stopped part-way
+    rows_out = (
+        [json.loads(line) for line in Path(args.rows_from).read_text().splitlines() if line.strip()] if args.rows_from else []
+    )
+    done = {(r["layout"], r["seed"]) for r in rows_out}
     for name, layout in LAYOUTS.items():
-        for seed in args.seeds:
+        if args.layouts and name not in args.layouts:
+            continue
+        for seed in [s for s in args.seeds if (name, s) not in done]:
             cluster = {} if layout is None else dict(distributed=True, collectors=layout[0], bellman_updaters=layout[1])
             metrics, rows, wall = _train(
                 "fetchreach-qtopt-her",
@@ -115,6 +121,8 @@ def fetchreach(args: argparse.Namespace, folder: Path) -> str:
     ]
     for name in LAYOUTS:
         runs = [r for r in rows_out if r["layout"] == name]
+        if not runs:
+            continue
 
         def med(key: str, runs=runs) -> float:
             return statistics.median(r[key] for r in runs)
@@ -360,6 +368,8 @@ def main() -> None:
     parser.add_argument("--label-seconds", type=float, default=0.04)
     parser.add_argument("--batches-per-call", type=int, default=1, help="updaters: batches labelled per call")
     parser.add_argument("--seconds", type=float, default=60.0, help="collection seconds per configuration")
+    parser.add_argument("--layouts", nargs="+", default=None, help="fetchreach: only these layouts (names as in LAYOUTS)")
+    parser.add_argument("--rows-from", default=None, help="fetchreach: JSON lines of runs already made, kept and not rerun")
     parser.add_argument("--write", action="store_true", help="append a section to benchmarks/RESULTS.md")
     args = parser.parse_args()
     folder = Path(tempfile.mkdtemp(prefix="taskrl-distributed-"))
