@@ -219,3 +219,26 @@ def test_fetchreach_from_pixels_runs_with_the_picture_in_the_replay_and_through_
     modules = [m for net in (run.agent.q, run.agent.q_target1) for m in net.modules()]
     assert any(isinstance(m, ImageStateInput) and m.image_shape == (16, 16, 3) for m in modules)
     assert run.agent.inputs.keys[-1] == "image" and "observation" not in run.agent.inputs.keys
+
+
+@pytest.mark.timeout(300)
+def test_multitask_sac_from_the_meta_world_camera_runs_at_a_small_budget(tmp_path):
+    pytest.importorskip("metaworld")
+    run = taskrl.train(
+        "mt10-sac-onehot",
+        out=tmp_path / "run",
+        env="mt1",
+        task="reach",
+        num_envs=1,
+        observation="pixels",
+        image_size=32,
+        total_steps=60,
+        learning_starts=30,
+        eval_interval=60,
+        eval_episodes=1,
+        max_episode_steps=20,
+        tensorboard=False,
+        threads=1,
+    )
+    assert run.metrics["updates"] > 0 and run.agent.inputs.keys == ("image",)
+    assert taskrl.load(tmp_path / "run").encoder.image_shape == (32, 32, 3)

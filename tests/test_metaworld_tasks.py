@@ -130,7 +130,10 @@ def test_a_hidden_goal_is_zeroed_as_metaworlds_ml_benchmarks_zero_it_and_the_exp
     from taskrl.envs.metaworld_tasks import hide_goal, metaworld_expert
 
     kwargs = dict(use_one_hot=True, max_episode_steps=150, seed=0, num_goals=5, terminate_on_success=True)
-    with MetaWorldMultiTaskEnv(["reach"], **kwargs) as seen, MetaWorldMultiTaskEnv(["reach"], hidden_goal=True, **kwargs) as hidden:
+    with (
+        MetaWorldMultiTaskEnv(["reach"], **kwargs) as seen,
+        MetaWorldMultiTaskEnv(["reach"], hidden_goal=True, **kwargs) as hidden,
+    ):
         full, blind = seen.reset(seed=0)["observation"], hidden.reset(seed=0)["observation"]
         assert full[0, 36:39].abs().min() > 0 and torch.equal(blind, hide_goal(full))
         # Meta-World's own partially observable observation of the same state hides the same three numbers
@@ -149,6 +152,21 @@ def test_a_hidden_goal_is_zeroed_as_metaworlds_ml_benchmarks_zero_it_and_the_exp
             if terminated.any():
                 break
         assert reached
+
+
+def test_pixels_from_the_meta_world_camera_replace_the_state_and_match_the_spec():
+    with MetaWorldMultiTaskEnv(["reach"], observation="pixels", image_size=32, num_goals=2, max_episode_steps=3) as env:
+        obs = env.reset(seed=0)
+        assert set(obs) == {"task", "image"} and obs["image"].shape == (1, 32, 32, 3) and obs["image"].dtype == torch.uint8
+        assert obs["image"].float().std() > 10  # a scene, not a blank frame
+        assert (
+            env.single_observation_space
+            == metaworld_spec(["reach"], observation="pixels", image_size=32).single_observation_space
+        )
+        after, *_ = env.step(torch.ones(1, 4))
+        assert not torch.equal(after["image"], obs["image"])  # the arm moved in the picture
+    both = metaworld_spec(["reach"], observation="pixels+state", image_size=32).single_observation_space
+    assert set(both.spaces) == {"observation", "task", "image"}
 
 
 @pytest.mark.slow

@@ -42,7 +42,9 @@ class ObservationInput(nn.Module):
         super().__init__()
         self.keys, self.dim, self.raw_dim = tuple(keys), int(dim), int(raw_dim)
         self.encode = ObsConcat(keys)
-        self.normalize = RunningNorm(dim - raw_dim) if normalize else nn.Identity()
+        self.normalize = (
+            RunningNorm(dim - raw_dim) if normalize and dim > raw_dim else nn.Identity()
+        )  # pixels only: nothing to scale
 
     def forward(self, obs: Obs) -> torch.Tensor:
         x = self.encode(obs)

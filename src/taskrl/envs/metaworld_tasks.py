@@ -26,6 +26,7 @@ version ``"v2"`` (its default); horizon 500 (Meta-World's ``max_path_length``), 
 from __future__ import annotations
 
 import dataclasses
+import os
 import warnings
 from collections.abc import Sequence
 from typing import Any, Literal
@@ -36,6 +37,7 @@ import torch
 
 from taskrl.envs.base import BatchedEnv
 from taskrl.envs.gymnasium_adapter import VECTOR_STRATEGIES, GymnasiumVectorEnv, VectorStrategy
+from taskrl.envs.pixels import OBSERVATIONS, PixelObservation
 from taskrl.envs.spec import DemoSource, EnvFamily, EnvRequest, Expert
 from taskrl.errors import ConfigError, one_of, require
 from taskrl.tasks import TaskSet
@@ -238,13 +240,24 @@ class MetaWorldSpec:
         """Nothing to release (the same call as on an env)."""
 
 
-def metaworld_spec(benchmark: str | Sequence[str] = "MT10", task: str | None = None, hidden_goal: bool = False) -> MetaWorldSpec:
-    """The :class:`MetaWorldSpec` of a benchmark (arguments as :func:`metaworld_task_set`)."""
+def metaworld_spec(
+    benchmark: str | Sequence[str] = "MT10",
+    task: str | None = None,
+    hidden_goal: bool = False,
+    observation: str = "state",
+    image_size: int = 64,
+) -> MetaWorldSpec:
+    """The :class:`MetaWorldSpec` of a benchmark (arguments as :func:`metaworld_task_set` and
+    :class:`MetaWorldMultiTaskEnv`)."""
     task_set = metaworld_task_set(benchmark, task)
-    observation = gym.spaces.Box(-np.inf, np.inf, shape=(METAWORLD_OBS_DIM,), dtype=np.float32)
+    entries: dict[str, gym.spaces.Space] = {"task": gym.spaces.Discrete(len(task_set))}
+    if observation != "pixels":
+        entries = {"observation": gym.spaces.Box(-np.inf, np.inf, shape=(METAWORLD_OBS_DIM,), dtype=np.float32), **entries}
+    if observation != "state":
+        entries["image"] = gym.spaces.Box(0, 255, (image_size, image_size, 3), np.uint8)
     return MetaWorldSpec(
         task_set,
-        gym.spaces.Dict({"observation": observation, "task": gym.spaces.Discrete(len(task_set))}),
+        gym.spaces.Dict(entries),
         gym.spaces.Box(-1.0, 1.0, shape=(METAWORLD_ACTION_DIM,), dtype=np.float32),
         hidden_goal,
     )
@@ -405,15 +418,22 @@ class _MetaWorldFactory:
         kwargs: dict[str, Any],
         success_hold: int = 0,
         hidden_goal: bool = False,
+        observation: str = "state",
+        image_size: int = 64,
     ) -> None:
         self.slot, self.name, self.env_cls, self.goals = slot, name, env_cls, goals
         self.task_index, self.num_tasks, self.seed, self.kwargs = task_index, num_tasks, seed, kwargs
         self.success_hold, self.hidden_goal = success_hold, hidden_goal
+        self.observation, self.image_size = observation, image_size
         self.__name__ = f"Meta-World/{name}"
 
     def __call__(self) -> gym.Env:
         import metaworld
 
+        kwargs = self.kwargs
+        if self.observation != "state":  # the camera renders at the picture's size, off-screen
+            os.environ.setdefault("MUJOCO_GL", "egl")
+            kwargs = {**kwargs, "render_mode": "rgb_array", "width": self.image_size, "height": self.image_size}
         # What Meta-World's own MT constructors call for each vector slot. Its float64 space
         # bounds make gymnasium warn about casting them to float32 on every construction: noise.
         with warnings.catch_warnings():
@@ -424,14 +444,17 @@ class _MetaWorldFactory:
                 seed=self.seed,
                 env_id=self.task_index,
                 num_tasks=self.num_tasks,
-                **self.kwargs,
+                **kwargs,
             )
         steps = self.kwargs["max_episode_steps"]
         if steps > env.unwrapped.max_path_length:  # Meta-World refuses steps past max_path_length
             env.unwrapped.max_path_length = steps
-        return MetaWorldTaskWrapper(
+        wrapped = MetaWorldTaskWrapper(
             env, self.slot, self.task_index, self.num_tasks, self.kwargs["use_one_hot"], self.success_hold, self.hidden_goal
         )
+        if self.observation == "state":
+            return wrapped
+        return PixelObservation(wrapped, self.image_size, keep_state=self.observation == "pixels+state")
 
 
 class MetaWorldMultiTaskEnv(GymnasiumVectorEnv):
@@ -463,6 +486,9 @@ class MetaWorldMultiTaskEnv(GymnasiumVectorEnv):
             faster, e.g. in tests; Meta-World's ``make_vec(..., num_goals=n)`` does the same).
         hidden_goal: zero the goal position in observations, as Meta-World's ML benchmarks do (their
             ``_partially_observable``); the scripted experts still act on the true goal.
+        observation: ``state``, ``pixels`` (the camera's picture as ``image`` instead of the 39-d state) or
+            ``pixels+state`` (see ``envs/pixels.py``).
+        image_size: the picture's side in pixels.
         vector_kwargs: extra keyword arguments of the gymnasium vector env.
 
     Attributes:
@@ -486,10 +512,14 @@ class MetaWorldMultiTaskEnv(GymnasiumVectorEnv):
         num_goals: int = METAWORLD_NUM_GOALS,
         success_hold: int = 0,
         hidden_goal: bool = False,
+        observation: str = "state",
+        image_size: int = 64,
         vector_kwargs: dict[str, Any] | None = None,
     ) -> None:
         self.task_set = metaworld_task_set(benchmark, task)
         self.hidden_goal = bool(hidden_goal)
+        if observation not in OBSERVATIONS:
+            raise ValueError(f"observation must be one of {', '.join(OBSERVATIONS)}, got {observation!r}")
         if not isinstance(use_one_hot, bool):
             raise ValueError(f"use_one_hot must be True or False, got {use_one_hot!r}")
         if not isinstance(envs_per_task, int) or envs_per_task < 1:
@@ -514,7 +544,17 @@ class MetaWorldMultiTaskEnv(GymnasiumVectorEnv):
         goals = _benchmark_tasks(metaworld, benchmark, self.task_set.names, seed, num_goals)
         factories = [
             _MetaWorldFactory(
-                t.index * envs_per_task + c, t.name, *goals[t.name], t.index, num_tasks, seed, kwargs, hold, self.hidden_goal
+                t.index * envs_per_task + c,
+                t.name,
+                *goals[t.name],
+                t.index,
+                num_tasks,
+                seed,
+                kwargs,
+                hold,
+                self.hidden_goal,
+                observation,
+                image_size,
             )
             for t in self.task_set
             for c in range(envs_per_task)
@@ -614,6 +654,9 @@ class MetaWorldSettings:
         hidden_goal: ML45's protocol: the goal position in the observation is zeroed (Meta-World's ML
             benchmarks), in the env and in demonstrations read for training or prompting; the policy must
             tell the goal from the scene and its task. Off: the goal is observed, as in MT1/MT10/MT50.
+        observation: ``state`` (the 39-d vector), ``pixels`` (the camera's picture as ``image`` instead) or
+            ``pixels+state``. MuJoCo renders off-screen (EGL): slow on CPU, for short runs and tests.
+        image_size: the picture's side in pixels (``pixels`` modes).
     """
 
     task: str = "reach"
@@ -621,6 +664,8 @@ class MetaWorldSettings:
     vector_strategy: Literal["sync", "async"] = "sync"
     eval_until_success: bool = False
     hidden_goal: bool = False
+    observation: Literal["state", "pixels", "pixels+state"] = "state"
+    image_size: int = 64
 
     def policy_observation(self, observation: torch.Tensor) -> torch.Tensor:
         """A stored 39-d observation as the policy sees it under these settings (the goal hidden or not)."""
@@ -634,6 +679,8 @@ class MetaWorldSettings:
         )
         require(self.max_episode_steps >= 1, "max_episode_steps", f"must be >= 1 (got {self.max_episode_steps})")
         one_of(self.vector_strategy, VECTOR_STRATEGIES, "vector_strategy", "strategy")
+        one_of(self.observation, OBSERVATIONS, "observation", "observation")
+        require(16 <= self.image_size <= 512, "image_size", f"must be in 16..512 pixels (got {self.image_size})")
 
 
 def _metaworld_family(benchmark: str | Sequence[str], description: str, name: str | None = None) -> EnvFamily:
@@ -654,6 +701,8 @@ def _metaworld_family(benchmark: str | Sequence[str], description: str, name: st
             vector_strategy=settings.vector_strategy,
             terminate_on_success=settings.eval_until_success and request.evaluation,
             hidden_goal=settings.hidden_goal,
+            observation=settings.observation,
+            image_size=settings.image_size,
         )
 
     def check(settings: MetaWorldSettings, run: Any) -> None:
@@ -678,6 +727,8 @@ def _metaworld_family(benchmark: str | Sequence[str], description: str, name: st
             device=request.device,
             terminate_on_success=settings.eval_until_success,
             hidden_goal=settings.hidden_goal,
+            observation=settings.observation,
+            image_size=settings.image_size,
         )
 
     label = name.upper() if name else str(benchmark)
@@ -695,7 +746,9 @@ def _metaworld_family(benchmark: str | Sequence[str], description: str, name: st
         kind="multitask",
         actions="box",
         per_task_success="any",
-        spec=lambda settings, request: metaworld_spec(benchmark, task_of(settings), settings.hidden_goal),
+        spec=lambda settings, request: metaworld_spec(
+            benchmark, task_of(settings), settings.hidden_goal, settings.observation, settings.image_size
+        ),
         video_env=lambda settings: MetaWorldVideoEnv(
             benchmark, task_of(settings), settings.max_episode_steps, hidden_goal=settings.hidden_goal
         ),

@@ -7,8 +7,9 @@ becomes a dict with
 
 - ``image``: ``[size, size, 3]`` uint8, channels last (gymnasium's image convention);
 - ``observation``: the env's state vector, with ``pixels+state`` only;
-- ``achieved_goal`` / ``desired_goal``: kept for goal envs under both modes, so hindsight relabelling and
-  ``compute_reward`` stay exact while the policy sees the scene as a picture.
+- every other key of a dict observation as it was: ``achieved_goal`` / ``desired_goal`` of goal envs, so
+  hindsight relabelling and ``compute_reward`` stay exact while the policy sees the scene as a picture, and a
+  multi-task env's ``task`` index.
 
 MuJoCo renders off-screen through EGL (``MUJOCO_GL=egl``, set here when unset). On a 2-core CPU a 64x64
 FetchReach frame costs about 20 ms: pixels from MuJoCo are for short runs and tests here, and for GPU machines.
@@ -28,7 +29,6 @@ import torch.nn.functional as F
 __all__ = ["OBSERVATIONS", "PixelObservation", "pixel_factory"]
 
 OBSERVATIONS = ("state", "pixels", "pixels+state")
-GOAL_KEYS = ("achieved_goal", "desired_goal")
 
 
 class PixelObservation(gym.ObservationWrapper):
@@ -47,7 +47,7 @@ class PixelObservation(gym.ObservationWrapper):
         self.size, self.keep_state = int(size), bool(keep_state)
         space = env.observation_space
         entries = dict(space.spaces) if isinstance(space, gym.spaces.Dict) else {"observation": space}
-        kept = {k: v for k, v in entries.items() if k in GOAL_KEYS or (keep_state and k == "observation")}
+        kept = {k: v for k, v in entries.items() if k != "observation" or keep_state}
         self.observation_space = gym.spaces.Dict({**kept, "image": gym.spaces.Box(0, 255, (self.size, self.size, 3), np.uint8)})
         self._dict = isinstance(space, gym.spaces.Dict)
 
