@@ -36,6 +36,7 @@ HEAVY = {"fetchreach", "fetchpush", "fetchpickandplace", "fetchslide", "mt1", "m
 SMALLEST: dict[str, dict[str, Any]] = {
     "bitflip": {"n_bits": 4},
     "pointreach": {},
+    "pixelreach": {"image_size": 16},
     "fetchreach": {},
     "fetchpush": {},
     "fetchpickandplace": {},

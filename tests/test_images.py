@@ -82,10 +82,10 @@ def test_qtopt_from_pixels_trains_its_encoder_and_each_target_has_its_own(encode
 
 
 def test_every_update_shifts_the_pictures_of_both_states_unless_turned_off(monkeypatch):
-    import taskrl.agents.qtopt as qtopt
+    import taskrl.encoders as encoders
 
     seen = []
-    monkeypatch.setattr(qtopt, "random_shift", lambda images, pad, generator: seen.append(pad) or images)
+    monkeypatch.setattr(encoders, "random_shift", lambda images, pad, generator: seen.append(pad) or images)
     env = Grasp(GraspSettings(image_size=16), num_envs=4, seed=0)
     batch = one_step(env, env.reset(seed=0), torch.zeros(4, 4))
     for pad, expected in ((4, [4, 4]), (0, [])):
@@ -97,10 +97,13 @@ def test_every_update_shifts_the_pictures_of_both_states_unless_turned_off(monke
 
 def test_sac_from_pixels_shares_one_encoder_trained_by_the_critics_only_and_targets_read_a_lagged_copy(monkeypatch):
     import taskrl.agents.sac as sac
+    import taskrl.encoders as encoders
 
     seen = []
-    shift = sac.random_shift
-    monkeypatch.setattr(sac, "random_shift", lambda images, pad, generator: seen.append(pad) or shift(images, pad, generator))
+    shift = encoders.random_shift
+    monkeypatch.setattr(
+        encoders, "random_shift", lambda images, pad, generator: seen.append(pad) or shift(images, pad, generator)
+    )
     env = Grasp(GraspSettings(image_size=16), num_envs=8, seed=0)
     config = sac.SACConfig(hidden_sizes=(32,), tau=0.5)
     agent = sac.SACAgent(("observation", "image"), 5 + 768, env.single_action_space, config, image_shape=(16, 16, 3))
@@ -242,3 +245,73 @@ def test_multitask_sac_from_the_meta_world_camera_runs_at_a_small_budget(tmp_pat
     )
     assert run.metrics["updates"] > 0 and run.agent.inputs.keys == ("image",)
     assert taskrl.load(tmp_path / "run").encoder.image_shape == (32, 32, 3)
+
+
+# ---------------------------------------------------------------------- goals given as pictures
+def test_pixelreach_draws_the_point_and_its_goal_where_they_are():
+    from taskrl.envs.pixel_reach import POINT, PixelReach
+
+    env = PixelReach(image_size=32, num_envs=3, seed=0)
+    obs = env.reset(seed=0)
+    assert env.single_observation_space.contains({k: v[0].numpy() for k, v in obs.items()})
+    assert torch.equal(obs["goal_image"], env.picture(obs["desired_goal"]))
+    for picture, where in ((obs["image"], obs["achieved_goal"]), (obs["goal_image"], obs["desired_goal"])):
+        red = (picture == torch.tensor(POINT, dtype=torch.uint8)).all(-1)  # [B, 32, 32]
+        rows, cols = torch.arange(32.0) + 0.5, torch.arange(32.0) + 0.5
+        weight = red.float().sum((1, 2))
+        centre_x = (red.float() * cols.view(1, 1, -1)).sum((1, 2)) / weight / 16 - 1
+        centre_y = (red.float() * rows.view(1, -1, 1)).sum((1, 2)) / weight / 16 - 1
+        inside = (where.abs() < 0.85).all(1)  # discs cut by the border are off-centre
+        assert torch.allclose(torch.stack([centre_x, centre_y], 1)[inside], where[inside], atol=0.05)
+
+
+def test_hindsight_gives_the_goal_picture_of_the_state_whose_position_became_the_goal(tmp_path):
+    from taskrl.config import with_overrides
+    from taskrl.presets import preset_config
+    from taskrl.run import build
+    from taskrl.training.offpolicy import batch_sampler
+
+    config = with_overrides(preset_config("pixelreach-sac-her"), {"num_envs": 4, "her_k": 1000, "threads": 1})
+    parts = build(config)
+    try:
+        env, replay, g = parts.env, parts.replay, torch.Generator().manual_seed(0)
+        obs = env.reset(seed=0)
+        replay.start(obs)
+        for _ in range(120):
+            action = torch.rand(4, 2, generator=g) * 2 - 1
+            next_obs, reward, terminated, truncated, info = env.step(action)
+            replay.add(action, reward, terminated, truncated, info["final_obs"], next_obs)
+            obs = next_obs
+        batch = batch_sampler(parts.sampler, 256, g)()
+        relabelled = (batch.obs["desired_goal"] != batch.obs["achieved_goal"]).any(1)
+        assert torch.equal(batch.obs["goal_image"], env.picture(batch.obs["desired_goal"]))  # every row, relabelled or not
+        assert torch.equal(batch.next_obs["goal_image"], batch.obs["goal_image"]) and relabelled.float().mean() > 0.5
+        assert parts.agent.inputs.keys == ("image", "goal_image")  # the state goal is never read
+        assert parts.agent.encoder.image_shape == (2, 32, 32, 3) and parts.agent.encoder.trunk[0].in_channels == 6
+    finally:
+        parts.close()
+
+
+@pytest.mark.timeout(300)
+def test_sac_her_from_goal_pictures_runs_saves_and_loads(tmp_path):
+    run = taskrl.train(
+        "pixelreach-sac-her",
+        out=tmp_path / "run",
+        total_steps=1200,
+        learning_starts=800,
+        eval_interval=1200,
+        batch_size=32,
+        tensorboard=False,
+        threads=1,
+    )
+    assert run.metrics["updates"] > 0
+    loaded = taskrl.load(tmp_path / "run")
+    obs = {k: torch.as_tensor(v[None]) for k, v in loaded_obs(tmp_path).items()}
+    assert loaded.act(obs).shape == (1, 2)
+
+
+def loaded_obs(tmp_path):
+    from taskrl.envs.pixel_reach import PixelReach
+
+    env = PixelReach(image_size=32, num_envs=1, seed=1)
+    return {k: v[0].numpy() for k, v in env.reset(seed=1).items()}

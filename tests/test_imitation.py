@@ -162,8 +162,17 @@ def test_a_hidden_goal_run_trains_and_is_prompted_on_demonstrations_with_the_goa
     assert torch.equal(seen[:, :36], demos.observations[:, :36])
     assert torch.equal(demos.as_seen_under(MetaWorldSettings()).observations, demos.observations)
     run = small_run(
-        "bc-mt10-onehot", tmp_path / "run", env="mt1", task="reach", num_envs=1, dataset=str(tmp_path / "mw"),
-        hidden_goal=True, total_steps=20, eval_interval=10**6, eval_episodes=1, max_episode_steps=5,
+        "bc-mt10-onehot",
+        tmp_path / "run",
+        env="mt1",
+        task="reach",
+        num_envs=1,
+        dataset=str(tmp_path / "mw"),
+        hidden_goal=True,
+        total_steps=20,
+        eval_interval=10**6,
+        eval_episodes=1,
+        max_episode_steps=5,
     )
     normaliser = run.agent.inputs.normalize
     assert normaliser.mean[36:39].abs().sum() == 0 and normaliser.mean[:3].abs().sum() > 0  # fit on what the policy sees

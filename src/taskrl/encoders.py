@@ -16,9 +16,11 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-__all__ = ["ENCODERS", "ImageStateInput", "conv_stack", "random_shift", "small_resnet"]
+__all__ = ["ENCODERS", "PICTURE_KEYS", "ImageStateInput", "conv_stack", "random_shift", "shift_pictures", "small_resnet"]
 
 ENCODERS = ("conv", "resnet")
+#: the observation keys that hold pictures, in the order their columns end the flat input
+PICTURE_KEYS = ("image", "goal_image")
 
 
 def conv_stack(channels: int) -> nn.Sequential:
@@ -59,11 +61,12 @@ def small_resnet(channels: int) -> nn.Sequential:
 class ImageStateInput(nn.Module):
     """``x [B, vector + H*W*C] -> [B, vector + features]``: the image columns (uint8 values, channels last)
     through a conv encoder, a linear layer to ``features``, LayerNorm and tanh (DrQ's head), the vector
-    columns unchanged.
+    columns unchanged. Several pictures (``image_shape`` ``(K, H, W, C)``: the scene and a goal picture)
+    are stacked along the channels and encoded together, so the encoder compares them pixel by pixel.
 
     Args:
         vector_dim: the leading columns that are not the image.
-        image_shape: ``(H, W, C)``.
+        image_shape: ``(H, W, C)``, or ``(K, H, W, C)`` for K pictures one after the other.
         kind: ``conv`` (:func:`conv_stack`) or ``resnet`` (:func:`small_resnet`).
         features: the image's feature size.
     """
@@ -73,7 +76,9 @@ class ImageStateInput(nn.Module):
     ) -> None:
         super().__init__()
         self.vector_dim, self.image_shape = int(vector_dim), tuple(int(n) for n in image_shape)
-        h, w, c = self.image_shape
+        *_, h, w, c = self.image_shape
+        self.pictures = self.image_shape[0] if len(self.image_shape) == 4 else 1
+        c = c * self.pictures
         self.trunk = conv_stack(c) if kind == "conv" else small_resnet(c)
         with torch.no_grad():
             flat = self.trunk(torch.zeros(1, c, h, w)).shape[1]
@@ -81,8 +86,9 @@ class ImageStateInput(nn.Module):
         self.out_dim = self.vector_dim + features
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        h, w, c = self.image_shape
-        image = x[:, self.vector_dim :].reshape(-1, h, w, c).permute(0, 3, 1, 2) / 255.0
+        *_, h, w, c = self.image_shape
+        k = self.pictures
+        image = x[:, self.vector_dim :].reshape(-1, k, h, w, c).permute(0, 1, 4, 2, 3).reshape(-1, k * c, h, w) / 255.0
         return torch.cat([x[:, : self.vector_dim], self.head(self.trunk(image))], dim=1)
 
 
@@ -98,6 +104,11 @@ def random_shift(images: torch.Tensor, pad: int, generator: torch.Generator | No
     cropped = padded.gather(2, rows)
     cols = (offset[:, 1:2] + torch.arange(w, device=images.device))[:, None, None, :].expand(b, c, h, w)
     return cropped.gather(3, cols).permute(0, 2, 3, 1).to(images.dtype)
+
+
+def shift_pictures(obs: dict[str, torch.Tensor], pad: int, generator: torch.Generator | None = None) -> dict[str, torch.Tensor]:
+    """``obs`` with every picture (:data:`PICTURE_KEYS`) shifted by :func:`random_shift`, each on its own."""
+    return {**obs, **{k: random_shift(obs[k], pad, generator) for k in PICTURE_KEYS if k in obs}}
 
 
 def image_size(shape: tuple[int, ...]) -> int:

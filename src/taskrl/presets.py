@@ -210,6 +210,10 @@ PRESETS: dict[str, Preset] = {
         "SAC + hindsight relabelling on PointReach, a 2-D point moving to a random goal (sparse reward)",
         {**_POINTREACH, **_SAC},
     ),
+    "pixelreach-sac-her": Preset(
+        "SAC + hindsight relabelling on PixelReach: PointReach seen as a 32x32 picture, the goal given as a picture",
+        {**_POINTREACH, **_SAC, "env": "pixelreach"},
+    ),
     "pointreach-qtopt-her": Preset(
         "QT-Opt (Q-learning, CEM argmax) + hindsight relabelling on PointReach (sparse reward)",
         {**_POINTREACH, **_QTOPT},

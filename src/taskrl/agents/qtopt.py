@@ -60,7 +60,7 @@ from taskrl.agents.parts import (
     td_target,
 )
 from taskrl.agents.spec import AlgorithmSpec
-from taskrl.encoders import ENCODERS, ImageStateInput, image_size, random_shift
+from taskrl.encoders import ENCODERS, ImageStateInput, image_size, shift_pictures
 from taskrl.errors import one_of, require
 from taskrl.nets import StateActionQ
 from taskrl.replay.batch import Batch, Obs
@@ -292,7 +292,7 @@ class QTOptAgent(Agent):
         """The update itself (what ``--compile`` compiles): the target if not given, the regression, the target networks."""
         cfg = self.config
         if self.image_shape is not None and cfg.augment_pad:  # DrQ: every picture shifted on its own
-            shift = lambda obs: {**obs, "image": random_shift(obs["image"], cfg.augment_pad, generator)}  # noqa: E731
+            shift = lambda obs: shift_pictures(obs, cfg.augment_pad, generator)  # noqa: E731
             batch = batch.replace(obs=shift(batch.obs), next_obs=shift(batch.next_obs))
         if target is None:
             target = self.bellman_target(batch, generator)

@@ -66,7 +66,7 @@ from taskrl.agents.parts import (
 )
 from taskrl.agents.spec import AlgorithmSpec
 from taskrl.conditioning.networks import TaskConditioning, network_for
-from taskrl.encoders import ENCODERS, ImageStateInput, image_size, random_shift
+from taskrl.encoders import ENCODERS, ImageStateInput, image_size, shift_pictures
 from taskrl.errors import one_of, require
 from taskrl.replay.batch import Batch, Obs
 
@@ -336,7 +336,7 @@ class SACAgent(Agent):
         """The update itself (what ``--compile`` compiles): critics, actor, temperature, target critics."""
         cfg = self.config
         if self.encoder is not None and cfg.augment_pad:  # DrQ: every picture shifted on its own
-            shift = lambda obs: {**obs, "image": random_shift(obs["image"], cfg.augment_pad, generator)}  # noqa: E731
+            shift = lambda obs: shift_pictures(obs, cfg.augment_pad, generator)  # noqa: E731
             batch = batch.replace(obs=shift(batch.obs), next_obs=shift(batch.next_obs))
         self.inputs.update_statistics(batch.obs)
         target = self.bellman_target(batch, generator)

@@ -17,6 +17,7 @@ from taskrl.envs import (
     gymnasium_family,
     metaworld_tasks,
     multitask_point,
+    pixel_reach,
     point_reach,
     point_tasks,
     task_sets,
@@ -30,6 +31,7 @@ __all__ = ["ENV_FAMILIES", "env_family", "family_for_source", "register_env_fami
 BUILT_IN: tuple[EnvFamily, ...] = (
     bitflip.FAMILY,
     point_reach.FAMILY,
+    pixel_reach.FAMILY,
     *fetch.FAMILIES,
     multitask_point.FAMILY,
     grid_tasks.FAMILY,

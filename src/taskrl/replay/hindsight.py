@@ -4,7 +4,8 @@ A transition sampled for goal g is, with probability ``k / (k + 1)``, replayed a
 been a goal the agent actually achieved: with ``future`` a state reached later in the same
 episode, ``final`` the episode's last state, ``episode`` any state of the episode, ``random`` any
 stored state. The reward (and termination, where success ends an episode) is recomputed for the
-new goal through the environment's own functions.
+new goal through the environment's own functions. Where the goal is also shown as a picture
+(``goal_image``), the picture is replaced by the ``image`` of the same state, so the two goals agree.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import torch
 from taskrl.replay.batch import Batch
 from taskrl.replay.storage import EpisodeReplay
 
+GOAL_PICTURE, ACHIEVED_PICTURE = "goal_image", "image"
 GoalFn = Callable[[torch.Tensor, torch.Tensor, Any], torch.Tensor]
 STRATEGIES = ("future", "final", "episode", "random")
 Strategy = Literal["future", "final", "episode", "random"]
@@ -98,9 +100,14 @@ class HindsightRelabeler:
         terminated = batch.terminated
         if self.terminated_fn is not None:
             terminated = torch.where(relabel, self.terminated_fn(next_achieved, goal, info), terminated)
+        goals = {self.desired_key: goal}
+        if GOAL_PICTURE in batch.obs:  # the goal's picture: the picture of the state whose goal replaced it
+            picture = replay.observation_at(ACHIEVED_PICTURE, goal_episode, goal_index)
+            old = batch.obs[GOAL_PICTURE]
+            goals[GOAL_PICTURE] = torch.where(relabel.view(-1, *[1] * (old.dim() - 1)), picture, old)
         return batch.replace(
-            obs={**batch.obs, self.desired_key: goal},
-            next_obs={**batch.next_obs, self.desired_key: goal},
+            obs={**batch.obs, **goals},
+            next_obs={**batch.next_obs, **goals},
             reward=reward,
             terminated=terminated,
             truncated=batch.truncated & ~terminated,

@@ -25,7 +25,9 @@ from taskrl.training.per_task import evaluate_per_task
 __all__ = ["RunParts", "make_agent", "make_env", "make_evaluator", "make_relabeler", "resolve_device"]
 
 #: Observation keys the networks read, where the env has them (the task index is read separately).
-AGENT_INPUT_KEYS = ("observation", "desired_goal", "image")  # the image last: its columns end the flat input
+# the pictures last: their columns end the flat input. A goal given as a picture replaces the state goal as input
+# (the state goal stays in the observation for rewards and relabelling).
+AGENT_INPUT_KEYS = ("observation", "desired_goal", "image", "goal_image")
 
 
 EVAL_SEED_OFFSET = 1_000_003
@@ -100,6 +102,8 @@ def make_agent(config: TrainConfig, env: Any, device: torch.device) -> Any:
         raise ConfigError("env", f"actions must be Box or Discrete; {config.env!r} has {env.single_action_space}")
     space = env.single_observation_space
     keys = tuple(k for k in AGENT_INPUT_KEYS if k in space.spaces)
+    if "goal_image" in keys:
+        keys = tuple(k for k in keys if k != "desired_goal")
     if "observation" not in keys and "image" not in keys:
         raise ConfigError(
             "env",
@@ -112,6 +116,8 @@ def make_agent(config: TrainConfig, env: Any, device: torch.device) -> Any:
     if env_kind(env) == "multitask" and task_set is not None and len(task_set) > 1:  # one task needs no context
         conditioning = make_conditioning(config.conditioning, len(task_set), task_set.descriptions)
     image_shape = tuple(space["image"].shape) if "image" in keys else None
+    if image_shape is not None and "goal_image" in keys:  # two pictures, encoded together
+        image_shape = (2, *image_shape)
     check_network_memory(config, input_dim, device)
     inputs = AgentInputs(keys, input_dim, env.single_action_space, image_shape)
     return algorithm(config.algo).build(inputs, config.algo_settings, device, conditioning)

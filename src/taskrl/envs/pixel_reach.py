@@ -1,0 +1,104 @@
+"""Reaching a goal shown as a picture: PointReach seen from above, batched in torch, no OpenGL.
+
+The policy sees two pictures, ``image`` (the scene now) and ``goal_image`` (the scene with the point at
+its goal), each ``[size, size, 3]`` uint8: a grey table, the point as a red disc. The state goal stays beside
+them (``achieved_goal``, ``desired_goal``: the point's position and its goal, as in PointReach), so the
+reward and hindsight relabelling are exact: relabelling replaces ``desired_goal`` by a position the
+episode reached and ``goal_image`` by the picture of that moment (``replay/hindsight.py``). The networks
+read the pictures, never the state goal (``wiring/parts.py``).
+
+Dynamics, reward and success are PointReach's (``point_reach.py``): a step moves the point by
+``action * max_speed`` in ``[-1, 1]^2``; success within 0.05 of the goal; sparse reward by default.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Literal
+
+import gymnasium as gym
+import numpy as np
+import torch
+
+from taskrl.envs.base import Obs
+from taskrl.envs.point_reach import REWARD_TYPES, PointReach
+from taskrl.envs.spec import EnvFamily, EnvRequest
+from taskrl.errors import one_of, require
+
+__all__ = ["FAMILY", "PixelReach", "PixelReachSettings"]
+
+TABLE = (96, 96, 96)
+POINT = (230, 40, 40)
+
+
+class PixelReach(PointReach):
+    """``num_envs`` copies of point reaching with goals given as pictures.
+
+    Args:
+        image_size: side of both pictures in pixels.
+        point_radius: the disc's radius, in units of the ``[-1, 1]`` box.
+        **kwargs: :class:`~taskrl.envs.point_reach.PointReach`'s (``num_envs``, ``device``, ``reward``, ...).
+    """
+
+    def __init__(self, image_size: int = 32, point_radius: float = 0.12, **kwargs) -> None:
+        super().__init__(**kwargs)
+        self.image_size, self.point_radius = int(image_size), float(point_radius)
+        box = gym.spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
+        picture = gym.spaces.Box(0, 255, (self.image_size, self.image_size, 3), np.uint8)
+        self.single_observation_space = gym.spaces.Dict(
+            {"image": picture, "goal_image": picture, "achieved_goal": box, "desired_goal": box}
+        )
+        centres = (torch.arange(self.image_size, device=self.device, dtype=torch.float32) + 0.5) / self.image_size * 2 - 1
+        self._rows, self._cols = centres.view(1, -1, 1), centres.view(1, 1, -1)  # y down the picture, x across
+        self._table = torch.tensor(TABLE, dtype=torch.uint8, device=self.device)
+        self._point = torch.tensor(POINT, dtype=torch.uint8, device=self.device)
+
+    def picture(self, position: torch.Tensor) -> torch.Tensor:
+        """``[B, size, size, 3]`` uint8: the table with the point at each ``position`` (``[B, 2]``, x then y)."""
+        x, y = position[:, 0].view(-1, 1, 1), position[:, 1].view(-1, 1, 1)
+        inside = (self._cols - x).square() + (self._rows - y).square() <= self.point_radius**2
+        return torch.where(inside[..., None], self._point, self._table)
+
+    def _obs(self) -> Obs:
+        position = self.position.clone()
+        return {
+            "image": self.picture(position),
+            "goal_image": self.picture(self.goal),
+            "achieved_goal": position,
+            "desired_goal": self.goal.clone(),
+        }
+
+
+@dataclasses.dataclass
+class PixelReachSettings:
+    """Settings of the ``pixelreach`` family.
+
+    Attributes:
+        reward: ``sparse`` (0 at the goal, else -1) or ``dense`` (-distance).
+        image_size: side of the scene's and the goal's pictures in pixels.
+    """
+
+    reward: Literal["sparse", "dense"] = "sparse"
+    image_size: int = 32
+
+    def validate(self) -> None:
+        one_of(self.reward, REWARD_TYPES, "reward", "reward")
+        require(16 <= self.image_size <= 256, "image_size", f"must be in 16..256 pixels (got {self.image_size})")
+
+
+def _make(settings: PixelReachSettings, request: EnvRequest) -> PixelReach:
+    return PixelReach(
+        image_size=settings.image_size, num_envs=request.copies, device=request.device, reward=settings.reward, seed=request.seed
+    )
+
+
+FAMILY = EnvFamily(
+    name="pixelreach",
+    description="PointReach with the scene and the goal as pictures (goal images; hindsight relabels the picture), native torch",
+    section="pixelreach",
+    settings=PixelReachSettings,
+    make=_make,
+    kind="goal",
+    actions="box",
+    images=True,
+)
