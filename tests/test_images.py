@@ -265,6 +265,17 @@ def test_pixelreach_draws_the_point_and_its_goal_where_they_are():
         assert torch.allclose(torch.stack([centre_x, centre_y], 1)[inside], where[inside], atol=0.05)
 
 
+def test_pixelreach_passes_gymnasiums_env_checker_and_records_what_the_policy_sees():
+    from gymnasium.utils.env_checker import check_env
+
+    env = gym.make("taskrl/PixelReach-v0", render_mode="rgb_array")
+    check_env(env.unwrapped, skip_render_check=False)
+    obs, _ = env.reset(seed=0)
+    frame = env.render()
+    assert frame.shape == (128, 256, 3)  # the scene and the goal picture side by side, 4x
+    assert np.array_equal(frame[::4, :128:4], obs["image"]) and np.array_equal(frame[::4, 128::4], obs["goal_image"])
+
+
 def test_hindsight_gives_the_goal_picture_of_the_state_whose_position_became_the_goal(tmp_path):
     from taskrl.config import with_overrides
     from taskrl.presets import preset_config

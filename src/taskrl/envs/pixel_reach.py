@@ -21,11 +21,12 @@ import numpy as np
 import torch
 
 from taskrl.envs.base import Obs
+from taskrl.envs.gymnasium_env import PointReachGymEnv
 from taskrl.envs.point_reach import REWARD_TYPES, PointReach
 from taskrl.envs.spec import EnvFamily, EnvRequest
 from taskrl.errors import one_of, require
 
-__all__ = ["FAMILY", "PixelReach", "PixelReachSettings"]
+__all__ = ["FAMILY", "PixelReach", "PixelReachGymEnv", "PixelReachSettings"]
 
 TABLE = (96, 96, 96)
 POINT = (230, 40, 40)
@@ -59,6 +60,11 @@ class PixelReach(PointReach):
         inside = (self._cols - x).square() + (self._rows - y).square() <= self.point_radius**2
         return torch.where(inside[..., None], self._point, self._table)
 
+    def render_rgb(self, index: int = 0) -> np.ndarray:
+        """What the policy of copy ``index`` sees, the scene beside the goal picture, each pixel drawn 4x4."""
+        both = torch.cat([self.picture(self.position[index : index + 1]), self.picture(self.goal[index : index + 1])], 2)[0]
+        return both.repeat_interleave(4, 0).repeat_interleave(4, 1).cpu().numpy()
+
     def _obs(self) -> Obs:
         position = self.position.clone()
         return {
@@ -67,6 +73,19 @@ class PixelReach(PointReach):
             "achieved_goal": position,
             "desired_goal": self.goal.clone(),
         }
+
+
+class PixelReachGymEnv(PointReachGymEnv):
+    """One copy of :class:`PixelReach` as a standard ``gymnasium.Env``, ``taskrl/PixelReach-v0`` (time limit 50).
+
+    Args:
+        reward: ``"sparse"`` or ``"dense"``.
+        image_size: side of both pictures in pixels.
+        render_mode: None or ``rgb_array`` (the scene beside the goal picture).
+    """
+
+    def __init__(self, reward: str = "sparse", image_size: int = 32, render_mode: str | None = None) -> None:
+        self._wrap(PixelReach(image_size=image_size, num_envs=1, horizon=2**62, reward=reward, seed=0), render_mode)
 
 
 @dataclasses.dataclass
@@ -101,4 +120,5 @@ FAMILY = EnvFamily(
     kind="goal",
     actions="box",
     images=True,
+    video_env=lambda s: gym.make("taskrl/PixelReach-v0", reward=s.reward, image_size=s.image_size, render_mode="rgb_array"),
 )
