@@ -8,6 +8,7 @@ import pytest
 import torch
 
 import taskrl
+from helpers import small_run
 from taskrl.agents.parts import ObservationInput
 from taskrl.agents.qtopt import QTOptAgent, QTOptConfig
 from taskrl.encoders import ImageStateInput, random_shift
@@ -133,12 +134,12 @@ def test_sac_from_pixels_shares_one_encoder_trained_by_the_critics_only_and_targ
     assert all(torch.allclose(t, 0.5 * o + 0.5 * b) for o, t, b in zip(online, target, before))  # Polyak, tau 0.5
 
 
-@pytest.mark.timeout(300)
-def test_sac_her_from_fetchreach_pixels_runs_and_saves_its_encoder(tmp_path):
+def _fetchreach_from_pixels(preset: str, tmp_path) -> taskrl.Run:
+    """A run of ``preset`` on FetchReach from 16x16 pictures at a test budget."""
     pytest.importorskip("gymnasium_robotics")
-    run = taskrl.train(
-        "fetchreach-sac-her",
-        out=tmp_path / "run",
+    return small_run(
+        preset,
+        tmp_path / "run",
         observation="pixels",
         image_size=16,
         total_steps=120,
@@ -146,9 +147,13 @@ def test_sac_her_from_fetchreach_pixels_runs_and_saves_its_encoder(tmp_path):
         eval_interval=120,
         eval_episodes=1,
         num_envs=2,
-        tensorboard=False,
         threads=1,
     )
+
+
+@pytest.mark.timeout(300)
+def test_sac_her_from_fetchreach_pixels_runs_and_saves_its_encoder(tmp_path):
+    run = _fetchreach_from_pixels("fetchreach-sac-her", tmp_path)
     assert run.metrics["updates"] > 0 and run.agent.encoder.image_shape == (16, 16, 3)
     loaded = taskrl.load(tmp_path / "run")
     assert all(torch.equal(a, b) for a, b in zip(loaded.encoder.parameters(), run.agent.encoder.parameters()))
@@ -204,20 +209,7 @@ def test_pixel_observations_render_the_scene_keep_the_goals_and_drop_the_state_u
 
 @pytest.mark.timeout(300)
 def test_fetchreach_from_pixels_runs_with_the_picture_in_the_replay_and_through_a_conv_encoder(tmp_path):
-    pytest.importorskip("gymnasium_robotics")
-    run = taskrl.train(
-        "fetchreach-qtopt-her",
-        out=tmp_path / "run",
-        observation="pixels",
-        image_size=16,
-        total_steps=120,
-        learning_starts=60,
-        eval_interval=120,
-        eval_episodes=1,
-        num_envs=2,
-        tensorboard=False,
-        threads=1,
-    )
+    run = _fetchreach_from_pixels("fetchreach-qtopt-her", tmp_path)
     assert run.metrics["updates"] > 0
     modules = [m for net in (run.agent.q, run.agent.q_target1) for m in net.modules()]
     assert any(isinstance(m, ImageStateInput) and m.image_shape == (16, 16, 3) for m in modules)
@@ -227,9 +219,9 @@ def test_fetchreach_from_pixels_runs_with_the_picture_in_the_replay_and_through_
 @pytest.mark.timeout(300)
 def test_multitask_sac_from_the_meta_world_camera_runs_at_a_small_budget(tmp_path):
     pytest.importorskip("metaworld")
-    run = taskrl.train(
+    run = small_run(
         "mt10-sac-onehot",
-        out=tmp_path / "run",
+        tmp_path / "run",
         env="mt1",
         task="reach",
         num_envs=1,
@@ -240,7 +232,6 @@ def test_multitask_sac_from_the_meta_world_camera_runs_at_a_small_budget(tmp_pat
         eval_interval=60,
         eval_episodes=1,
         max_episode_steps=20,
-        tensorboard=False,
         threads=1,
     )
     assert run.metrics["updates"] > 0 and run.agent.inputs.keys == ("image",)
@@ -305,14 +296,13 @@ def test_hindsight_gives_the_goal_picture_of_the_state_whose_position_became_the
 
 @pytest.mark.timeout(300)
 def test_sac_her_from_goal_pictures_runs_saves_and_loads(tmp_path):
-    run = taskrl.train(
+    run = small_run(
         "pixelreach-sac-her",
-        out=tmp_path / "run",
+        tmp_path / "run",
         total_steps=1200,
         learning_starts=800,
         eval_interval=1200,
         batch_size=32,
-        tensorboard=False,
         threads=1,
     )
     assert run.metrics["updates"] > 0

@@ -292,13 +292,10 @@ class SACAgent(Agent):
         """``(context, task index)`` of a batch of observations; ``(None, None)`` for single-task agents."""
         return (None, None) if self.conditioning is None else self.conditioning.task_inputs(obs)
 
-    def features(self, obs: Obs, target: bool = False) -> torch.Tensor:
-        """The networks' input for ``obs``: the normalised vector, and the encoded picture on envs with a camera
-        (by the target critics' copy of the encoder with ``target``)."""
+    def features(self, obs: Obs) -> torch.Tensor:
+        """The networks' input for ``obs``: the normalised vector, and the encoded picture on envs with a camera."""
         x = self.inputs(obs)
-        if self.encoder is None:
-            return x
-        return (self.encoder_target if target else self.encoder)(x)
+        return x if self.encoder is None else self.encoder(x)
 
     def _row_alpha(self, task: torch.Tensor | None, log_alpha: torch.Tensor) -> torch.Tensor:
         """Each row's entry of ``log_alpha`` (or of its exp): its task's when per task, else the shared one."""
@@ -318,10 +315,10 @@ class SACAgent(Agent):
         """y = r + gamma (1 - terminated) (min_i Q_target_i(s', a') - alpha log pi(a'|s')), a' ~ pi(.|s')."""
         cfg = self.config
         with torch.no_grad():
-            next_x = self.features(batch.next_obs)
+            flat = self.inputs(batch.next_obs)
+            next_x, target_x = (flat, flat) if self.encoder is None else (self.encoder(flat), self.encoder_target(flat))
             context, task = self.task_inputs(batch.next_obs)
             next_action, next_log_prob = self.actor.sample(next_x, generator, context, task)
-            target_x = next_x if self.encoder is None else self.features(batch.next_obs, target=True)
             next_q = torch.minimum(*(q(target_x, next_action, context, task) for q in self.critics_target))
             soft_value = next_q - self._row_alpha(task, self.alpha) * next_log_prob
             clip = negative_return_bounds(cfg.gamma) if cfg.clip_target else None

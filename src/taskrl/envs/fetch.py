@@ -10,9 +10,9 @@ import dataclasses
 from typing import Literal
 
 from taskrl.envs.gymnasium_adapter import VECTOR_STRATEGIES, GymnasiumGoalEnv
-from taskrl.envs.pixels import OBSERVATIONS, pixel_factory
+from taskrl.envs.pixels import check_pixel_settings, pixel_factory
 from taskrl.envs.spec import EnvFamily, EnvRequest
-from taskrl.errors import one_of, require
+from taskrl.errors import one_of
 
 __all__ = ["FAMILIES", "FETCH_IDS", "FetchSettings"]
 
@@ -42,8 +42,7 @@ class FetchSettings:
 
     def validate(self) -> None:
         one_of(self.vector_strategy, VECTOR_STRATEGIES, "vector_strategy", "strategy")
-        one_of(self.observation, OBSERVATIONS, "observation", "observation")
-        require(16 <= self.image_size <= 512, "image_size", f"must be in 16..512 pixels (got {self.image_size})")
+        check_pixel_settings(self)
 
 
 def _maker(env_id: str):

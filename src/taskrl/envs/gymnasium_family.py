@@ -22,7 +22,7 @@ import gymnasium as gym
 
 from taskrl.envs.base import BatchedEnv
 from taskrl.envs.gymnasium_adapter import VECTOR_STRATEGIES, GymnasiumGoalEnv, GymnasiumVectorEnv
-from taskrl.envs.pixels import OBSERVATIONS, pixel_factory
+from taskrl.envs.pixels import check_pixel_settings, pixel_factory
 from taskrl.envs.spec import EnvFamily, EnvRequest
 from taskrl.errors import ConfigError, one_of, require
 
@@ -68,8 +68,7 @@ class GymnasiumSettings:
             f"must be >= 0 (0 = the registered limit; got {self.max_episode_steps})",
         )
         one_of(self.vector_strategy, VECTOR_STRATEGIES, "vector_strategy", "strategy")
-        one_of(self.observation, OBSERVATIONS, "observation", "observation")
-        require(16 <= self.image_size <= 512, "image_size", f"must be in 16..512 pixels (got {self.image_size})")
+        check_pixel_settings(self)
 
 
 def factory_name(obj: Any) -> str:

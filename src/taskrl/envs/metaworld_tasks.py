@@ -37,7 +37,7 @@ import torch
 
 from taskrl.envs.base import BatchedEnv
 from taskrl.envs.gymnasium_adapter import VECTOR_STRATEGIES, GymnasiumVectorEnv, VectorStrategy
-from taskrl.envs.pixels import OBSERVATIONS, PixelObservation
+from taskrl.envs.pixels import OBSERVATIONS, PixelObservation, check_pixel_settings
 from taskrl.envs.spec import DemoSource, EnvFamily, EnvRequest, Expert
 from taskrl.errors import ConfigError, one_of, require
 from taskrl.tasks import TaskSet
@@ -679,8 +679,7 @@ class MetaWorldSettings:
         )
         require(self.max_episode_steps >= 1, "max_episode_steps", f"must be >= 1 (got {self.max_episode_steps})")
         one_of(self.vector_strategy, VECTOR_STRATEGIES, "vector_strategy", "strategy")
-        one_of(self.observation, OBSERVATIONS, "observation", "observation")
-        require(16 <= self.image_size <= 512, "image_size", f"must be in 16..512 pixels (got {self.image_size})")
+        check_pixel_settings(self)
 
 
 def _metaworld_family(benchmark: str | Sequence[str], description: str, name: str | None = None) -> EnvFamily:

@@ -26,9 +26,17 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-__all__ = ["OBSERVATIONS", "PixelObservation", "pixel_factory"]
+from taskrl.errors import one_of, require
+
+__all__ = ["OBSERVATIONS", "PixelObservation", "check_pixel_settings", "pixel_factory"]
 
 OBSERVATIONS = ("state", "pixels", "pixels+state")
+
+
+def check_pixel_settings(settings: Any) -> None:
+    """A family's ``observation`` and ``image_size`` settings; a ConfigError names the bad one."""
+    one_of(settings.observation, OBSERVATIONS, "observation", "observation")
+    require(16 <= settings.image_size <= 512, "image_size", f"must be in 16..512 pixels (got {settings.image_size})")
 
 
 class PixelObservation(gym.ObservationWrapper):
