@@ -240,20 +240,23 @@ def test_multitask_sac_from_the_meta_world_camera_runs_at_a_small_budget(tmp_pat
 
 # ---------------------------------------------------------------------- goals given as pictures
 def test_pixelreach_draws_the_point_and_its_goal_where_they_are():
-    from taskrl.envs.pixel_reach import POINT, PixelReach
+    from taskrl.envs.pixel_reach import POINT, TABLE, PixelReach
 
     env = PixelReach(image_size=32, num_envs=3, seed=0)
     obs = env.reset(seed=0)
     assert env.single_observation_space.contains({k: v[0].numpy() for k, v in obs.items()})
     assert torch.equal(obs["goal_image"], env.picture(obs["desired_goal"]))
     for picture, where in ((obs["image"], obs["achieved_goal"]), (obs["goal_image"], obs["desired_goal"])):
-        red = (picture == torch.tensor(POINT, dtype=torch.uint8)).all(-1)  # [B, 32, 32]
+        red = (picture[..., 0].float() - TABLE[0]) / (POINT[0] - TABLE[0])  # [B, 32, 32]: how much of a pixel is disc
         rows, cols = torch.arange(32.0) + 0.5, torch.arange(32.0) + 0.5
-        weight = red.float().sum((1, 2))
-        centre_x = (red.float() * cols.view(1, 1, -1)).sum((1, 2)) / weight / 16 - 1
-        centre_y = (red.float() * rows.view(1, -1, 1)).sum((1, 2)) / weight / 16 - 1
+        weight = red.sum((1, 2))
+        centre_x = (red * cols.view(1, 1, -1)).sum((1, 2)) / weight / 16 - 1
+        centre_y = (red * rows.view(1, -1, 1)).sum((1, 2)) / weight / 16 - 1
         inside = (where.abs() < 0.85).all(1)  # discs cut by the border are off-centre
-        assert torch.allclose(torch.stack([centre_x, centre_y], 1)[inside], where[inside], atol=0.05)
+        # anti-aliased, so the disc's centre is found to well under the success radius (0.05; a pixel is 0.0625)
+        assert torch.allclose(torch.stack([centre_x, centre_y], 1)[inside], where[inside], atol=0.01)
+    moved = env.picture(obs["achieved_goal"] + torch.tensor([0.02, 0.0]))
+    assert (moved.float() - obs["image"].float()).abs().sum((1, 2, 3)).min() > 100  # a third of a pixel shows
 
 
 def test_pixelreach_passes_gymnasiums_env_checker_and_records_what_the_policy_sees():
@@ -316,3 +319,17 @@ def loaded_obs(tmp_path):
 
     env = PixelReach(image_size=32, num_envs=1, seed=1)
     return {k: v[0].numpy() for k, v in env.reset(seed=1).items()}
+
+
+def test_a_scene_and_its_goal_picture_are_shifted_together():
+    from taskrl.encoders import shift_pictures
+
+    image = torch.zeros(64, 12, 12, 3, dtype=torch.uint8)
+    image[:, 6, 5] = 255
+    goal = torch.zeros_like(image)
+    goal[:, 4, 7] = 255
+    shifted = shift_pictures({"image": image, "goal_image": goal, "achieved_goal": torch.zeros(64, 2)}, 2, torch.Generator().manual_seed(0))
+    scene_at = (shifted["image"][..., 0] == 255).nonzero()[:, 1:]
+    goal_at = (shifted["goal_image"][..., 0] == 255).nonzero()[:, 1:]
+    assert len({tuple(m) for m in scene_at.tolist()}) > 10  # shifted, by offsets that vary over the rows
+    assert torch.equal(goal_at - scene_at, torch.tensor([[-2, 2]]).expand(64, 2))  # the goal kept where it was relative to the scene

@@ -4,7 +4,7 @@ An image observation reaches a network as uint8 values (0-255) in the last colum
 (:class:`~taskrl.agents.parts.ObservationInput` leaves them unnormalised); :class:`ImageStateInput` splits
 them off, encodes the picture once per state with a conv stack or a small ResNet, and hands
 ``[vector part, image features]`` on. :func:`random_shift` is DrQ's augmentation: pad by replicating the
-border, crop back at a random offset, independently per picture.
+border, crop back at a random offset drawn per observation (a scene and its goal picture move together).
 """
 
 from __future__ import annotations
@@ -107,8 +107,16 @@ def random_shift(images: torch.Tensor, pad: int, generator: torch.Generator | No
 
 
 def shift_pictures(obs: dict[str, torch.Tensor], pad: int, generator: torch.Generator | None = None) -> dict[str, torch.Tensor]:
-    """``obs`` with every picture (:data:`PICTURE_KEYS`) shifted by :func:`random_shift`, each on its own."""
-    return {**obs, **{k: random_shift(obs[k], pad, generator) for k in PICTURE_KEYS if k in obs}}
+    """``obs`` with its pictures (:data:`PICTURE_KEYS`) shifted by :func:`random_shift`: one offset per row,
+    shared by the row's pictures, since a scene and its goal picture come from one camera and the policy
+    reads where the scene differs from the goal (independent offsets would move that difference by up to
+    ``2 * pad`` pixels)."""
+    keys = [k for k in PICTURE_KEYS if k in obs]
+    if not keys:
+        return obs
+    channels = [obs[k].shape[-1] for k in keys]
+    shifted = random_shift(torch.cat([obs[k] for k in keys], dim=-1), pad, generator)
+    return {**obs, **dict(zip(keys, shifted.split(channels, dim=-1)))}
 
 
 def image_size(shape: tuple[int, ...]) -> int:

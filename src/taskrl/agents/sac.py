@@ -332,7 +332,7 @@ class SACAgent(Agent):
     def learn(self, batch: Batch, generator: torch.Generator | None = None) -> dict[str, torch.Tensor]:
         """The update itself (what ``--compile`` compiles): critics, actor, temperature, target critics."""
         cfg = self.config
-        if self.encoder is not None and cfg.augment_pad:  # DrQ: every picture shifted on its own
+        if self.encoder is not None and cfg.augment_pad:  # DrQ: each state's pictures shifted at random
             shift = lambda obs: shift_pictures(obs, cfg.augment_pad, generator)  # noqa: E731
             batch = batch.replace(obs=shift(batch.obs), next_obs=shift(batch.next_obs))
         self.inputs.update_statistics(batch.obs)

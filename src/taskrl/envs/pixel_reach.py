@@ -1,7 +1,8 @@
 """Reaching a goal shown as a picture: PointReach seen from above, batched in torch, no OpenGL.
 
 The policy sees two pictures, ``image`` (the scene now) and ``goal_image`` (the scene with the point at
-its goal), each ``[size, size, 3]`` uint8: a grey table, the point as a red disc. The state goal stays beside
+its goal), each ``[size, size, 3]`` uint8: a grey table, the point as a red disc drawn anti-aliased (edge pixels
+mixed by coverage, so a move of a fraction of a pixel shows). The state goal stays beside
 them (``achieved_goal``, ``desired_goal``: the point's position and its goal, as in PointReach), so the
 reward and hindsight relabelling are exact: relabelling replaces ``desired_goal`` by a position the
 episode reached and ``goal_image`` by the picture of that moment (``replay/hindsight.py``). The networks
@@ -51,14 +52,18 @@ class PixelReach(PointReach):
         )
         centres = (torch.arange(self.image_size, device=self.device, dtype=torch.float32) + 0.5) / self.image_size * 2 - 1
         self._rows, self._cols = centres.view(1, -1, 1), centres.view(1, 1, -1)  # y down the picture, x across
-        self._table = torch.tensor(TABLE, dtype=torch.uint8, device=self.device)
-        self._point = torch.tensor(POINT, dtype=torch.uint8, device=self.device)
+        self._table = torch.tensor(TABLE, dtype=torch.float32, device=self.device)
+        self._point = torch.tensor(POINT, dtype=torch.float32, device=self.device)
 
     def picture(self, position: torch.Tensor) -> torch.Tensor:
         """``[B, size, size, 3]`` uint8: the table with the point at each ``position`` (``[B, 2]``, x then y)."""
         x, y = position[:, 0].view(-1, 1, 1), position[:, 1].view(-1, 1, 1)
-        inside = (self._cols - x).square() + (self._rows - y).square() <= self.point_radius**2
-        return torch.where(inside[..., None], self._point, self._table)
+        distance = ((self._cols - x).square() + (self._rows - y).square()).sqrt()
+        # anti-aliased: a pixel's colour mixes by how much of it the disc covers (a linear ramp one pixel wide),
+        # so a move well under a pixel (the success radius is 0.8 pixel at 32x32) changes the picture
+        pixel = 2.0 / self.image_size
+        cover = ((self.point_radius - distance) / pixel + 0.5).clamp(0.0, 1.0)[..., None]
+        return (self._table + cover * (self._point - self._table)).round().to(torch.uint8)
 
     def render_rgb(self, index: int = 0) -> np.ndarray:
         """What the policy of copy ``index`` sees, the scene beside the goal picture, each pixel drawn 4x4."""
