@@ -37,6 +37,7 @@ SMALLEST: dict[str, dict[str, Any]] = {
     "bitflip": {"n_bits": 4},
     "pointreach": {},
     "pixelreach": {"image_size": 16},
+    "tabletop": {"image_size": 16},
     "fetchreach": {},
     "fetchpush": {},
     "fetchpickandplace": {},

@@ -328,8 +328,12 @@ def test_a_scene_and_its_goal_picture_are_shifted_together():
     image[:, 6, 5] = 255
     goal = torch.zeros_like(image)
     goal[:, 4, 7] = 255
-    shifted = shift_pictures({"image": image, "goal_image": goal, "achieved_goal": torch.zeros(64, 2)}, 2, torch.Generator().manual_seed(0))
+    shifted = shift_pictures(
+        {"image": image, "goal_image": goal, "achieved_goal": torch.zeros(64, 2)}, 2, torch.Generator().manual_seed(0)
+    )
     scene_at = (shifted["image"][..., 0] == 255).nonzero()[:, 1:]
     goal_at = (shifted["goal_image"][..., 0] == 255).nonzero()[:, 1:]
     assert len({tuple(m) for m in scene_at.tolist()}) > 10  # shifted, by offsets that vary over the rows
-    assert torch.equal(goal_at - scene_at, torch.tensor([[-2, 2]]).expand(64, 2))  # the goal kept where it was relative to the scene
+    assert torch.equal(
+        goal_at - scene_at, torch.tensor([[-2, 2]]).expand(64, 2)
+    )  # the goal kept where it was relative to the scene

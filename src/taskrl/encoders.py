@@ -16,19 +16,32 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-__all__ = ["ENCODERS", "PICTURE_KEYS", "ImageStateInput", "conv_stack", "random_shift", "shift_pictures", "small_resnet"]
+__all__ = [
+    "ENCODERS",
+    "PICTURE_KEYS",
+    "FiLMPictureEncoder",
+    "ImageStateInput",
+    "conv_stack",
+    "random_shift",
+    "shift_pictures",
+    "small_resnet",
+]
 
 ENCODERS = ("conv", "resnet")
 #: the observation keys that hold pictures, in the order their columns end the flat input
 PICTURE_KEYS = ("image", "goal_image")
 
 
+def _conv_blocks(channels: int) -> list[nn.Conv2d]:
+    return [nn.Conv2d(channels if i == 0 else 32, 32, 3, stride=2 if i < 3 else 1, padding=1) for i in range(4)]
+
+
 def conv_stack(channels: int) -> nn.Sequential:
     """Four 3x3 convolutions of 32 channels (DrQ's depth), the first three of stride 2: a 64x64 picture
     costs about 9 MFLOP (DrQ's single stride-2 layer would cost 50), which CPU training can afford."""
     layers: list[nn.Module] = []
-    for i in range(4):
-        layers += [nn.Conv2d(channels if i == 0 else 32, 32, 3, stride=2 if i < 3 else 1, padding=1), nn.ReLU()]
+    for conv in _conv_blocks(channels):
+        layers += [conv, nn.ReLU()]
     return nn.Sequential(*layers, nn.Flatten())
 
 
@@ -43,18 +56,22 @@ class _Residual(nn.Module):
         return x + self.body(x)
 
 
+def _resnet_blocks(channels: int) -> list[tuple[nn.Module, int]]:
+    """``(block, output channels)``: per stage a convolution with its max-pool, then two residual blocks."""
+    blocks: list[tuple[nn.Module, int]] = []
+    for width in (16, 32):
+        stem = nn.Sequential(nn.Conv2d(channels, width, 3, padding=1), nn.MaxPool2d(3, stride=2, padding=1))
+        blocks += [(stem, width), (_Residual(width), width), (_Residual(width), width)]
+        channels = width
+    return blocks
+
+
 def small_resnet(channels: int) -> nn.Sequential:
     """A small ResNet (IMPALA's shape): per stage a 3x3 convolution, a 3x3 max-pool of stride 2 and two
     residual blocks; stages of 16 and 32 channels."""
     layers: list[nn.Module] = []
-    for width in (16, 32):
-        layers += [
-            nn.Conv2d(channels, width, 3, padding=1),
-            nn.MaxPool2d(3, stride=2, padding=1),
-            _Residual(width),
-            _Residual(width),
-        ]
-        channels = width
+    for block, _ in _resnet_blocks(channels):
+        layers += list(block) if isinstance(block, nn.Sequential) else [block]
     return nn.Sequential(*layers, nn.ReLU(), nn.Flatten())
 
 
@@ -90,6 +107,60 @@ class ImageStateInput(nn.Module):
         k = self.pictures
         image = x[:, self.vector_dim :].reshape(-1, k, h, w, c).permute(0, 1, 4, 2, 3).reshape(-1, k * c, h, w) / 255.0
         return torch.cat([x[:, : self.vector_dim], self.head(self.trunk(image))], dim=1)
+
+
+class FiLMPictureEncoder(nn.Module):
+    """BC-Z's vision network at CPU scale: ``(pictures [B, H, W, C] uint8, context [B, X]) -> [B, features]``.
+
+    The blocks of :func:`conv_stack` (each convolution) or :func:`small_resnet` (each stage's convolution and
+    each residual block), every block's output FiLM-modulated channel by channel by the task's context
+    (``(1 + gamma(c)) * h + beta(c)``, identity at initialisation) as BC-Z conditions every ResNet block on the
+    task embedding, then DrQ's head (linear to ``features``, LayerNorm, tanh). Without a context
+    (``context_dim`` 0) it is the plain encoder.
+
+    Args:
+        image_shape: ``(H, W, C)``.
+        kind: ``conv`` or ``resnet``.
+        features: the output's size.
+        context_dim: the context's width (0: no FiLM).
+    """
+
+    def __init__(
+        self, image_shape: tuple[int, int, int], kind: Literal["conv", "resnet"], features: int, context_dim: int
+    ) -> None:
+        super().__init__()
+        from taskrl.conditioning.film import FiLM
+
+        h, w, c = (int(n) for n in image_shape)
+        self.image_shape = (h, w, c)
+        if kind == "conv":  # conv -> FiLM -> ReLU
+            pairs = [(conv, conv.out_channels) for conv in _conv_blocks(c)]
+        else:  # stem or residual block -> FiLM; one ReLU at the end, as small_resnet
+            pairs = _resnet_blocks(c)
+        blocks, widths = [b for b, _ in pairs], [w for _, w in pairs]
+        self.kind = kind
+        self.blocks = nn.ModuleList(blocks)
+        self.films = nn.ModuleList(FiLM(context_dim, width) for width in widths) if context_dim > 0 else None
+        with torch.no_grad():
+            flat = self._trunk(torch.zeros(1, c, h, w), None).shape[1]
+        self.head = nn.Sequential(nn.Linear(flat, features), nn.LayerNorm(features), nn.Tanh())
+        self.out_dim = int(features)
+
+    def _trunk(self, x: torch.Tensor, context: torch.Tensor | None) -> torch.Tensor:
+        for i, block in enumerate(self.blocks):
+            x = block(x)
+            if self.films is not None and context is not None:
+                gamma, beta = self.films[i].scale_shift(context)
+                x = gamma[:, :, None, None] * x + beta[:, :, None, None]
+            if self.kind == "conv":
+                x = torch.relu(x)
+        if self.kind == "resnet":
+            x = torch.relu(x)
+        return x.flatten(1)
+
+    def forward(self, pictures: torch.Tensor, context: torch.Tensor | None = None) -> torch.Tensor:
+        x = pictures.permute(0, 3, 1, 2).float() / 255.0
+        return self.head(self._trunk(x, context))
 
 
 def random_shift(images: torch.Tensor, pad: int, generator: torch.Generator | None = None) -> torch.Tensor:

@@ -10,6 +10,11 @@
     L_lang = 1 - cos(z(D), e_lang(task))  BC-Z's language regression (demo input with sentence embeddings)
     L      = L_BC + language_weight * L_lang
 
+From pixels (BC-Z's camera policy, at CPU scale): on an env with a camera the picture goes through a conv
+encoder whose every block is FiLM-modulated by the same context c (:class:`~taskrl.encoders.FiLMPictureEncoder`,
+``--encoder conv|resnet``), each training picture randomly shifted (``--augment-pad``, BC-Z's random crop);
+its features join the state vector (the robot's own pose) before the policy network.
+
 With demo input and sentence embeddings, a fraction ``language_prompts`` of each batch is conditioned
 on the sentence embedding instead of the demonstration's, so one policy follows either prompt.
 Batches are stratified over tasks (:class:`~taskrl.demos.sampling.DemoSampler`).
@@ -41,6 +46,7 @@ from taskrl.agents.spec import AlgorithmSpec
 from taskrl.conditioning.demo_encoder import DemoEncoder
 from taskrl.conditioning.networks import ConditionedMLP, ConditioningConfig
 from taskrl.conditioning.task_encoders import LanguageTaskEncoder
+from taskrl.encoders import ENCODERS, FiLMPictureEncoder, image_size, shift_pictures
 from taskrl.errors import ConfigError, one_of, require
 
 __all__ = ["BCAgent", "BCConfig"]
@@ -70,6 +76,10 @@ class BCConfig:
         weight_decay: AdamW weight decay.
         held_out_tasks: task names (comma-separated) left out of training and kept for zero-shot
             evaluation (``taskrl eval RUN --held-out``); their demonstrations still serve as prompts there.
+        encoder: on envs with a camera, the picture's encoder, FiLM-modulated by the task: ``conv`` (four 3x3
+            convolutions of 32 channels) or ``resnet`` (a small ResNet).
+        image_features: the encoded picture's size.
+        augment_pad: on envs with a camera, the random shift of every training picture (pixels of padding; 0: none).
     """
 
     dataset: str = ""
@@ -87,6 +97,9 @@ class BCConfig:
     ensemble_decay: float = 0.5
     weight_decay: float = 1e-4
     held_out_tasks: str = ""
+    encoder: Literal["conv", "resnet"] = "conv"
+    image_features: int = 64
+    augment_pad: int = 2
 
     def held_out(self) -> list[str]:
         """The held-out task names."""
@@ -101,6 +114,9 @@ class BCConfig:
         check_probability(self, "language_prompts")
         require(self.demo_frames >= 2, "demo_frames", f"must be >= 2 (got {self.demo_frames})")
         require(1 <= self.chunk <= 100, "chunk", f"must be in 1..100 (got {self.chunk})")
+        one_of(self.encoder, ENCODERS, "encoder", "encoder")
+        require(self.image_features >= 1, "image_features", f"must be >= 1 (got {self.image_features})")
+        require(self.augment_pad >= 0, "augment_pad", f"must be >= 0 (got {self.augment_pad})")
 
 
 class BCAgent(Agent):
@@ -115,9 +131,10 @@ class BCAgent(Agent):
             language targets of ``demo`` input), None on single-task envs.
     """
 
-    acting = ("policy", "normalize", "task_encoder", "demo_encoder", "prompt_demos")
+    acting = ("policy", "normalize", "task_encoder", "demo_encoder", "prompt_demos", "encoder")
     checkpointed = {
         "policy": "net",
+        "encoder": "encoder",
         "normalize": "inputs.normalize",
         "task_encoder": "task_encoder",
         "demo_encoder": "demo_encoder",
@@ -126,13 +143,22 @@ class BCAgent(Agent):
     }
 
     def __init__(self, inputs: Any, config: BCConfig, device: str | torch.device = "cpu", conditioning: Any = None) -> None:
-        self.setup(config, device, inputs.keys, inputs.dim, conditioning)
+        self.image_shape = getattr(inputs, "image_shape", None)
+        if self.image_shape is not None and len(self.image_shape) != 3:
+            raise ConfigError("env", "behaviour cloning reads one camera picture per state; this env gives goal pictures too")
+        raw = image_size(self.image_shape) if self.image_shape is not None else 0
+        self.setup(config, device, inputs.keys, inputs.dim, conditioning, raw_dim=raw)
         self.box = ActionBox(inputs.action_space, self.device)
-        self.action_dim, self.state_dim = self.box.dim, int(inputs.dim)
+        # state_dim: the state vector's width (the picture's columns excluded)
+        self.action_dim, self.state_dim = self.box.dim, int(inputs.dim) - raw
         self.language = isinstance(self.task_encoder, LanguageTaskEncoder)
         self.demo_encoder: DemoEncoder | None = None
         num_tasks = conditioning.num_tasks if conditioning is not None else 1
         if config.task_input == "demo":
+            if raw:
+                raise ConfigError(
+                    "task_input", "demo input encodes state vectors; from pictures use task input (one-hot or language)"
+                )
             if conditioning is None:
                 raise ConfigError("task_input", "demo input conditions on a task: it needs a multi-task env")
             width = self.task_encoder.embedding_dim if self.language else 64
@@ -144,8 +170,13 @@ class BCAgent(Agent):
         self.prompt_demos = torch.zeros(num_tasks, config.demo_frames, self.state_dim, device=self.device)
         outputs = self.action_dim * config.chunk * (2 if config.loss == "gaussian" else 1)
         c = conditioning.config if conditioning is not None else ConditioningConfig()
+        self.encoder: FiLMPictureEncoder | None = None
+        if raw:  # BC-Z: the picture's encoder FiLM-modulated by the task's context in every block
+            self.encoder = FiLMPictureEncoder(self.image_shape, config.encoder, config.image_features, context_dim).to(
+                self.device
+            )
         self.net = ConditionedMLP(
-            self.state_dim,
+            self.state_dim + (self.encoder.out_dim if self.encoder is not None else 0),
             outputs,
             config.hidden_sizes,
             context_dim,
@@ -153,7 +184,8 @@ class BCAgent(Agent):
             care_encoders=c.care_encoders,
             care_encoder_dim=c.care_encoder_dim,
         ).to(self.device)
-        self._params = [p for m in (self.net, self.task_encoder, self.demo_encoder) if m is not None for p in m.parameters()]
+        modules = (self.net, self.task_encoder, self.demo_encoder, self.encoder)
+        self._params = [p for m in modules if m is not None for p in m.parameters()]
         self.optimizer = torch.optim.AdamW(self._params, lr=config.lr, weight_decay=config.weight_decay)
         self.updates = 0
         self.prompts: torch.Tensor | None = None  # contexts of the tasks being acted on (None: the training tasks')
@@ -176,7 +208,10 @@ class BCAgent(Agent):
             if demos.num_episodes == 0:
                 raise ConfigError("held_out_tasks", "holds out every task of the dataset: nothing is left to train on")
         # the training tasks' states only: a held-out task's states are unseen until it is prompted
-        self.inputs.update_statistics({"observation": demos.observations.to(self.device)})
+        if self.encoder is not None and demos.images is None:
+            raise ConfigError("dataset", "the env has a camera but the dataset holds no pictures: collect it from this env")
+        if hasattr(self.inputs.normalize, "update"):  # the state vector's statistics (pictures are scaled by the encoder)
+            self.inputs.normalize.update(demos.observations.to(self.device).float())
         return DemoSampler(demos.to(self.device), chunk=self.config.chunk, frames=frames_per_prompt)
 
     # ---------------------------------------------------------------- contexts
@@ -246,7 +281,11 @@ class BCAgent(Agent):
 
     # ---------------------------------------------------------------- acting
     def _heads(self, x: torch.Tensor, context: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor | None]:
-        """``(mean [B, H, A], log_std [B, H, A] or None)`` in the unit box."""
+        """``(mean [B, H, A], log_std [B, H, A] or None)`` in the unit box, from the flat input ``x`` (the state
+        vector, then the picture's values where the env has a camera)."""
+        if self.encoder is not None:
+            picture = x[:, self.state_dim :].reshape(-1, *self.image_shape)
+            x = torch.cat([x[:, : self.state_dim], self.encoder(picture, context)], 1)
         out = self.net(x, context)
         b, h, a = out.shape[0], self.config.chunk, self.action_dim
         if self.config.loss == "gaussian":
@@ -292,7 +331,10 @@ class BCAgent(Agent):
         """One gradient step on a :class:`~taskrl.demos.sampling.DemoBatch`; returns ``bc_loss``,
         ``action_error`` (mean absolute error of the first action) and, with alignment, ``language_loss``."""
         cfg = self.config
-        x = self.inputs(batch.obs)
+        obs = batch.obs
+        if self.encoder is not None and cfg.augment_pad:  # BC-Z's random crop: every picture shifted at random
+            obs = shift_pictures(obs, cfg.augment_pad)
+        x = self.inputs(obs)
         task = batch.obs["task"].long().view(-1)
         context, language_loss = None, None
         if self.demo_encoder is not None:
@@ -333,4 +375,5 @@ SPEC = AlgorithmSpec(
     loop="offline",
     actions=("box",),
     multitask=True,
+    images=True,
 )

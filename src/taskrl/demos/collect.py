@@ -52,6 +52,7 @@ def _read_parts(folder: Path) -> list[Episode]:
                         z["rewards"][a_at[i] : a_at[i + 1]],
                         z["success"][a_at[i] : a_at[i + 1]],
                         bool(z["terminated"][i]),
+                        z["images"][o_at[i] : o_at[i + 1]] if "images" in z else None,
                     )
                 )
     return episodes
@@ -61,8 +62,10 @@ def _write_part(folder: Path, number: int, episodes: list[Episode]) -> None:
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / f"part-{number:05d}.npz"
     tmp = folder / f".part-{number:05d}.tmp.npz"
+    pictures = {"images": np.concatenate([e.images for e in episodes])} if episodes[0].images is not None else {}
     np.savez(
         tmp,
+        **pictures,
         tasks=np.array([e.task for e in episodes]),
         lengths=np.array([len(e) for e in episodes], dtype=np.int64),
         observations=np.concatenate([e.observations for e in episodes]).astype(np.float32),
@@ -232,7 +235,8 @@ def _run(src, names, tally, copies, seed, after_success, episodes, max_attempts,
         slot_names = [env.task_set.names[int(t)] for t in env.slot_tasks.tolist()]
         n = env.num_envs
         obs = env.reset(seed=seed)
-        record: list[dict[str, list]] = [{"o": [], "a": [], "r": [], "s": []} for _ in range(n)]
+        record: list[dict[str, list]] = [{"o": [], "a": [], "r": [], "s": [], "i": []} for _ in range(n)]
+        pictures = "image" in obs
         pending: list[Episode] = []
         last_flush = time.monotonic()
 
@@ -259,10 +263,14 @@ def _run(src, names, tally, copies, seed, after_success, episodes, max_attempts,
                 success = info["is_success"].detach().cpu().numpy().astype(bool)
                 ended = (terminated | truncated).detach().cpu().numpy()
                 final = info["final_obs"]["observation"].detach().cpu().numpy()
+                if pictures:  # the camera's pictures of the same steps
+                    images, final_images = obs["image"].cpu().numpy(), info["final_obs"]["image"].cpu().numpy()
                 term = terminated.detach().cpu().numpy()
                 for s in range(n):
                     r = record[s]
                     r["o"].append(states[s]), r["a"].append(labels[s]), r["r"].append(rewards[s]), r["s"].append(success[s])
+                    if pictures:
+                        r["i"].append(images[s])
                     if not ended[s]:
                         continue
                     task = slot_names[s]
@@ -277,10 +285,11 @@ def _run(src, names, tally, copies, seed, after_success, episodes, max_attempts,
                                 np.asarray(r["r"], dtype=np.float32),
                                 np.asarray(r["s"], dtype=bool),
                                 bool(term[s]),
+                                np.stack([*r["i"], final_images[s]]) if pictures else None,
                             )
                             kept.append(episode), pending.append(episode)
                             have[task] += 1
-                    record[s] = {"o": [], "a": [], "r": [], "s": []}
+                    record[s] = {"o": [], "a": [], "r": [], "s": [], "i": []}
                 obs = next_obs
                 if progress is not None:
                     progress(sum(min(v, episodes) for v in have.values()), wanted)

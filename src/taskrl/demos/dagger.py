@@ -234,7 +234,10 @@ def merge_datasets(inputs: Sequence[str | Path], out: str | Path, max_steps: int
                 break
             take = min(len(e), max_steps - total)
             if take < len(e):
-                e = Episode(e.task, e.observations[: take + 1], e.actions[:take], e.rewards[:take], e.success[:take], False)
+                pictures = None if e.images is None else e.images[: take + 1]
+                e = Episode(
+                    e.task, e.observations[: take + 1], e.actions[:take], e.rewards[:take], e.success[:take], False, pictures
+                )
             kept.append(e)
             total += take
         episodes = kept

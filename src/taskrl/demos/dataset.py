@@ -5,7 +5,8 @@ A dataset folder ``DIR`` holds one Minari dataset in ``DIR/data`` (``metadata.js
 :func:`write_dataset`:
 
 - observations ``{"observation": Box, "task": Discrete(T)}`` (the task index into the dataset's
-  own task list), actions a ``Box``; each episode's metadata names its ``task``;
+  own task list), and ``"image"`` (uint8 ``[H, W, 3]``) where the env has a camera; actions a ``Box``;
+  each episode's metadata names its ``task``;
 - the dataset's metadata adds ``tasks`` (``[{"name", "description"}, ...]``, in index order) and
   ``card`` (how it was made: source, episodes and expert success per task, seed, action noise).
 
@@ -50,6 +51,7 @@ class Episode:
         rewards: ``[T]`` the environment's rewards.
         success: ``[T]`` the environment's success flag after each step.
         terminated: whether the last step ended the episode (a success where collection stops there).
+        images: ``[T + 1, H, W, 3]`` uint8 camera pictures of the same steps (None without a camera).
     """
 
     task: str
@@ -58,6 +60,7 @@ class Episode:
     rewards: np.ndarray
     success: np.ndarray
     terminated: bool
+    images: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.actions.shape[0])
@@ -98,25 +101,29 @@ def write_dataset(
     names = [name for name, _ in tasks]
     index = {name: i for i, name in enumerate(names)}
     dim = int(episodes[0].observations.shape[1]) if episodes else 0
-    observation_space = gym.spaces.Dict(
-        {
-            "observation": gym.spaces.Box(-np.inf, np.inf, shape=(dim,), dtype=np.float32),
-            "task": gym.spaces.Discrete(len(names)),
-        }
-    )
+    pictures = bool(episodes) and episodes[0].images is not None
+    spaces = {
+        "observation": gym.spaces.Box(-np.inf, np.inf, shape=(dim,), dtype=np.float32),
+        "task": gym.spaces.Discrete(len(names)),
+    }
+    if pictures:
+        spaces["image"] = gym.spaces.Box(0, 255, shape=episodes[0].images.shape[1:], dtype=np.uint8)
+    observation_space = gym.spaces.Dict(spaces)
     out.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=".data-", dir=out))
     umask = os.umask(0)
     os.umask(umask)
     staging.chmod(0o777 & ~umask)  # mkdtemp makes it private; a dataset is read like any folder the user makes
     try:
-        storage = MinariStorage.new(staging, observation_space, action_space, data_format="hdf5")
+        # pictures stored exactly: Minari's default JPEG would smear the few pixels a small camera gives an object
+        storage = MinariStorage.new(staging, observation_space, action_space, data_format="hdf5", jpeg_encoding=False)
         buffers = [
             EpisodeBuffer(
                 id=i,
                 observations={
                     "observation": e.observations.astype(np.float32),
                     "task": np.full(len(e) + 1, index[e.task], dtype=np.int64),
+                    **({"image": e.images.astype(np.uint8)} if pictures else {}),
                 },
                 actions=e.actions.astype(np.float32),
                 rewards=[float(r) for r in e.rewards],
@@ -202,6 +209,7 @@ class Demonstrations:
         episode_tasks: ``[E]`` task index of each episode.
         task_names, descriptions: the tasks, in index order.
         card: the dataset card (``{}`` for a dataset not made by taskrl).
+        images: ``[N, H, W, 3]`` uint8 camera pictures of the same steps (None: the dataset has none).
     """
 
     observations: torch.Tensor
@@ -213,6 +221,7 @@ class Demonstrations:
     task_names: tuple[str, ...]
     descriptions: tuple[str, ...]
     card: dict[str, Any] = dataclasses.field(default_factory=dict)
+    images: torch.Tensor | None = None
 
     @property
     def num_steps(self) -> int:
@@ -248,6 +257,7 @@ class Demonstrations:
         return dataclasses.replace(
             self,
             observations=self.observations[keep_step],
+            images=None if self.images is None else self.images[keep_step],
             actions=self.actions[keep_step],
             tasks=remap[self.tasks[keep_step]],
             starts=torch.cumsum(lengths, 0) - lengths,
@@ -307,6 +317,7 @@ def _read_episodes(path: str | Path) -> tuple[dict[str, Any], list[Episode], dic
         descriptions.setdefault(task_name, task_name)
         actions = np.asarray(ep["actions"], dtype=np.float32)
         n = actions.shape[0]
+        images = obs.get("image") if isinstance(obs, dict) else None
         actions = actions.reshape(n, -1)
         success = (ep.get("infos") or {}).get("success")
         terminations = np.asarray(ep.get("terminations", np.zeros(n, bool)))
@@ -318,6 +329,7 @@ def _read_episodes(path: str | Path) -> tuple[dict[str, Any], list[Episode], dic
                 np.asarray(ep.get("rewards", np.zeros(n)), dtype=np.float32).reshape(n),
                 np.zeros(n, bool) if success is None else np.asarray(success, dtype=bool).reshape(n),
                 bool(terminations[-1]) if n else False,
+                None if images is None else np.asarray(images, dtype=np.uint8),
             )
         )
     return metadata, episodes, descriptions
@@ -333,10 +345,12 @@ def read_demonstrations(path: str | Path, device: str | torch.device = "cpu") ->
     data folder whose episodes carry a ``task`` in their metadata or observations)."""
     metadata, episodes, descriptions = _read_episodes(path)
     names = list(descriptions)
-    obs_rows, act_rows, task_rows, episode_tasks, lengths = [], [], [], [], []
+    obs_rows, act_rows, task_rows, episode_tasks, lengths, image_rows = [], [], [], [], [], []
     for episode in episodes:
         n = len(episode)
         obs_rows.append(episode.observations[:n])
+        if episode.images is not None:
+            image_rows.append(episode.images[:n])
         act_rows.append(episode.actions)
         episode_tasks.append(names.index(episode.task))
         task_rows.append(np.full(n, episode_tasks[-1], dtype=np.int64))
@@ -352,5 +366,6 @@ def read_demonstrations(path: str | Path, device: str | torch.device = "cpu") ->
         tuple(names),
         tuple(descriptions[n] for n in names),
         metadata.get("card") if isinstance(metadata.get("card"), dict) else {},
+        torch.from_numpy(np.concatenate(image_rows)) if image_rows and len(image_rows) == len(episodes) else None,
     )
     return demos.to(device)

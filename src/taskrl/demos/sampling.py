@@ -25,7 +25,7 @@ class DemoBatch:
     """One behaviour-cloning batch.
 
     Attributes:
-        obs: ``{"observation": [B, D], "task": [B]}``.
+        obs: ``{"observation": [B, D], "task": [B]}``, and ``"image"`` ``[B, H, W, 3]`` uint8 where the dataset has pictures.
         actions: ``[B, H, A]`` the expert's next H actions.
         mask: ``[B, H]`` 1 where that action exists (inside the episode).
         demo: ``[B, L, D]`` frames of a prompt demonstration of each row's task (None unless asked).
@@ -97,6 +97,8 @@ class DemoSampler:
             episode = self.episode_order[self.episode_offsets[task] + j]
             demo = self.prompt_frames[episode]
         obs = {"observation": d.observations[row], "task": task}
+        if d.images is not None:
+            obs["image"] = d.images[row]
         return DemoBatch(obs, actions, mask.float(), demo)
 
 

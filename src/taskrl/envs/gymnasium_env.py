@@ -73,7 +73,7 @@ class TaskChoiceEnv(SingleCopyEnv):
 
     @staticmethod
     def _to_numpy(obs: dict[str, torch.Tensor]) -> dict[str, Any]:
-        return {"observation": obs["observation"][0].cpu().numpy().copy(), "task": np.int64(obs["task"][0].item())}
+        return {k: np.int64(v[0].item()) if k == "task" else v[0].cpu().numpy().copy() for k, v in obs.items()}
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         obs, info = super().reset(seed=seed)

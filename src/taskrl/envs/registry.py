@@ -20,6 +20,7 @@ from taskrl.envs import (
     pixel_reach,
     point_reach,
     point_tasks,
+    tabletop,
     task_sets,
 )
 from taskrl.envs.spec import EnvFamily
@@ -34,6 +35,7 @@ BUILT_IN: tuple[EnvFamily, ...] = (
     pixel_reach.FAMILY,
     *fetch.FAMILIES,
     multitask_point.FAMILY,
+    tabletop.FAMILY,
     grid_tasks.FAMILY,
     point_tasks.FAMILY,
     grasp.FAMILY,
