@@ -13,6 +13,7 @@ from taskrl.agents.parts import ObservationInput
 from taskrl.agents.qtopt import QTOptAgent, QTOptConfig
 from taskrl.encoders import ImageStateInput, random_shift
 from taskrl.envs.grasp import Grasp, GraspSettings
+from taskrl.errors import ConfigError
 from taskrl.nets import StateActionQ
 from taskrl.replay.batch import Batch
 
@@ -236,6 +237,39 @@ def test_multitask_sac_from_the_meta_world_camera_runs_at_a_small_budget(tmp_pat
     )
     assert run.metrics["updates"] > 0 and run.agent.inputs.keys == ("image",)
     assert taskrl.load(tmp_path / "run").encoder.image_shape == (32, 32, 3)
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(300)
+def test_bc_from_the_meta_world_camera_records_pictures_and_trains_on_them_alone(tmp_path):
+    pytest.importorskip("metaworld")
+    from taskrl.demos.collect import collect_demos
+    from taskrl.demos.dataset import read_demonstrations
+
+    card = collect_demos("mt50:reach", 1, tmp_path / "demos", pictures=32)
+    demos = read_demonstrations(tmp_path / "demos")
+    assert demos.images.shape == (demos.num_steps, 32, 32, 3) and demos.observations.shape[1] == 39
+    assert card["card"]["pictures"].startswith("32x32")
+    assert (demos.images[1:].float() - demos.images[:-1].float()).abs().sum((1, 2, 3)).min() > 0  # the arm moves
+    run = small_run(
+        "bc-mt10-onehot",
+        tmp_path / "run",
+        env="mt1",
+        task="reach",
+        num_envs=1,
+        dataset=str(tmp_path / "demos"),
+        observation="pixels",
+        image_size=32,
+        total_steps=10,
+        eval_interval=10,
+        eval_episodes=1,
+        max_episode_steps=10,
+        threads=1,
+    )
+    agent = taskrl.load(tmp_path / "run")
+    assert run.metrics["updates"] == 10 and agent.inputs.keys == ("image",) and agent.encoder is not None
+    with pytest.raises(ConfigError, match="pictures"):
+        collect_demos("pointreach-mt", 1, tmp_path / "no", pictures=32)
 
 
 # ---------------------------------------------------------------------- goals given as pictures

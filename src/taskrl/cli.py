@@ -526,6 +526,14 @@ def cmd_demos(argv: Sequence[str]) -> int:
     collect.add_argument(
         "--after-success", type=int, default=10, help="Meta-World: steps kept after the first success (default 10)"
     )
+    collect.add_argument(
+        "--pictures",
+        type=int,
+        default=0,
+        metavar="SIZE",
+        help="also record each state's rendered picture, SIZE x SIZE (Meta-World; train on them with --observation "
+        "pixels or pixels+state); tabletop always records its camera",
+    )
     collect.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     dagger = sub.add_parser(
         "dagger",
@@ -608,6 +616,7 @@ def cmd_demos(argv: Sequence[str]) -> int:
             copies=args.copies,
             max_attempts=args.max_attempts,
             after_success=args.after_success,
+            pictures=args.pictures,
             progress=bar.update,
         )
     Console().print(dataset_table(card, args.out))

@@ -198,8 +198,9 @@ class BCAgent(Agent):
         demonstrations (held-out tasks excluded), and return the sampler of the batches this agent learns from (stratified over tasks)."""
         from taskrl.demos.sampling import DemoSampler, prompt_frames
 
-        with torch.no_grad():
-            self.prompt_demos.copy_(prompt_frames(demos, self.config.demo_frames))
+        if self.demo_encoder is not None:
+            with torch.no_grad():
+                self.prompt_demos.copy_(prompt_frames(demos, self.config.demo_frames))
         self._contexts = None
         frames_per_prompt = self.config.demo_frames if self.demo_encoder is not None else 0
         held_out = [n for n in self.config.held_out() if n in demos.task_names]

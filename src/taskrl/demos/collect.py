@@ -109,6 +109,7 @@ def collect_demos(
     copies: int = 1,
     max_attempts: int = 0,
     after_success: int = 10,
+    pictures: int = 0,
     flush_seconds: float = 30.0,
     progress: Callable[[int, int], Any] | None = None,
 ) -> dict[str, Any]:
@@ -125,6 +126,8 @@ def collect_demos(
         copies: env slots per task.
         max_attempts: episodes a task may try before it stops short (0: ``5 * episodes``).
         after_success: Meta-World: steps recorded after the first success before the episode ends.
+        pictures: record each state's rendered picture at this size too (``image``; sources whose env renders,
+            Meta-World's); 0: none. Envs with their own camera (``tabletop``) always record theirs.
         flush_seconds: how often finished episodes are saved (what an interruption can lose).
         progress: ``(kept, wanted)`` after every step.
     """
@@ -138,7 +141,11 @@ def collect_demos(
         raise ConfigError("max_attempts", f"must be an integer >= 0 (got {max_attempts!r})")
     if isinstance(after_success, bool) or not isinstance(after_success, int) or after_success < 0:
         raise ConfigError("after_success", f"must be an integer >= 0 (got {after_success!r})")
+    if isinstance(pictures, bool) or not isinstance(pictures, int) or not (pictures == 0 or 16 <= pictures <= 512):
+        raise ConfigError("pictures", f"must be 0 (none) or a picture size in 16..512 pixels (got {pictures!r})")
     src = demo_source(source) if isinstance(source, str) else source
+    if pictures and not src.cameras:
+        raise ConfigError("pictures", f"{src.name} cannot render pictures of its states; sources that can: Meta-World's")
     out = Path(out)
     if (out / DATA_FOLDER).exists():
         raise ConfigError("out", f"{out} already holds a dataset (see: taskrl demos info {out}); choose another --out")
@@ -150,6 +157,7 @@ def collect_demos(
         "noise_std": float(noise_std),
         "copies": copies,
         "after_success": after_success,
+        **({"pictures": pictures} if pictures else {}),
     }
     _check_settings(out, settings)
     parts = out / PARTS
@@ -176,6 +184,7 @@ def collect_demos(
             noise_std,
             flush_seconds,
             progress,
+            pictures,
         )
     by_task = {t.name: [e for e in kept if e.task == t.name][:episodes] for t in src.task_set}
     chosen = [e for t in src.task_set for e in by_task[t.name]]
@@ -195,6 +204,7 @@ def collect_demos(
         "noise_std": float(noise_std),
         "mean_length": {n: float(np.mean([len(e) for e in v])) if v else 0.0 for n, v in by_task.items()},
         "collection_seconds": round(time.perf_counter() - started, 1),
+        **({"pictures": f"{pictures}x{pictures} rendered, beside the state"} if pictures else {}),
         **({"splits": src.splits} if src.splits else {}),
     }
     # every source's experts act in [-1, 1] (Meta-World's and PointReach's action box)
@@ -223,11 +233,11 @@ class _Tally:
     number: int  # parts written
 
 
-def _run(src, names, tally, copies, seed, after_success, episodes, max_attempts, noise_std, flush_seconds, progress):
+def _run(src, names, tally, copies, seed, after_success, episodes, max_attempts, noise_std, flush_seconds, progress, pictures):
     """Run the experts of ``names`` until each has ``episodes`` successes or ``max_attempts`` tries."""
     kept, have, attempts, parts = tally.kept, tally.have, tally.attempts, tally.parts
     wanted = episodes * len(src.task_set)
-    env = src.make_env(names, copies, seed, after_success)
+    env = src.make_env(names, copies, seed, after_success, **({"image_size": pictures} if pictures else {}))
     try:
         expert = src.expert(env)
         generator = torch.Generator(device=env.device)
@@ -236,7 +246,7 @@ def _run(src, names, tally, copies, seed, after_success, episodes, max_attempts,
         n = env.num_envs
         obs = env.reset(seed=seed)
         record: list[dict[str, list]] = [{"o": [], "a": [], "r": [], "s": [], "i": []} for _ in range(n)]
-        pictures = "image" in obs
+        camera = "image" in obs
         pending: list[Episode] = []
         last_flush = time.monotonic()
 
@@ -263,13 +273,13 @@ def _run(src, names, tally, copies, seed, after_success, episodes, max_attempts,
                 success = info["is_success"].detach().cpu().numpy().astype(bool)
                 ended = (terminated | truncated).detach().cpu().numpy()
                 final = info["final_obs"]["observation"].detach().cpu().numpy()
-                if pictures:  # the camera's pictures of the same steps
+                if camera:  # the camera's pictures of the same steps
                     images, final_images = obs["image"].cpu().numpy(), info["final_obs"]["image"].cpu().numpy()
                 term = terminated.detach().cpu().numpy()
                 for s in range(n):
                     r = record[s]
                     r["o"].append(states[s]), r["a"].append(labels[s]), r["r"].append(rewards[s]), r["s"].append(success[s])
-                    if pictures:
+                    if camera:
                         r["i"].append(images[s])
                     if not ended[s]:
                         continue
@@ -285,7 +295,7 @@ def _run(src, names, tally, copies, seed, after_success, episodes, max_attempts,
                                 np.asarray(r["r"], dtype=np.float32),
                                 np.asarray(r["s"], dtype=bool),
                                 bool(term[s]),
-                                np.stack([*r["i"], final_images[s]]) if pictures else None,
+                                np.stack([*r["i"], final_images[s]]) if camera else None,
                             )
                             kept.append(episode), pending.append(episode)
                             have[task] += 1

@@ -760,15 +760,16 @@ def metaworld_demos(name: str, tasks: str | Sequence[str]) -> DemoSource:
     every episode; ``ml45``: all 50 tasks, with ML45's split (45 training, 5 test tasks) in the card."""
     task_set = metaworld_task_set(tasks)
 
-    def make_env(names: Sequence[str], copies: int, seed: int, after_success: int) -> BatchedEnv:
+    def make_env(names: Sequence[str], copies: int, seed: int, after_success: int, image_size: int = 0) -> BatchedEnv:
+        camera = {"observation": "pixels+state", "image_size": image_size} if image_size else {}
         return MetaWorldMultiTaskEnv(
-            list(names), envs_per_task=copies, seed=seed, terminate_on_success=True, success_hold=after_success
+            list(names), envs_per_task=copies, seed=seed, terminate_on_success=True, success_hold=after_success, **camera
         )
 
     splits = {}
     if name == "ml45":
         splits = {"train": [n for n in task_set.names if n not in ML45_TEST_TASKS], "test": list(ML45_TEST_TASKS)}
-    return DemoSource(name, task_set, make_env, metaworld_expert, "any", splits)
+    return DemoSource(name, task_set, make_env, metaworld_expert, "any", splits, cameras=True)
 
 
 def metaworld_expert(env: Any) -> Expert:

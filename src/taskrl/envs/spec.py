@@ -74,6 +74,8 @@ class DemoSource:
         expert: ``env -> (obs -> actions)``: the batched expert of that env's slots.
         success: ``any`` (the episode ends at its first success) or ``final`` (success at the last step).
         splits: named task lists (ML45's ``train`` and ``test``), recorded in the dataset card.
+        cameras: ``make_env`` also takes ``image_size=N`` and then gives each state's rendered picture as ``image``
+            beside the state the expert reads (what ``taskrl demos collect --pictures N`` records).
     """
 
     name: str
@@ -82,6 +84,7 @@ class DemoSource:
     expert: Callable[[BatchedEnv], Expert]
     success: Literal["any", "final"]
     splits: dict[str, list[str]] = dataclasses.field(default_factory=dict)
+    cameras: bool = False
 
 
 @dataclasses.dataclass(frozen=True)
