@@ -178,3 +178,13 @@ def test_the_pixel_bc_preset_trains_and_reloads_from_the_cli(tmp_path):
 
     held = evaluate_prompted(tmp_path / "run", episodes=1)
     assert set(held["tasks"]) == set(HELD_OUT)
+
+
+def test_pictures_of_another_size_than_the_runs_are_refused_in_one_line(reach_demos):
+    from taskrl.errors import ConfigError
+
+    conditioning = TaskConditioning(OneHotTaskEncoder(2), ConditioningConfig(architecture="film"))
+    inputs = AgentInputs(("observation", "image"), 2 + 16 * 16 * 3, gym.spaces.Box(-1.0, 1.0, (2,), np.float32), (16, 16, 3))
+    agent = BCAgent(inputs, BCConfig(hidden_sizes=(8,)), "cpu", conditioning)
+    with pytest.raises(ConfigError, match="--image-size 32"):
+        agent.use_dataset(read_demonstrations(reach_demos))

@@ -532,7 +532,7 @@ def cmd_demos(argv: Sequence[str]) -> int:
         default=0,
         metavar="SIZE",
         help="also record each state's rendered picture, SIZE x SIZE (Meta-World; train on them with --observation "
-        "pixels or pixels+state); tabletop always records its camera",
+        "pixels or pixels+state); tabletop always records its camera, at SIZE where given (default 32)",
     )
     collect.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     dagger = sub.add_parser(

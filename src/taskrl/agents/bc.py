@@ -211,6 +211,13 @@ class BCAgent(Agent):
         # the training tasks' states only: a held-out task's states are unseen until it is prompted
         if self.encoder is not None and demos.images is None:
             raise ConfigError("dataset", "the env has a camera but the dataset holds no pictures: collect it from this env")
+        if self.encoder is not None and tuple(demos.images.shape[1:]) != tuple(self.image_shape):
+            size = demos.images.shape[1]
+            raise ConfigError(
+                "image_size",
+                f"the dataset's pictures are {size}x{size} but the run's are {self.image_shape[0]}x{self.image_shape[1]}: "
+                f"train with --image-size {size}, or collect with --pictures {self.image_shape[0]}",
+            )
         if hasattr(self.inputs.normalize, "update"):  # the state vector's statistics (pictures are scaled by the encoder)
             self.inputs.normalize.update(demos.observations.to(self.device).float())
         return DemoSampler(demos.to(self.device), chunk=self.config.chunk, frames=frames_per_prompt)

@@ -127,7 +127,8 @@ def collect_demos(
         max_attempts: episodes a task may try before it stops short (0: ``5 * episodes``).
         after_success: Meta-World: steps recorded after the first success before the episode ends.
         pictures: record each state's rendered picture at this size too (``image``; sources whose env renders,
-            Meta-World's); 0: none. Envs with their own camera (``tabletop``) always record theirs.
+            Meta-World's); 0: none. A source with its own camera (``tabletop``) always records it, at this size
+            where given.
         flush_seconds: how often finished episodes are saved (what an interruption can lose).
         progress: ``(kept, wanted)`` after every step.
     """
@@ -145,7 +146,9 @@ def collect_demos(
         raise ConfigError("pictures", f"must be 0 (none) or a picture size in 16..512 pixels (got {pictures!r})")
     src = demo_source(source) if isinstance(source, str) else source
     if pictures and not src.cameras:
-        raise ConfigError("pictures", f"{src.name} cannot render pictures of its states; sources that can: Meta-World's")
+        raise ConfigError(
+            "pictures", f"{src.name} cannot render pictures of its states; sources that can: Meta-World's, tabletop"
+        )
     out = Path(out)
     if (out / DATA_FOLDER).exists():
         raise ConfigError("out", f"{out} already holds a dataset (see: taskrl demos info {out}); choose another --out")

@@ -281,15 +281,15 @@ def _demos(tasks: Sequence[str] | None) -> DemoSource:
     if unknown:
         raise ValueError(f"unknown tabletop tasks {unknown}; allowed: {', '.join(n for n, _ in TABLETOP_TASKS)}")
 
-    def make_env(chosen: Sequence[str], copies: int, seed: int, after_success: int) -> BatchedEnv:
+    def make_env(chosen: Sequence[str], copies: int, seed: int, after_success: int, image_size: int = 32) -> BatchedEnv:
         ordered = [n for n in names if n in chosen]
-        return Tabletop(num_envs=len(ordered) * copies, tasks=ordered, task_sampling="fixed", seed=seed)
+        return Tabletop(num_envs=len(ordered) * copies, tasks=ordered, task_sampling="fixed", seed=seed, image_size=image_size)
 
     def expert(env: Any) -> Expert:
         return env.expert
 
     task_set = TaskSet.from_pairs((n, dict(TABLETOP_TASKS)[n]) for n in names)
-    return DemoSource("tabletop", task_set, make_env, expert, "any", splits={"held_out": list(HELD_OUT)})
+    return DemoSource("tabletop", task_set, make_env, expert, "any", splits={"held_out": list(HELD_OUT)}, cameras=True)
 
 
 FAMILY = EnvFamily(
