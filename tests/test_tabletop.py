@@ -188,3 +188,13 @@ def test_pictures_of_another_size_than_the_runs_are_refused_in_one_line(reach_de
     agent = BCAgent(inputs, BCConfig(hidden_sizes=(8,)), "cpu", conditioning)
     with pytest.raises(ConfigError, match="--image-size 32"):
         agent.use_dataset(read_demonstrations(reach_demos))
+
+
+def test_the_video_env_numbers_the_tasks_as_the_run_does():
+    from taskrl.envs.registry import env_family
+    from taskrl.envs.tabletop import TabletopSettings
+
+    settings = TabletopSettings()
+    video = env_family("tabletop").video_env(settings)
+    assert video.unwrapped.task_set.names == settings.names() == [n for n, _ in TABLETOP_TASKS if n not in HELD_OUT]
+    video.close()

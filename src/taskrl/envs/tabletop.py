@@ -221,12 +221,13 @@ class TabletopGymEnv(TaskChoiceEnv):
     drawn at every reset or fixed by ``options={"task": i}`` (an index or a name).
 
     Args:
+        tasks: the task names, in index order (default all nine).
         image_size: the camera picture's side in pixels.
         render_mode: None or ``rgb_array``.
     """
 
-    def __init__(self, image_size: int = 32, render_mode: str | None = None) -> None:
-        self._wrap_tasks(Tabletop(num_envs=1, image_size=image_size, horizon=2**62, seed=0), render_mode)
+    def __init__(self, tasks: Sequence[str] | None = None, image_size: int = 32, render_mode: str | None = None) -> None:
+        self._wrap_tasks(Tabletop(num_envs=1, tasks=tasks, image_size=image_size, horizon=2**62, seed=0), render_mode)
 
 
 @dataclasses.dataclass
@@ -306,5 +307,5 @@ FAMILY = EnvFamily(
     demos=_demos,
     tasks_env=lambda settings, request, names: _tables(settings, request, names, len(names) * request.eval_episodes, "fixed"),
     task_sentences=lambda settings: {n: [d, *PARAPHRASES[n]] for n, d in TABLETOP_TASKS},
-    video_env=lambda s: gym.make("taskrl/Tabletop-v0", image_size=s.image_size, render_mode="rgb_array"),
+    video_env=lambda s: gym.make("taskrl/Tabletop-v0", tasks=s.names(), image_size=s.image_size, render_mode="rgb_array"),
 )
