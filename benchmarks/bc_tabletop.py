@@ -8,9 +8,8 @@ prompted by their description, a paraphrase and the two controls (a null prompt,
 description): ``taskrl eval RUN --held-out --prompt P``. Raw results: ``benchmarks/results/bc_tabletop_NAME.json``;
 a section in RESULTS.md and a figure, ``benchmarks/figures/bc_tabletop.png``.
 
-    .venv/bin/python benchmarks/bc_tabletop.py --demos 100 --seeds 0 1 2 --name a
-    .venv/bin/python benchmarks/bc_tabletop.py --demos 10 25 --seeds 0 1 2 --name b   # on the other core
-    .venv/bin/python benchmarks/bc_tabletop.py --report benchmarks/results/bc_tabletop_a.json benchmarks/results/bc_tabletop_b.json
+    .venv/bin/python benchmarks/bc_tabletop.py --demos 10 25 100 --seeds 0 1 2
+    .venv/bin/python benchmarks/bc_tabletop.py --report benchmarks/results/bc_tabletop_main.json   # the section again
 """
 
 from __future__ import annotations
