@@ -213,7 +213,7 @@ PRESETS: dict[str, Preset] = {
     ),
     "pixelreach-sac-her": Preset(
         "SAC + hindsight relabelling on PixelReach: PointReach seen as a 32x32 picture, the goal given as a picture; "
-        "random shifts of up to 2 pixels (4 did not learn in 20k env steps)",
+        "random shifts of up to 2 pixels",
         {**_POINTREACH, **_SAC, "env": "pixelreach", "augment_pad": 2, "total_steps": 100_000},
     ),
     "pointreach-qtopt-her": Preset(
