@@ -75,8 +75,9 @@ def report(results: list[dict], args) -> None:
         "Each run its own process with one torch thread, the other core busy with other benchmarks; each preset's own "
         "settings (16 copies, 0.25 updates per env step, batch 256, (64, 64) networks, gamma 0.95; from pictures the DrQ "
         "encoder reads the 32x32 scene and goal pictures stacked, random shifts of up to 2 pixels, one offset per "
-        f"state); stopped at the first evaluation at or above {TARGET} (100 episodes every 3,000 env steps), at the "
-        f"40,000-step budget or after {args.max_hours} h. Raw curves: `benchmarks/results/pixel_goals.json`.",
+        f"state; pictures centred before the encoder); stopped at the first evaluation at or above {TARGET} (100 episodes "
+        f"every 3,000 env steps), at the preset's budget (pictures 100,000 env steps, states 40,000) or after "
+        f"{args.max_hours} h. Raw curves: `benchmarks/results/pixel_goals.json`.",
         "",
         f"| input | seed | env steps to {TARGET} | updates | training s | last success | updates/s |",
         "|---|---|---|---|---|---|---|",
