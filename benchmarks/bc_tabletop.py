@@ -90,7 +90,7 @@ def figure(results: list[dict], demos: list[int]) -> None:
     ax.set_xlabel("demonstrations per task")
     ax.set_ylabel("success (seeds pooled, 95% interval)")
     ax.set_ylim(0, 1.02)
-    ax.legend(fontsize=7)
+    ax.legend(fontsize=7, loc="upper left")
     ax.set_title("BC-Z from 32x32 pictures on the tabletop")
     FIGURE.parent.mkdir(exist_ok=True)
     fig.tight_layout()
@@ -103,7 +103,8 @@ def report(results: list[dict], args) -> None:
     seeds = sorted({r["seed"] for r in results})
     first = results[0]
     lines = [
-        f"Preset `{PRESET}` (each run its own process, one torch thread; `{' '.join(args.extra) or 'no extra flags'}`): "
+        f"Preset `{PRESET}` (each run its own process, one torch thread{', with `' + ' '.join(args.extra) + '`' if args.extra else ''}; "
+        "the other core ran other benchmarks): "
         f"{first['updates']:,} updates per run, seeds {seeds}. Datasets: `taskrl demos collect tabletop --episodes N "
         f"--noise {NOISE}` (seed 1; DART: noisy actions run, the expert's labelled). Evaluation: "
         f"{first['episodes']} episodes per task, success at any step of 50 (episodes end at success); "
