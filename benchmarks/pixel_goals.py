@@ -1,13 +1,16 @@
-"""Goals as pictures against goals as states: SAC + HER on PixelReach against PointReach, the price of pixels.
+"""Goals as pictures against goals as states: SAC + HER from pictures and from positions, the price of pixels.
 
-For every seed: ``taskrl train pixelreach-sac-her --seed S --stop-at-success 0.9`` (the scene and the goal as
-32x32 pictures) and ``taskrl train pointreach-sac-her --seed S --stop-at-success 0.9`` (the same task from
-positions), each its own process with one torch thread. A run directory that already holds a finished run is
+Two tasks (``--task``): ``reach`` (PixelReach against PointReach: the agent itself moves to the goal) and
+``push`` (PixelPush from pictures against PixelPush from positions: a block pushed to a goal). For every seed:
+``taskrl train PICTURES_PRESET --seed S --stop-at-success 0.9`` (the scene and the goal as 32x32 pictures) and
+``taskrl train STATES_PRESET --seed S --stop-at-success 0.9`` (the same task from positions), each its own
+process with one torch thread. A run directory that already holds a finished run is
 read instead of trained again, so runs made by hand with these commands (or a stopped benchmark) count.
 Extra arms (``--arm NAME=FLAGS``, e.g. ``--arm "shift 4=--augment-pad 4"``) run the pixel preset with other
 flags. Raw per-evaluation curves: ``benchmarks/results/pixel_goals.json``; a RESULTS section.
 
     .venv/bin/python benchmarks/pixel_goals.py --seeds 0 1 2 --out /work/runs-bench/pixel-goals
+    .venv/bin/python benchmarks/pixel_goals.py --task push --seeds 0 1 2 --out /work/runs-bench/pixel-push
 """
 
 from __future__ import annotations
@@ -26,7 +29,26 @@ from common import append_results  # noqa: E402
 
 TASKRL = str(Path(sys.executable).with_name("taskrl"))
 TARGET = 0.9
-INPUTS = {"pictures": "pixelreach-sac-her", "states": "pointreach-sac-her"}
+#: task -> input -> preset
+TASKS = {
+    "reach": {"pictures": "pixelreach-sac-her", "states": "pointreach-sac-her"},
+    "push": {"pictures": "pixelpush-sac-her", "states": "pixelpush-state-sac-her"},
+}
+#: task -> (RESULTS title, raw data file, what the presets set)
+REPORTS = {
+    "reach": (
+        "Goal pictures: SAC + HER on PixelReach from pictures against states",
+        "pixel_goals.json",
+        "16 copies, 0.25 updates per env step, batch 256, (64, 64) networks, gamma 0.95; budgets: pictures 100,000 "
+        "env steps, states 40,000",
+    ),
+    "push": (
+        "Goal pictures: SAC + HER on PixelPush (a block to push) from pictures against states",
+        "pixel_goals_push.json",
+        "16 copies, 0.25 updates per env step, batch 256, (256, 256) networks, gamma 0.95; from pictures the pusher's "
+        "position beside them, from states the pusher's and the block's; budgets 300,000 env steps",
+    ),
+}
 
 
 def train(preset: str, seed: int, run_dir: Path, flags: list[str], max_hours: float) -> list[dict]:
@@ -47,18 +69,20 @@ def first_at_target(curve: list[dict]) -> dict | None:
 
 def main() -> None:
     parser = argparse.ArgumentParser()
+    parser.add_argument("--task", choices=sorted(TASKS), default="reach")
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--out", default="runs/bench-pixel-goals")
     parser.add_argument("--max-hours", type=float, default=1.0, help="per run (the issue's budget: 1 hour)")
     parser.add_argument("--arm", action="append", default=[], help="NAME=FLAGS: the pixel preset with other flags")
     parser.add_argument("--arm-seeds", nargs="+", type=int, default=[0], help="seeds of the extra arms")
     args = parser.parse_args()
-    arms = [("pictures", INPUTS["pictures"], [], args.seeds), ("states", INPUTS["states"], [], args.seeds)]
+    inputs = TASKS[args.task]
+    arms = [("pictures", inputs["pictures"], [], args.seeds), ("states", inputs["states"], [], args.seeds)]
     for spec in args.arm:
         name, _, flags = spec.partition("=")
-        arms.append((f"pictures, {name}", INPUTS["pictures"], shlex.split(flags), args.arm_seeds))
+        arms.append((f"pictures, {name}", inputs["pictures"], shlex.split(flags), args.arm_seeds))
     results = []
-    raw = Path("benchmarks/results/pixel_goals.json")
+    raw = Path("benchmarks/results") / REPORTS[args.task][1]
     for name, preset, flags, seeds in arms:
         for seed in seeds:
             slug = name.replace(", ", "-").replace(" ", "")
@@ -71,13 +95,14 @@ def main() -> None:
 
 
 def report(results: list[dict], args) -> None:
+    title, raw, settings = REPORTS[args.task]
+    interval = {"reach": "3,000", "push": "10,000"}[args.task]
     lines = [
         "Each run its own process with one torch thread, the other core busy with other benchmarks; each preset's own "
-        "settings (16 copies, 0.25 updates per env step, batch 256, (64, 64) networks, gamma 0.95; from pictures the DrQ "
-        "encoder reads the 32x32 scene and goal pictures stacked, random shifts of up to 2 pixels, one offset per "
-        f"state; pictures centred before the encoder); stopped at the first evaluation at or above {TARGET} (100 episodes "
-        f"every 3,000 env steps), at the preset's budget (pictures 100,000 env steps, states 40,000) or after "
-        f"{args.max_hours} h. Raw curves: `benchmarks/results/pixel_goals.json`.",
+        f"settings ({settings}; from pictures the DrQ encoder reads the 32x32 scene and goal pictures stacked, random "
+        "shifts of up to 2 pixels, one offset per state; pictures centred before the encoder); stopped at the first "
+        f"evaluation at or above {TARGET} (100 episodes every {interval} env steps), at the preset's budget or after "
+        f"{args.max_hours} h. Raw curves: `benchmarks/results/{raw}`.",
         "",
         f"| input | seed | env steps to {TARGET} | updates | training s | last success | updates/s |",
         "|---|---|---|---|---|---|---|",
@@ -93,7 +118,7 @@ def report(results: list[dict], args) -> None:
         )
     price = []
     for seed in sorted({r["seed"] for r in results}):
-        pair = {r["arm"]: first_at_target(r["curve"]) for r in results if r["seed"] == seed and r["arm"] in INPUTS}
+        pair = {r["arm"]: first_at_target(r["curve"]) for r in results if r["seed"] == seed and r["arm"] in TASKS[args.task]}
         if pair.get("pictures") and pair.get("states"):
             price.append(
                 (
@@ -110,7 +135,7 @@ def report(results: list[dict], args) -> None:
             + ", ".join(f"{p[1]:.0f}x" for p in price)
             + f" (median {statistics.median(p[1] for p in price):.0f}x).",
         ]
-    append_results("Goal pictures: SAC + HER on PixelReach from pictures against states", "\n".join(lines))
+    append_results(title, "\n".join(lines))
 
 
 if __name__ == "__main__":

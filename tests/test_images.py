@@ -371,3 +371,20 @@ def test_a_scene_and_its_goal_picture_are_shifted_together():
     assert torch.equal(
         goal_at - scene_at, torch.tensor([[-2, 2]]).expand(64, 2)
     )  # the goal kept where it was relative to the scene
+
+
+def test_the_rl_encoders_start_orthogonal_as_drqs_and_behaviour_cloning_keeps_torchs_default():
+    from taskrl.encoders import FiLMPictureEncoder
+
+    def orthogonal(conv: torch.nn.Conv2d) -> bool:
+        w = conv.weight.detach().flatten(1)  # [out, in * 9]: rows (or columns, if fewer) orthonormal up to ReLU's gain
+        gram = w @ w.T if w.shape[0] <= w.shape[1] else w.T @ w
+        return torch.allclose(gram, 2.0 * torch.eye(len(gram)), atol=1e-4) and not conv.bias.detach().any()
+
+    for kind in ("conv", "resnet"):
+        rl = ImageStateInput(2, (32, 32, 3), kind, 16)
+        bc = FiLMPictureEncoder((32, 32, 3), kind, 16, context_dim=4)
+        rl_convs = [m for m in rl.modules() if isinstance(m, torch.nn.Conv2d)]
+        bc_convs = [m for m in bc.modules() if isinstance(m, torch.nn.Conv2d)]
+        assert len(rl_convs) >= 4 and all(orthogonal(c) for c in rl_convs)
+        assert len(bc_convs) == len(rl_convs) and not any(orthogonal(c) for c in bc_convs)

@@ -32,45 +32,57 @@ ENCODERS = ("conv", "resnet")
 PICTURE_KEYS = ("image", "goal_image")
 
 
-def _conv_blocks(channels: int) -> list[nn.Conv2d]:
-    return [nn.Conv2d(channels if i == 0 else 32, 32, 3, stride=2 if i < 3 else 1, padding=1) for i in range(4)]
+def _conv(channels: int, out: int, stride: int = 1, orthogonal: bool = True) -> nn.Conv2d:
+    """A 3x3 convolution; ``orthogonal``: initialised as DrQ's are (orthogonal weights with ReLU's gain, zero bias),
+    else PyTorch's default. The RL encoders use DrQ's: PyTorch's shrinks the signal at every layer, and on the
+    grasp bin's pictures (mostly floor) the critic's network, taught "would closing here hold an object" directly
+    (``benchmarks/grasp_probe.py``), stayed at AUC 0.51 for 3,000 updates with it against 0.79 with DrQ's.
+    Behaviour cloning keeps PyTorch's: on the tabletop's reach test it cloned better with it (3 seeds)."""
+    conv = nn.Conv2d(channels, out, 3, stride=stride, padding=1)
+    if orthogonal:
+        nn.init.orthogonal_(conv.weight, nn.init.calculate_gain("relu"))
+        nn.init.zeros_(conv.bias)
+    return conv
 
 
-def conv_stack(channels: int) -> nn.Sequential:
+def _conv_blocks(channels: int, orthogonal: bool = True) -> list[nn.Conv2d]:
+    return [_conv(channels if i == 0 else 32, 32, 2 if i < 3 else 1, orthogonal) for i in range(4)]
+
+
+def conv_stack(channels: int, orthogonal: bool = True) -> nn.Sequential:
     """Four 3x3 convolutions of 32 channels (DrQ's depth), the first three of stride 2: a 64x64 picture
     costs about 9 MFLOP (DrQ's single stride-2 layer would cost 50), which CPU training can afford."""
     layers: list[nn.Module] = []
-    for conv in _conv_blocks(channels):
+    for conv in _conv_blocks(channels, orthogonal):
         layers += [conv, nn.ReLU()]
     return nn.Sequential(*layers, nn.Flatten())
 
 
 class _Residual(nn.Module):
-    def __init__(self, channels: int) -> None:
+    def __init__(self, channels: int, orthogonal: bool) -> None:
         super().__init__()
-        self.body = nn.Sequential(
-            nn.ReLU(), nn.Conv2d(channels, channels, 3, padding=1), nn.ReLU(), nn.Conv2d(channels, channels, 3, padding=1)
-        )
+        conv = [_conv(channels, channels, orthogonal=orthogonal) for _ in range(2)]
+        self.body = nn.Sequential(nn.ReLU(), conv[0], nn.ReLU(), conv[1])
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return x + self.body(x)
 
 
-def _resnet_blocks(channels: int) -> list[tuple[nn.Module, int]]:
+def _resnet_blocks(channels: int, orthogonal: bool = True) -> list[tuple[nn.Module, int]]:
     """``(block, output channels)``: per stage a convolution with its max-pool, then two residual blocks."""
     blocks: list[tuple[nn.Module, int]] = []
     for width in (16, 32):
-        stem = nn.Sequential(nn.Conv2d(channels, width, 3, padding=1), nn.MaxPool2d(3, stride=2, padding=1))
-        blocks += [(stem, width), (_Residual(width), width), (_Residual(width), width)]
+        stem = nn.Sequential(_conv(channels, width, orthogonal=orthogonal), nn.MaxPool2d(3, stride=2, padding=1))
+        blocks += [(stem, width), (_Residual(width, orthogonal), width), (_Residual(width, orthogonal), width)]
         channels = width
     return blocks
 
 
-def small_resnet(channels: int) -> nn.Sequential:
+def small_resnet(channels: int, orthogonal: bool = True) -> nn.Sequential:
     """A small ResNet (IMPALA's shape): per stage a 3x3 convolution, a 3x3 max-pool of stride 2 and two
     residual blocks; stages of 16 and 32 channels."""
     layers: list[nn.Module] = []
-    for block, _ in _resnet_blocks(channels):
+    for block, _ in _resnet_blocks(channels, orthogonal):
         layers += list(block) if isinstance(block, nn.Sequential) else [block]
     return nn.Sequential(*layers, nn.ReLU(), nn.Flatten())
 
@@ -136,9 +148,9 @@ class FiLMPictureEncoder(nn.Module):
         h, w, c = (int(n) for n in image_shape)
         self.image_shape = (h, w, c)
         if kind == "conv":  # conv -> FiLM -> ReLU
-            pairs = [(conv, conv.out_channels) for conv in _conv_blocks(c)]
+            pairs = [(conv, conv.out_channels) for conv in _conv_blocks(c, orthogonal=False)]
         else:  # stem or residual block -> FiLM; one ReLU at the end, as small_resnet
-            pairs = _resnet_blocks(c)
+            pairs = _resnet_blocks(c, orthogonal=False)
         blocks, widths = [b for b, _ in pairs], [w for _, w in pairs]
         self.kind = kind
         self.blocks = nn.ModuleList(blocks)

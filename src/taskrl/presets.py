@@ -30,6 +30,15 @@ _POINTREACH = {
     "lr": 1e-3,
     "gamma": 0.95,
 }
+# PixelPush: PointReach's scale with FetchPush's network width (an object to move needs more than reaching)
+_PIXELPUSH = {
+    **_POINTREACH,
+    **_SAC,
+    "env": "pixelpush",
+    "hidden_sizes": (256, 256),
+    "total_steps": 300_000,
+    "eval_interval": 10_000,
+}
 _FETCH = {
     **_CONTINUOUS_HER,
     "num_envs": 2,
@@ -215,6 +224,15 @@ PRESETS: dict[str, Preset] = {
         "SAC + hindsight relabelling on PixelReach: PointReach seen as a 32x32 picture, the goal given as a picture; "
         "random shifts of up to 2 pixels",
         {**_POINTREACH, **_SAC, "env": "pixelreach", "augment_pad": 2, "total_steps": 100_000},
+    ),
+    "pixelpush-sac-her": Preset(
+        "SAC + hindsight relabelling on PixelPush: push a block to a goal shown as a picture (32x32 scene and goal "
+        "pictures, the pusher's position), random shifts of up to 2 pixels",
+        {**_PIXELPUSH, "augment_pad": 2},
+    ),
+    "pixelpush-state-sac-her": Preset(
+        "SAC + hindsight relabelling on PixelPush from positions (pusher, block, goal): the control without pictures",
+        {**_PIXELPUSH, "observation": "state"},
     ),
     "pointreach-qtopt-her": Preset(
         "QT-Opt (Q-learning, CEM argmax) + hindsight relabelling on PointReach (sparse reward)",

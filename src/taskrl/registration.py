@@ -19,6 +19,7 @@ NATIVE_IDS: dict[str, tuple[str, int | None]] = {
     "taskrl/PointTasks-v0": ("taskrl.envs.point_tasks:PointTasksGymEnv", 40),
     "taskrl/Grasp-v0": ("taskrl.envs.grasp:GraspGymEnv", None),
     "taskrl/PixelReach-v0": ("taskrl.envs.pixel_reach:PixelReachGymEnv", 50),
+    "taskrl/PixelPush-v0": ("taskrl.envs.pixel_push:PixelPushGymEnv", 50),
     "taskrl/Tabletop-v0": ("taskrl.envs.tabletop:TabletopGymEnv", 50),
 }
 

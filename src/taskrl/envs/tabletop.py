@@ -76,6 +76,40 @@ def _parse(name: str) -> tuple[int, int]:
     return list(VERBS).index(verb), list(COLOURS).index(colour)
 
 
+def move_pusher(pusher: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+    """``[B, 2]``: the pusher moved by ``action * MAX_SPEED`` (the action clipped to ``[-1, 1]^2``), kept on the table."""
+    return (pusher + action.clamp(-1.0, 1.0) * MAX_SPEED).clamp(-1.0 + PUSHER, 1.0 - PUSHER)
+
+
+def shove(pusher: torch.Tensor, blocks: torch.Tensor) -> torch.Tensor:
+    """``[B, K, 2]``: each block the pusher (``[B, 2]``) overlaps pushed out along the line between their centres,
+    so the pusher shoves what it runs into; blocks stay on the table."""
+    offset = blocks - pusher[:, None]
+    distance = torch.linalg.vector_norm(offset, dim=-1, keepdim=True).clamp(min=1e-6)
+    contact = PUSHER + BLOCK
+    pushed = pusher[:, None] + offset / distance * contact
+    return torch.where(distance < contact, pushed, blocks).clamp(-1.0 + BLOCK, 1.0 - BLOCK)
+
+
+def draw_table(blocks: torch.Tensor, colours: torch.Tensor, pusher: torch.Tensor, size: int) -> torch.Tensor:
+    """``[B, size, size, 3]`` uint8: the table from above (x across, y up), square blocks (``[B, K, 2]`` centres,
+    ``[K, 3]`` colours) and the round pusher (``[B, 2]``) on top, drawn anti-aliased: a pixel's colour mixes by
+    how much of it a shape covers (a linear ramp one pixel wide), so a move under a pixel shows."""
+    device = blocks.device
+    centres = (torch.arange(size, device=device, dtype=torch.float32) + 0.5) / size * 2 - 1
+    x, y = centres.view(1, 1, -1), -centres.view(1, -1, 1)  # y up the table, rows down the picture
+    pixel = 2.0 / size
+    image = torch.tensor(TABLE, dtype=torch.float32, device=device).expand(len(blocks), size, size, 3)
+    for k in range(blocks.shape[1]):  # squares: coverage from the distance to the nearer edge
+        dx, dy = (x - blocks[:, k, 0].view(-1, 1, 1)).abs(), (y - blocks[:, k, 1].view(-1, 1, 1)).abs()
+        cover = ((BLOCK - torch.maximum(dx, dy)) / pixel + 0.5).clamp(0.0, 1.0)[..., None]
+        image = image + cover * (colours[k] - image)
+    distance = ((x - pusher[:, 0].view(-1, 1, 1)).square() + (y - pusher[:, 1].view(-1, 1, 1)).square()).sqrt()
+    cover = ((PUSHER - distance) / pixel + 0.5).clamp(0.0, 1.0)[..., None]
+    image = image + cover * (torch.tensor(PUSHER_COLOUR, dtype=torch.float32, device=device) - image)
+    return image.round().to(torch.uint8)
+
+
 class Tabletop(NativeEnv):
     """``num_envs`` tables at once (see the module docstring).
 
@@ -126,11 +160,7 @@ class Tabletop(NativeEnv):
         self.task = torch.arange(b, device=self.device) % len(names)
         self.slot_tasks = self.task.clone() if task_sampling == "fixed" else None
         self.t = torch.zeros(b, dtype=torch.long, device=self.device)
-        centres = (torch.arange(size, device=self.device, dtype=torch.float32) + 0.5) / size * 2 - 1
-        self._x, self._y = centres.view(1, 1, -1), -centres.view(1, -1, 1)  # y up the table, rows down the picture
         self._colours = torch.tensor(list(COLOURS.values()), dtype=torch.float32, device=self.device)
-        self._table = torch.tensor(TABLE, dtype=torch.float32, device=self.device)
-        self._pusher_colour = torch.tensor(PUSHER_COLOUR, dtype=torch.float32, device=self.device)
         self._cells = _CELLS.to(self.device)
 
     # ------------------------------------------------------------------ state
@@ -161,32 +191,15 @@ class Tabletop(NativeEnv):
 
     def picture(self) -> torch.Tensor:
         """``[B, size, size, 3]`` uint8: the table from above, the blocks and the pusher drawn anti-aliased."""
-        pixel = 2.0 / self.image_size
-        image = self._table.expand(self.num_envs, self.image_size, self.image_size, 3)
-        for k in range(len(COLOURS)):  # squares: coverage from the distance to the nearer edge
-            dx = (self._x - self.blocks[:, k, 0].view(-1, 1, 1)).abs()
-            dy = (self._y - self.blocks[:, k, 1].view(-1, 1, 1)).abs()
-            cover = ((BLOCK - torch.maximum(dx, dy)) / pixel + 0.5).clamp(0.0, 1.0)[..., None]
-            image = image + cover * (self._colours[k] - image)
-        distance = (
-            (self._x - self.pusher[:, 0].view(-1, 1, 1)).square() + (self._y - self.pusher[:, 1].view(-1, 1, 1)).square()
-        ).sqrt()
-        cover = ((PUSHER - distance) / pixel + 0.5).clamp(0.0, 1.0)[..., None]
-        image = image + cover * (self._pusher_colour - image)
-        return image.round().to(torch.uint8)
+        return draw_table(self.blocks, self._colours, self.pusher, self.image_size)
 
     def _obs(self) -> Obs:
         return {"image": self.picture(), "observation": self.pusher.clone(), "task": self.task.clone()}
 
     def step(self, action: torch.Tensor) -> StepResult:
         action = torch.as_tensor(action, device=self.device, dtype=torch.float32).reshape(self.num_envs, 2)
-        self.pusher = (self.pusher + action.clamp(-1.0, 1.0) * MAX_SPEED).clamp(-1.0 + PUSHER, 1.0 - PUSHER)
-        # a block the pusher overlaps is pushed out along the line between their centres
-        offset = self.blocks - self.pusher[:, None]
-        distance = torch.linalg.vector_norm(offset, dim=-1, keepdim=True).clamp(min=1e-6)
-        contact = PUSHER + BLOCK
-        pushed = self.pusher[:, None] + offset / distance * contact
-        self.blocks = torch.where(distance < contact, pushed, self.blocks).clamp(-1.0 + BLOCK, 1.0 - BLOCK)
+        self.pusher = move_pusher(self.pusher, action)
+        self.blocks = shove(self.pusher, self.blocks)
         self.t += 1
         success = self.success()
         return self._end_step(success.float(), success)
