@@ -6,11 +6,11 @@ layers) that answer directly, with the simulator's labels, on grasp-bin pictures
 object (70%) or anywhere (30%), so about one in six closes would hold. If the network cannot learn it here,
 no amount of Q-learning will; if it can, how fast it does bounds how fast the critic can.
 
-Arms: the conv layers' initialisation (``orthogonal``: taskrl's, as DrQ's; ``torch``: PyTorch's default) and the
-random shift (pixels of pad). Reported: the held-out AUC every 1,000 updates (batch 64, Adam 3e-4, one torch
+Arms (``INIT:PAD[:ENCODER]``): the conv layers' initialisation (``orthogonal``: taskrl's, as DrQ's; ``torch``:
+PyTorch's default), the random shift (pixels of pad) and the encoder (``conv``, the preset's, or ``resnet``). Reported: the held-out AUC every 1,000 updates (batch 64, Adam 3e-4, one torch
 thread).
 
-    .venv/bin/python benchmarks/grasp_probe.py --arms orthogonal:4 torch:4 orthogonal:0 --updates 6000
+    .venv/bin/python benchmarks/grasp_probe.py --arms orthogonal:4 torch:4 orthogonal:4:resnet --updates 6000 --write
 """
 
 from __future__ import annotations
@@ -55,9 +55,9 @@ def auc(score: torch.Tensor, label: torch.Tensor) -> float:
     return float((ranks[label > 0].sum() - positives * (positives - 1) / 2) / (positives * (len(score) - positives)))
 
 
-def probe(init: str, pad: int, updates: int, train: tuple, test: tuple, seed: int) -> list[dict]:
+def probe(init: str, pad: int, kind: str, updates: int, train: tuple, test: tuple, seed: int) -> list[dict]:
     torch.manual_seed(seed)
-    encoder = ImageStateInput(STATE, (64, 64, 3), "conv", 50)
+    encoder = ImageStateInput(STATE, (64, 64, 3), kind, 50)
     if init == "torch":
         for layer in encoder.trunk:
             if isinstance(layer, nn.Conv2d):
@@ -72,7 +72,7 @@ def probe(init: str, pad: int, updates: int, train: tuple, test: tuple, seed: in
             with torch.no_grad():
                 score = net(x_test).squeeze(1)
             curve.append({"updates": step, "auc": auc(score, y_test), "seconds": time.perf_counter() - start})
-            print(init, pad, curve[-1], flush=True)
+            print(init, pad, kind, curve[-1], flush=True)
         rows = torch.randint(len(x), (64,), generator=g)
         batch = x[rows]
         pictures = random_shift(batch[:, STATE:].reshape(-1, 64, 64, 3), pad, g).reshape(len(rows), -1)
@@ -85,7 +85,7 @@ def probe(init: str, pad: int, updates: int, train: tuple, test: tuple, seed: in
 
 def main() -> None:
     parser = argparse.ArgumentParser()
-    parser.add_argument("--arms", nargs="+", default=["orthogonal:4", "torch:4"], help="INIT:PAD, INIT orthogonal|torch")
+    parser.add_argument("--arms", nargs="+", default=["orthogonal:4", "torch:4"], help="INIT:PAD[:ENCODER]")
     parser.add_argument("--updates", type=int, default=6000)
     parser.add_argument("--train-states", type=int, default=40_000)
     parser.add_argument("--seed", type=int, default=0)
@@ -95,8 +95,9 @@ def main() -> None:
     train, test = labelled_states(args.train_states, 1), labelled_states(4_000, 2)
     results = []
     for arm in args.arms:
-        init, _, pad = arm.partition(":")
-        results.append({"init": init, "pad": int(pad), "curve": probe(init, int(pad), args.updates, train, test, args.seed)})
+        init, pad, kind = (arm.split(":") + ["conv"])[:3]
+        curve = probe(init, int(pad), kind, args.updates, train, test, args.seed)
+        results.append({"init": init, "pad": int(pad), "encoder": kind, "curve": curve})
     raw = Path(__file__).parent / "results" / "grasp_probe.json"
     raw.write_text(json.dumps({"holding_share": float(test[1].mean()), "arms": results}, indent=2) + "\n")
     if args.write:
@@ -107,16 +108,17 @@ def report(results: list[dict], args, share: float) -> None:
     steps = [row["updates"] for row in results[0]["curve"]]
     lines = [
         f"`{' '.join(['.venv/bin/python benchmarks/grasp_probe.py', '--arms', *args.arms, '--updates', str(args.updates)])}`: "
-        f"the grasp critic's network (conv encoder, 50 features, 256 x 256) taught by the simulator whether closing "
+        f"the grasp critic's network (the encoder, 50 features, 256 x 256) taught by the simulator whether closing "
         f"where the gripper is would hold an object; {args.train_states:,} training bins, 4,000 held-out ones "
         f"({share:.0%} of them would hold); batch 64, Adam 3e-4, one torch thread, seed {args.seed}. "
         "Held-out AUC (0.5: no better than chance):",
         "",
-        "| conv init | shift pad | " + " | ".join(f"{s:,}" for s in steps) + " |",
-        "|---|---|" + "---|" * len(steps),
+        "| conv init | shift pad | encoder | " + " | ".join(f"{s:,}" for s in steps) + " |",
+        "|---|---|---|" + "---|" * len(steps),
     ]
     for r in results:
-        lines.append(f"| {r['init']} | {r['pad']} | " + " | ".join(f"{row['auc']:.2f}" for row in r["curve"]) + " |")
+        aucs = " | ".join(f"{row['auc']:.2f}" for row in r["curve"])
+        lines.append(f"| {r['init']} | {r['pad']} | {r['encoder']} | {aucs} |")
     append_results("Grasp critic probe: can the critic's network see a grasp (supervised, apart from RL)", "\n".join(lines))
 
 
