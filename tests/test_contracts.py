@@ -37,6 +37,7 @@ SMALLEST: dict[str, dict[str, Any]] = {
     "bitflip": {"n_bits": 4},
     "pointreach": {},
     "pixelreach": {"image_size": 16},
+    "pixelpush": {"image_size": 16},
     "tabletop": {"image_size": 32},  # its datasets are collected at 32
     "fetchreach": {},
     "fetchpush": {},

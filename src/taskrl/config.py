@@ -100,6 +100,10 @@ class TrainConfig:
         offline_data: a run directory whose last checkpoint's replay preloads this run's replay
             (QT-Opt's offline data, then online); its env must have the same spaces.
         offline_updates: gradient updates on the preloaded data before collection starts.
+        scripted_exploration: share of training episodes acted by the env's scripted policy instead of the
+            agent (QT-Opt's first data came from a scripted grasp that succeeded 15-30% of the time); envs with
+            one have a ``scripted_action(obs)`` method (``grasp``). 0 = the agent acts in every episode.
+        scripted_steps: env steps during which ``scripted_exploration`` applies (0: the whole run).
         offline: learn from stored data only, never stepping an env to collect (the env's
             ``--dataset-quality`` datasets, or ``--offline-data``); ``total_steps``, ``eval_interval`` and
             ``checkpoint_interval`` then count gradient updates; evaluation still runs in the env.
@@ -146,6 +150,8 @@ class TrainConfig:
     recent_episodes: int = 1_000
     offline_data: str = ""
     offline_updates: int = 0
+    scripted_exploration: float = 0.0
+    scripted_steps: int = 0
     offline: bool = False
     max_hours: float = 0.0
     compile: Literal["off", "default", "reduce-overhead", "max-autotune"] = "off"
@@ -242,6 +248,7 @@ def check_roles(config: TrainConfig) -> None:
         "recent_fraction": c.recent_fraction > 0,
         "offline_data": bool(c.offline_data),
         "offline_updates": c.offline_updates > 0,
+        "scripted_exploration": c.scripted_exploration > 0,
         "distributed": c.cluster.distributed,
         "offline": c.offline,
         "sharing": c.data_sharing.sharing != "none",
@@ -252,6 +259,12 @@ def check_roles(config: TrainConfig) -> None:
             name,
             f"needs an off-policy algorithm with a replay (allowed: {', '.join(a.name for a in ALGORITHMS.values() if a.loop == 'off_policy')})",
         )
+    require(0.0 <= c.scripted_exploration <= 1.0, "scripted_exploration", f"must be in [0, 1] (got {c.scripted_exploration})")
+    require(
+        c.scripted_exploration == 0 or not c.cluster.distributed,
+        "scripted_exploration",
+        "acts in the one-process loop only (not with --distributed)",
+    )
     require(
         c.offline_updates == 0 or bool(c.offline_data),
         "offline_updates",
@@ -367,6 +380,12 @@ def validate(config: TrainConfig) -> TrainConfig:
     c.env_settings.validate()
     c.algo_settings.validate()
     check_fit(c, family.kind, family.actions, family.images)
+    scripted = [f.name for f in ENV_FAMILIES.values() if f.scripted]
+    require(
+        c.scripted_exploration == 0 or family.scripted is not False,
+        "scripted_exploration",
+        f"{c.env!r} has no scripted policy (families with one: {', '.join(scripted)})",
+    )
     if family.check is not None:
         family.check(c.env_settings, c)
     return config

@@ -122,6 +122,8 @@ class EnvFamily:
             the env: what data sharing scores rows with); None where only the built env can tell (a user's env).
         images: whether its observations carry a camera picture (``image``), which only algorithms that
             declare ``images`` can read.
+        scripted: whether its env has a scripted exploration policy (``scripted_action(obs)``, what
+            ``--scripted-exploration`` hands episodes to); None where only the built env can tell (a user's env).
         demos: families with a scripted expert: ``demos(task names or None) -> DemoSource`` of the named tasks (None:
             the family's own set), what ``taskrl demos collect FAMILY`` (or ``FAMILY:task,task``) records.
     """
@@ -145,6 +147,7 @@ class EnvFamily:
     task_rewards: bool | None = False
     demos: Callable[[Sequence[str] | None], DemoSource] | None = None
     images: bool = False
+    scripted: bool | None = False
 
     def success_criterion(self, settings: Any) -> str:
         """``any`` or ``final``: when a multi-task evaluation episode counts as a success."""

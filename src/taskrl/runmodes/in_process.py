@@ -22,6 +22,8 @@ def off_policy_loop(parts: RunParts, books: Bookkeeping) -> OffPolicyLoop:
         updates_per_step=c.updates_per_step,
         offline_updates=c.offline_updates,
         updates_per_call=c.updates_per_call,
+        scripted_exploration=c.scripted_exploration,
+        scripted_steps=c.scripted_steps,
     )
     return OffPolicyLoop(parts.env, parts.agent, parts.replay, parts.sampler, schedule, books, parts.generator)
 

@@ -19,6 +19,7 @@ from taskrl.envs.base import BatchedEnv
 from taskrl.replay.batch import Batch
 from taskrl.replay.storage import EpisodeReplay
 from taskrl.training.bookkeeping import Bookkeeping, LoopState
+from taskrl.training.scripted import ScriptedExploration
 from taskrl.types import Obs
 
 __all__ = ["LoopSchedule", "LoopState", "OffPolicyLoop", "batch_sampler"]
@@ -55,6 +56,9 @@ class LoopSchedule:
         learning_starts: environment steps collected before the first update.
         updates_per_step: gradient updates per environment step (fractions accumulate).
         offline_updates: gradient updates on preloaded data before the first env step.
+        scripted_exploration: share of training episodes the env's scripted policy acts
+            (:class:`~taskrl.training.scripted.ScriptedExploration`); 0: none.
+        scripted_steps: env steps during which episodes may be scripted (0: the whole run).
         updates_per_call: updates handed to the agent at once (``agent.update_many``; one compiled graph
             for all of them under ``--compile``), each on its own batch: the ``k`` batches are drawn and
             relabelled as one of ``k * batch_size`` rows (each row drawn independently, so they are as ``k``
@@ -68,6 +72,8 @@ class LoopSchedule:
     updates_per_step: float
     offline_updates: int = 0
     updates_per_call: int = 1
+    scripted_exploration: float = 0.0
+    scripted_steps: int = 0
 
 
 class OffPolicyLoop:
@@ -99,6 +105,11 @@ class OffPolicyLoop:
         # one batch of k x batch_size rows, split by the agent
         self.sample_k_batches = batch_sampler(sample, schedule.batch_size * schedule.updates_per_call, generator)
         self.schedule, self.books, self.generator = schedule, books, generator
+        self.scripted = (
+            ScriptedExploration(env, schedule.scripted_exploration, schedule.scripted_steps, generator)
+            if schedule.scripted_exploration > 0
+            else None
+        )
 
     def run(self, env_seed: int) -> LoopState:
         s, env, agent, replay, books = self.schedule, self.env, self.agent, self.replay, self.books
@@ -113,11 +124,15 @@ class OffPolicyLoop:
         while state.env_steps < s.total_steps:
             acted_at = state.env_steps
             action = agent.act(obs, explore=True, generator=self.generator, env_steps=acted_at)
+            if self.scripted is not None:
+                action = self.scripted.act(obs, action)
             next_obs, reward, terminated, truncated, info = env.step(action)
             replay.add(action, reward, terminated, truncated, info["final_obs"], next_obs)
             done = terminated | truncated
             books.add_episodes(done, done & info["is_success"])
             books.add_steps(env.num_envs)
+            if self.scripted is not None:
+                self.scripted.episodes_ended(done, state.env_steps)
             obs = next_obs
 
             if state.env_steps >= s.learning_starts and replay.num_episodes > 0:
