@@ -115,3 +115,57 @@ def test_bad_settings_name_the_setting():
         Grasp(GraspSettings(objects="unseen"))
     with pytest.raises(ConfigError, match="image_size"):
         Grasp(GraspSettings(image_size=8))
+
+
+def _scripted_success(env: Grasp, steps: int = 40, **kwargs) -> float:
+    obs = env.reset(seed=0)
+    attempts = held = 0
+    for _ in range(steps):
+        obs, _, terminated, truncated, info = env.step(env.scripted_action(obs, **kwargs))
+        done = terminated | truncated
+        attempts, held = attempts + int(done.sum()), held + int(info["is_success"][done].sum())
+    return held / attempts
+
+
+def test_the_scripted_grasp_holds_what_it_aims_at_and_its_aim_noise_makes_it_an_explorer():
+    assert _scripted_success(Grasp(GraspSettings(), num_envs=500, seed=0), aim_noise=0.0) >= 0.95
+    assert 0.15 <= _scripted_success(Grasp(GraspSettings(), num_envs=500, seed=0)) <= 0.45  # QT-Opt's: 15-30%
+    env = Grasp(GraspSettings(), num_envs=8, seed=0)
+    obs = env.reset(seed=0)
+    state = env.generator.get_state()
+    env.scripted_action(obs)
+    assert torch.equal(env.generator.get_state(), state)  # the env's own random stream is untouched
+
+
+@pytest.mark.timeout(300)
+def test_scripted_exploration_acts_its_share_of_episodes_until_its_last_step(tmp_path):
+    from helpers import small_run
+
+    def train_success(out, **settings) -> float:
+        run = small_run(
+            "grasp-qtopt-pixels",
+            tmp_path / out,
+            total_steps=800,
+            learning_starts=10_000,
+            eval_interval=800,
+            eval_episodes=2,
+            image_size=16,
+            threads=1,
+            **settings,
+        )
+        return run.metrics["train_success"]
+
+    assert train_success("all", scripted_exploration=1.0) > 0.15  # the scripted grasp's rate, not random actions'
+    assert train_success("none") < 0.08
+    assert train_success("stopped", scripted_exploration=1.0, scripted_steps=16) < 0.08  # none after the first step
+
+
+def test_scripted_exploration_is_refused_where_the_env_has_no_scripted_policy(tmp_path):
+    from taskrl.config import validate, with_overrides
+    from taskrl.presets import preset_config
+
+    with pytest.raises(ConfigError, match="scripted_exploration.*no scripted policy.*grasp"):
+        validate(with_overrides(preset_config("pointreach-sac-her"), {"scripted_exploration": 0.5}))
+    with pytest.raises(ConfigError, match="scripted_exploration.*distributed"):
+        validate(with_overrides(preset_config("grasp-qtopt-pixels"), {"scripted_exploration": 0.5, "distributed": True}))
+    validate(with_overrides(preset_config("grasp-qtopt-pixels"), {"scripted_exploration": 0.5}))
