@@ -115,5 +115,15 @@ def test_import_taskrl_alone_registers_every_native_id_and_gymnasiums_checker_pa
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
-    names = {"BitFlip", "PointReach", "MultiTaskPointReach", "GridTasks", "PointTasks", "Grasp", "PixelReach", "Tabletop"}
+    names = {
+        "BitFlip",
+        "PointReach",
+        "MultiTaskPointReach",
+        "GridTasks",
+        "PointTasks",
+        "Grasp",
+        "PixelReach",
+        "PixelPush",
+        "Tabletop",
+    }
     assert set(out.stdout.split()) == {f"taskrl/{name}-v0" for name in names}
