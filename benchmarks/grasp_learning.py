@@ -1,7 +1,7 @@
 """QT-Opt grasping from the camera: the preset against the preset with scripted exploration, per-evaluation curves.
 
 Each arm is ``taskrl train grasp-qtopt-pixels --seed S --threads 1 --max-hours H`` plus its flags, its own
-process; a run directory that already holds a finished run (``run.json``) is read instead of trained again, so
+process; a run directory that already holds a finished run (its ``learning_curve.png``) is read instead of trained again, so
 runs made by hand with these commands count. Evaluation is the greedy policy alone (100 attempts on the training
 objects); ``train success`` counts every training attempt, scripted ones included.
 
@@ -31,7 +31,7 @@ RANDOM_SUCCESS = 0.014  # benchmarks/grasp_random.py, training objects
 
 
 def run(flags: str, seed: int, run_dir: Path, max_hours: float) -> list[dict]:
-    if not (run_dir / "run.json").exists():
+    if not (run_dir / "learning_curve.png").exists():  # written when a run ends (run.json: when it starts)
         command = [TASKRL, "train", PRESET, "--seed", str(seed), "--threads", "1", "--max-hours", str(max_hours)]
         command += ["--out", str(run_dir), "--no-progress", *shlex.split(flags)]
         subprocess.run(command, check=True, capture_output=True)

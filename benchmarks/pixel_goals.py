@@ -53,7 +53,7 @@ REPORTS = {
 
 def train(preset: str, seed: int, run_dir: Path, flags: list[str], max_hours: float) -> list[dict]:
     """The run's evaluations (trained now unless ``run_dir`` holds a finished run)."""
-    if not (run_dir / "run.json").exists():
+    if not (run_dir / "learning_curve.png").exists():  # written when a run ends (run.json: when it starts)
         command = [TASKRL, "train", preset, "--seed", str(seed), "--stop-at-success", str(TARGET), "--threads", "1"]
         command += ["--max-hours", str(max_hours), "--out", str(run_dir), "--no-progress", *flags]
         subprocess.run(command, check=True, capture_output=True)
