@@ -5,7 +5,7 @@ process; a run directory that already holds a finished run (its ``learning_curve
 runs made by hand with these commands count. Evaluation is the greedy policy alone (100 attempts on the training
 objects); ``train success`` counts every training attempt, scripted ones included.
 
-    .venv/bin/python benchmarks/grasp_learning.py --seeds 0 --max-hours 1.3 --out /work/runs-bench/grasp --write
+    .venv/bin/python benchmarks/grasp_learning.py --seeds 0 --max-hours 0.75 --out /work/runs-bench/grasp --write
 """
 
 from __future__ import annotations
@@ -85,7 +85,7 @@ def report(results: list[dict], args) -> None:
     for r in results:
         points = ", ".join(f"{row['env_steps'] / 1e3:.0f}k: {row['success_rate']:.2f}" for row in r["curve"][1:])
         lines.append(f"- {r['arm']}, seed {r['seed']}: {points}")
-    append_results("Grasp from pixels: QT-Opt learning, one seed", "\n".join(lines))
+    append_results("Grasp from pixels: scripted exploration against the preset, equal budgets", "\n".join(lines))
 
 
 if __name__ == "__main__":
