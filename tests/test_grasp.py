@@ -10,7 +10,7 @@ import torch
 from gymnasium.utils.env_checker import check_env
 
 import taskrl  # noqa: F401  (registers taskrl/Grasp-v0)
-from taskrl.envs.grasp import COLOURS, FLOOR, GRASP_OBJECT_SETS, SHAPES, Grasp, GraspSettings
+from taskrl.envs.grasp import COLOURS, FLOOR, GRASP_OBJECT_SETS, SHAPES, Grasp, GraspSettings, scripted_attempts
 from taskrl.errors import ConfigError
 
 CLOSE = torch.tensor([[0.0, 0.0, 0.0, 1.0]])
@@ -117,13 +117,8 @@ def test_bad_settings_name_the_setting():
         Grasp(GraspSettings(image_size=8))
 
 
-def _scripted_success(env: Grasp, steps: int = 40, **kwargs) -> float:
-    obs = env.reset(seed=0)
-    attempts = held = 0
-    for _ in range(steps):
-        obs, _, terminated, truncated, info = env.step(env.scripted_action(obs, **kwargs))
-        done = terminated | truncated
-        attempts, held = attempts + int(done.sum()), held + int(info["is_success"][done].sum())
+def _scripted_success(env: Grasp, **kwargs) -> float:
+    attempts, held = scripted_attempts(env, **kwargs)
     return held / attempts
 
 

@@ -45,7 +45,7 @@ from taskrl.envs.base import NativeEnv, Obs, StepResult
 from taskrl.envs.spec import EnvFamily, EnvRequest
 from taskrl.errors import one_of, require
 
-__all__ = ["GRASP_OBJECT_SETS", "Grasp", "GraspGymEnv", "GraspSettings", "detect_grasp"]
+__all__ = ["GRASP_OBJECT_SETS", "Grasp", "GraspGymEnv", "GraspSettings", "detect_grasp", "scripted_attempts"]
 
 #: shape ids: 0 disc, 1 square, 2 bar, 3 ellipse (rectangles are 1 and 2; 0 and 3 are ellipses)
 SHAPES = ("disc", "square", "bar", "ellipse")
@@ -385,6 +385,18 @@ class Grasp(NativeEnv):
     def render_rgb(self, index: int = 0) -> np.ndarray:
         """Copy ``index``'s camera picture (what ``eval --video`` records)."""
         return self.render()[index].cpu().numpy()
+
+
+def scripted_attempts(env: Grasp, steps: int = 40, aim_noise: float = 0.04, seed: int = 0) -> tuple[int, int]:
+    """``(attempts, held)``: the attempts :meth:`Grasp.scripted_action` finished in ``steps`` steps of every bin of
+    ``env`` (reset with ``seed``), and how many of them held an object."""
+    obs = env.reset(seed=seed)
+    attempts = held = 0
+    for _ in range(steps):
+        obs, _, terminated, truncated, info = env.step(env.scripted_action(obs, aim_noise=aim_noise))
+        done = terminated | truncated
+        attempts, held = attempts + int(done.sum()), held + int(info["is_success"][done].sum())
+    return attempts, held
 
 
 class GraspGymEnv(gym.Env):
