@@ -10,9 +10,11 @@ import torch
 from taskrl.envs.grasp import Grasp, GraspSettings
 
 
-def random_success(objects: str, attempts: int = 10_000, bins: int = 1024, seed: int = 0) -> tuple[int, float]:
-    """(attempts ended, fraction that held an object) for actions uniform in the box."""
-    env = Grasp(GraspSettings(objects=objects), num_envs=bins, seed=seed)
+def random_success(
+    objects: str, attempts: int = 10_000, bins: int = 1024, seed: int = 0, tolerance: float = GraspSettings.tolerance
+) -> tuple[int, float]:
+    """(attempts ended, fraction that held an object) for actions uniform in the box; ``tolerance``: the env's."""
+    env = Grasp(GraspSettings(objects=objects, tolerance=tolerance), num_envs=bins, seed=seed)
     env.reset(seed=seed)
     generator = torch.Generator().manual_seed(seed)
     ended = held = 0

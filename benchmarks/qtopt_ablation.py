@@ -4,7 +4,10 @@ Each arm is ``fetchpush-qtopt-her`` with the settings below (``before`` is the p
 bounded Q: unbounded Huber targets, lagged twin targets, clipped CEM samples, QT-Opt's 0.3 -> 0.1 random
 actions); every other arm changes one thing from ``before``, and ``combined`` makes all the cheap changes at
 once. ``sac-network`` gives QT-Opt SAC's preset network (3 x 256) and update ratio (0.25); its CEM targets
-cost about 20x more per update on CPU, so it is listed but left out of the default arms.
+cost about 20x more per update on CPU, so it is listed but left out of the default arms, as is ``bounded-sac-network``
+(today's preset, bounded Q included, with SAC's network and ratio). ``sac-qtopt-network`` is
+the control from the other side: SAC (``fetchpush-sac-her``) given QT-Opt's network (128 x 128) and update ratio
+(0.1), which says whether those two settings alone keep an algorithm from learning FetchPush.
 
 Runs resume when their directory holds checkpoints (``--hours`` stops each after that long in this
 sitting); ``--report`` trains nothing and reports the runs as they stand, curves in one figure.
@@ -44,6 +47,14 @@ ARMS: dict[str, tuple[str, dict]] = {
             "updates_per_step": 0.25,
         },
     ),
+    "bounded-sac-network": (
+        "today's preset (targets clipped) with SAC's network (256, 256, 256) and 0.25 updates per env step",
+        {**BEFORE, "clip_target": True, "hidden_sizes": (256, 256, 256), "updates_per_step": 0.25},
+    ),
+    "sac-qtopt-network": (
+        "not QT-Opt: SAC + HER (`fetchpush-sac-her`) with QT-Opt's network (128, 128) and 0.1 updates per env step",
+        {"preset": "fetchpush-sac-her", "hidden_sizes": (128, 128), "updates_per_step": 0.1},
+    ),
 }
 DEFAULT_ARMS = ("combined", "clip-target", "independent-twins", "her-exploration", "truncated-cem", "before")
 
@@ -61,7 +72,8 @@ def run_arm(arm: str, seed: int, budget: int, hours: float, root: Path) -> str:
     if (out / "checkpoints").exists():
         taskrl.train(resume=out, **overrides)
     else:
-        taskrl.train(PRESET, out=out, seed=seed, **ARMS[arm][1], **overrides)
+        settings = dict(ARMS[arm][1])
+        taskrl.train(settings.pop("preset", PRESET), out=out, seed=seed, **settings, **overrides)
     return str(out)
 
 

@@ -61,7 +61,7 @@ def test_cem_scores_encode_each_picture_once_and_match_the_plain_forward_pass():
     torch.testing.assert_close(scores, plain, rtol=1e-4, atol=1e-5)
 
 
-@pytest.mark.parametrize("encoder", ["conv", "resnet"])
+@pytest.mark.parametrize("encoder", ["conv", "resnet", "keypoints"])
 def test_qtopt_from_pixels_trains_its_encoder_and_each_target_has_its_own(encoder):
     env = Grasp(GraspSettings(image_size=16), num_envs=8, seed=0)
     obs = env.reset(seed=0)
@@ -388,3 +388,38 @@ def test_the_rl_encoders_start_orthogonal_as_drqs_and_behaviour_cloning_keeps_to
         bc_convs = [m for m in bc.modules() if isinstance(m, torch.nn.Conv2d)]
         assert len(rl_convs) >= 4 and all(orthogonal(c) for c in rl_convs)
         assert len(bc_convs) == len(rl_convs) and not any(orthogonal(c) for c in bc_convs)
+
+
+def test_spatial_softmax_reads_where_each_channel_is_brightest_to_a_fraction_of_a_pixel():
+    from taskrl.encoders import SpatialSoftmax
+
+    softmax = SpatialSoftmax(9, 17)  # 9 rows, 17 columns: x steps by 1/8, y by 1/4
+    maps = torch.zeros(2, 2, 9, 17)
+    maps[0, 0, 2, 12] = 50.0  # row 2, column 12: x = 0.5, y = -0.5
+    maps[0, 1, 6, 3] = 50.0  # row 6, column 3: x = -0.625, y = 0.5
+    maps[1, :, 4, 8] = 50.0  # the centre
+    maps[1, 1, 4, 9] = 50.0  # and one column right of it, as bright: halfway between
+    keypoints = softmax(maps).view(2, 2, 2)  # [B, C, (x, y)]
+    expected = torch.tensor([[[0.5, -0.5], [-0.625, 0.5]], [[0.0, 0.0], [1 / 16, 0.0]]])
+    torch.testing.assert_close(keypoints, expected, atol=1e-4, rtol=0)
+
+
+def test_the_keypoint_encoder_hands_coordinates_on_and_follows_an_object_across_the_picture():
+    torch.manual_seed(0)
+    encoder = ImageStateInput(2, (16, 16, 3), "keypoints", 50)
+    assert encoder.out_dim == 2 + 64 and isinstance(encoder.head, torch.nn.Identity)
+    encoder.trunk[-1].log_temperature.data.fill_(-4.0)  # a sharp softmax, as training makes it (it starts at 1)
+    pictures = torch.zeros(2, 16, 16, 3)
+    pictures[0, 2:5, 2:5] = 255.0  # a white square top left, then bottom right
+    pictures[1, 10:13, 10:13] = 255.0
+    x = torch.cat([torch.zeros(2, 2), pictures.reshape(2, -1)], 1)
+    with torch.no_grad():
+        keypoints = encoder(x)[:, 2:].view(2, 32, 2)
+    moved = (keypoints[1] - keypoints[0]).mean(0)  # averaged over channels: every one sees the square move
+    assert (moved > 0.2).all(), moved  # 8 pixels of 16: 1.07 in [-1, 1] were every channel to follow it
+    with pytest.raises(ConfigError, match="encoder"):
+        QTOptConfig(encoder="spatial").validate()
+    from taskrl.agents.bc import BCConfig
+
+    with pytest.raises(ConfigError, match="encoder"):  # behaviour cloning's FiLM encoder has no keypoint form
+        BCConfig(encoder="keypoints").validate()

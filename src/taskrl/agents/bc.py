@@ -46,7 +46,7 @@ from taskrl.agents.spec import AlgorithmSpec
 from taskrl.conditioning.demo_encoder import DemoEncoder
 from taskrl.conditioning.networks import ConditionedMLP, ConditioningConfig
 from taskrl.conditioning.task_encoders import LanguageTaskEncoder
-from taskrl.encoders import ENCODERS, FiLMPictureEncoder, image_size, shift_pictures
+from taskrl.encoders import FILM_ENCODERS, FiLMPictureEncoder, image_size, shift_pictures
 from taskrl.errors import ConfigError, one_of, require
 
 __all__ = ["BCAgent", "BCConfig"]
@@ -114,7 +114,7 @@ class BCConfig:
         check_probability(self, "language_prompts")
         require(self.demo_frames >= 2, "demo_frames", f"must be >= 2 (got {self.demo_frames})")
         require(1 <= self.chunk <= 100, "chunk", f"must be in 1..100 (got {self.chunk})")
-        one_of(self.encoder, ENCODERS, "encoder", "encoder")
+        one_of(self.encoder, FILM_ENCODERS, "encoder", "encoder")
         require(self.image_features >= 1, "image_features", f"must be >= 1 (got {self.image_features})")
         require(self.augment_pad >= 0, "augment_pad", f"must be >= 0 (got {self.augment_pad})")
 

@@ -91,7 +91,8 @@ class QTOptConfig:
         random_action_decay_steps: environment steps over which it decays linearly (0: ``random_action_prob_end`` throughout).
         cem: cross-entropy-method settings, used both to act and in the Bellman target.
         encoder: on envs with a camera, the picture's encoder in every Q-network: ``conv`` (four 3x3
-            convolutions) or ``resnet`` (a small ResNet); the action joins after it, so CEM encodes a
+            convolutions), ``resnet`` (a small ResNet) or ``keypoints`` (each channel's expected position, a
+            spatial softmax: 64 coordinates read to a fraction of a pixel); the action joins after it, so CEM encodes a
             picture once per state however many actions it scores.
         image_features: the encoded picture's size (a linear layer, LayerNorm and tanh after the encoder).
         augment_pad: on envs with a camera, DrQ's random shift in every update: pictures padded by this many
@@ -113,7 +114,7 @@ class QTOptConfig:
     random_action_prob_end: float = 0.1
     random_action_decay_steps: int = 20_000
     cem: CEMConfig = dataclasses.field(default_factory=CEMConfig)
-    encoder: Literal["conv", "resnet"] = "conv"
+    encoder: Literal["conv", "resnet", "keypoints"] = "conv"
     image_features: int = 50
     augment_pad: int = 4
 

@@ -94,7 +94,8 @@ class SACConfig:
         cql_alpha: weight of the conservative (CQL) penalty on the critics; 0 disables it.
         cql_samples: CQL: uniform and policy actions per state (N of each) in its logsumexp.
         encoder: on envs with a camera, the picture's encoder shared by the actor and the critics: ``conv``
-            (four 3x3 convolutions of 32 channels) or ``resnet`` (a small ResNet).
+            (four 3x3 convolutions of 32 channels), ``resnet`` (a small ResNet) or ``keypoints`` (a spatial softmax:
+            each channel's expected position).
         image_features: the encoded picture's size (a linear layer, LayerNorm and tanh after the encoder).
         augment_pad: on envs with a camera, DrQ's random shift in every update (pixels of padding; 0: none).
     """
@@ -114,7 +115,7 @@ class SACConfig:
     per_task_alpha: bool = True
     cql_alpha: float = 0.0
     cql_samples: int = 10
-    encoder: Literal["conv", "resnet"] = "conv"
+    encoder: Literal["conv", "resnet", "keypoints"] = "conv"
     image_features: int = 50
     augment_pad: int = 4
 
