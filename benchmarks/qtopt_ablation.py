@@ -51,6 +51,10 @@ ARMS: dict[str, tuple[str, dict]] = {
         "today's preset (targets clipped) with SAC's network (256, 256, 256) and 0.25 updates per env step",
         {**BEFORE, "clip_target": True, "hidden_sizes": (256, 256, 256), "updates_per_step": 0.25},
     ),
+    "bounded-mse": (
+        "today's preset (targets clipped) with the squared loss SAC's critics use instead of Huber",
+        {**BEFORE, "clip_target": True, "loss": "mse"},
+    ),
     "sac-qtopt-network": (
         "not QT-Opt: SAC + HER (`fetchpush-sac-her`) with QT-Opt's network (128, 128) and 0.1 updates per env step",
         {"preset": "fetchpush-sac-her", "hidden_sizes": (128, 128), "updates_per_step": 0.1},
@@ -163,8 +167,10 @@ def main() -> None:
 
         append_results(
             "QT-Opt + HER on FetchPush-v4: one change at a time",
-            f"Arms of `{PRESET}` (8 copies, 128x128 Q-network, 0.1 updates per env step, relabelling future k = 4), "
-            f"seed {args.seed}, up to {args.budget:,} env steps each, one torch thread per arm, {args.workers} arms at a time; "
+            f"Arms of `{PRESET}` as it stood before bounded Q (8 copies, 128x128 Q-network, 0.1 updates per env step, "
+            "relabelling future k = 4), each changed as its row says (a row that names another preset starts from it), "
+            f"seed {args.seed}, up to {args.budget:,} env steps each (or the hours given), one torch thread per arm, "
+            f"{args.workers} arms at a time; "
             f"evaluation: 100 episodes every 25k env steps, success at the final step. "
             f"Curves: `benchmarks/figures/{args.figure.name}`.\n\n{text}",
         )
