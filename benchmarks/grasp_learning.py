@@ -27,6 +27,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).parent))
 from common import append_results  # noqa: E402
 from grasp_random import random_success  # noqa: E402
+from taskrl.envs.grasp import GraspSettings  # noqa: E402
 
 TASKRL = str(Path(sys.executable).with_name("taskrl"))
 PRESET = "grasp-qtopt-pixels"
@@ -79,7 +80,7 @@ def main() -> None:
 
 def tolerance_of(flags: str) -> float:
     words = shlex.split(flags)
-    return float(words[words.index("--env.tolerance") + 1]) if "--env.tolerance" in words else 0.025
+    return float(words[words.index("--env.tolerance") + 1]) if "--env.tolerance" in words else GraspSettings.tolerance
 
 
 def section(arms: list[str]) -> tuple[str, str]:

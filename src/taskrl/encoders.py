@@ -146,14 +146,14 @@ class ImageStateInput(nn.Module):
         *_, h, w, c = self.image_shape
         self.pictures = self.image_shape[0] if len(self.image_shape) == 4 else 1
         c = c * self.pictures
-        self.trunk = {"conv": conv_stack, "resnet": small_resnet}[kind](c) if kind != "keypoints" else keypoint_stack(c, h, w)
+        self.trunk = keypoint_stack(c, h, w) if kind == "keypoints" else {"conv": conv_stack, "resnet": small_resnet}[kind](c)
         with torch.no_grad():
             flat = self.trunk(torch.zeros(1, c, h, w)).shape[1]
         # keypoints are bounded coordinates already; a LayerNorm would keep only where they lie relative to each other
-        self.head = (
-            nn.Identity() if kind == "keypoints" else nn.Sequential(nn.Linear(flat, features), nn.LayerNorm(features), nn.Tanh())
-        )
-        self.out_dim = self.vector_dim + (flat if kind == "keypoints" else features)
+        self.head = nn.Identity()
+        if kind != "keypoints":
+            self.head, flat = nn.Sequential(nn.Linear(flat, features), nn.LayerNorm(features), nn.Tanh()), features
+        self.out_dim = self.vector_dim + flat
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         *_, h, w, c = self.image_shape
