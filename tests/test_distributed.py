@@ -4,6 +4,7 @@ The first tests run the roles in this process (a LocalPool: no Ray); the last on
 with 2 CPUs, train PointReach with collectors and a Bellman updater, and SIGKILL role processes.
 """
 
+import dataclasses
 import os
 import signal
 import subprocess
@@ -340,6 +341,37 @@ def test_steps_lost_with_a_dead_collector_are_counted_apart_and_owe_no_update(tm
     assert rows[-1]["lost_env_steps"] == running_before
 
 
+class _DiesBetweenCalls:
+    """A collector whose process dies after its first call, idle: the next call reaches a new process (a new pid)."""
+
+    def __init__(self, make) -> None:
+        self.make, self.role, self.calls, self.running_at_death = make, make(), 0, 0
+
+    def collect(self, *args):
+        self.calls += 1
+        if self.calls == 2:
+            self.running_at_death = self.role.recorder.running_steps
+            self.role = self.make()
+        got = self.role.collect(*args)
+        return dataclasses.replace(got, pid=got.pid + 1_000_000) if self.calls >= 2 else got
+
+    def flush(self):
+        return self.role.flush()
+
+
+def test_steps_running_when_a_collector_dies_between_calls_are_counted_lost(tmp_path):
+    """Mutation: no ``lose_running`` when a new process answers (distributed/loop.py) leaves them uncounted: fails."""
+    config = _config(num_envs=4, learning_starts=0, collector_steps=20, total_steps=600, batch_size=8, hidden_sizes=(16,))
+    loop, rows, parts = _local_loop(tmp_path, config, updaters=0)
+    dying = _DiesBetweenCalls(lambda: _collector(config, 10))
+    loop.collectors = LocalPool([dying, _collector(config, 11)])
+    state = loop.run()
+    parts.close()
+    assert dying.running_at_death > 0 and loop.lost_env_steps == dying.running_at_death
+    assert loop.meters.collector_restarts == 1
+    assert parts.replay.num_transitions + parts.replay.evicted_transitions == state.env_steps - loop.lost_env_steps
+
+
 def test_collectors_out_of_restarts_end_the_run_with_one_error(tmp_path):
     config = _config(collectors=2, max_restarts=1)
     loop, rows, parts = _local_loop(tmp_path, config, updaters=0)
@@ -642,3 +674,23 @@ def test_dqn_learns_through_ray_collectors_with_its_own_targets(tmp_path):
     rows = read_metrics(tmp_path / "dqn" / "metrics.csv")
     for i in (0, 1):  # each collector delivered steps (a row only counts the calls that finished in it)
         assert max(row[f"collector{i}/env_steps_per_s"] for row in rows) > 0, rows
+
+
+def test_a_collectors_env_and_exploration_draw_from_two_streams():
+    """Each life's env seed and exploration seed are two children of one SeedSequence. Mutation: seeding both
+    from the collector's seed (the old first life) makes them equal and fails."""
+    config = _config(num_envs=2)
+    resets = []
+
+    def make_env(seed):
+        env = collector_env(config, None, 2, seed)
+        reset = env.reset
+        env.reset = lambda seed=None, **kwargs: resets.append(seed) or reset(seed=seed, **kwargs)
+        return env
+
+    collector = Collector(make_env, lambda env: role_agent(config, env), 10)
+    collector.collect(5, -1, lambda: None, 0, 0)
+    assert resets and collector.generator.initial_seed() != resets[-1]
+    again = Collector(make_env, lambda env: role_agent(config, env), 10)
+    again.collect(5, -1, lambda: None, 0, 0)
+    assert resets[-1] == resets[0] and again.generator.initial_seed() == collector.generator.initial_seed()  # reproduced

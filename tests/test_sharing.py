@@ -485,3 +485,33 @@ def test_a_recent_window_composes_with_a_sharing_strategy_in_the_sampler_pipelin
     # and a run with both trains
     run = small_run("grid-sharing-dqn", tmp_path / "mixed", recent_fraction=0.3, total_steps=600, eval_interval=300)
     assert run.config.data_sharing.sharing == "all" and run.metrics["updates"] > 0
+
+
+def test_stored_datasets_are_drawn_apart_from_the_training_envs_stream():
+    """The family's datasets come from their own seed (the run's seed + DATASET_SEED_OFFSET), not the training env's.
+    Mutation: passing the run's seed to ``collect_task_datasets`` (the old line) makes both datasets equal."""
+    import dataclasses
+
+    from taskrl.presets import preset_config
+    from taskrl.envs.registry import env_family
+    from taskrl.run import build
+    from taskrl.wiring.parts import env_request
+    from taskrl.wiring.stored_data import _dataset_copies, preload_datasets
+
+    config = with_overrides(preset_config("point-sharing-offline"), {"dataset_steps": 40, "seed": 3})
+    parts = build(config)
+    try:
+        added = []
+        parts.replay.add_episodes = added.append  # what would be stored
+        preload_datasets(parts)
+        stored = added[0].obs["observation"]
+        settings = config.env_settings
+        request = env_request(config, parts.device, parts.source, evaluation=True, seed=config.seed)
+        maker = env_family(config.env).make(settings, dataclasses.replace(request, eval_episodes=_dataset_copies(40)))
+        qualities = dict(q.split("=") for q in settings.dataset_quality.split(","))
+        same_seed = collect_task_datasets(maker, qualities, 40, config.seed)
+        maker.close()
+    finally:
+        parts.close()
+    assert stored.shape == same_seed.obs["observation"].shape
+    assert not torch.equal(stored, same_seed.obs["observation"])

@@ -33,6 +33,13 @@ def pull_weights(role: Any, version: int, fetch: Fetch) -> None:
         role.version = version
 
 
+def collector_seeds(entropy: list[int]) -> tuple[int, int]:
+    """``(exploration seed, env seed)`` of a collector's life: two children of one ``SeedSequence(entropy)``, so the
+    two random streams never coincide (seeding both with one integer made them the same stream)."""
+    exploration, env = np.random.SeedSequence(entropy).spawn(2)
+    return int(exploration.generate_state(1)[0]), int(env.generate_state(1)[0])
+
+
 @dataclasses.dataclass
 class Collected:
     """What one collect call returns.
@@ -106,14 +113,12 @@ class Collector:
         return os.getpid()
 
     def _start(self, epoch: int, env_steps: int) -> None:
-        """Reset the envs of a new process. Its first life (epoch 0, the run's start) keeps the seeds a run is
-        reproduced with; any later start (a restart, whenever it died; a resumed run) draws its seeds from
-        (seed, epoch, the run's env steps), so no life repeats another's episodes."""
+        """Reset the envs of a new process. Its first life (epoch 0, the run's start) draws its seeds from the
+        collector's seed alone, so a run is reproduced; any later start (a restart, whenever it died; a resumed run)
+        from (seed, epoch, the run's env steps), so no life repeats another's episodes."""
         self.epoch = epoch
-        if epoch == 0 and env_steps == 0:
-            generator_seed, env_seed = self.seed, self.seed
-        else:
-            generator_seed, env_seed = (int(x) for x in np.random.SeedSequence([self.seed, epoch, env_steps]).generate_state(2))
+        entropy = [self.seed] if epoch == 0 and env_steps == 0 else [self.seed, epoch, env_steps]
+        generator_seed, env_seed = collector_seeds(entropy)
         self.generator.manual_seed(generator_seed)
         self.obs = self.env.reset(seed=env_seed)
         self.recorder.start(self.obs)

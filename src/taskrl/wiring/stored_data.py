@@ -60,7 +60,8 @@ def preload_datasets(parts: RunParts) -> int:
     config, env = parts.config, parts.env
     settings = config.env_settings
     qualities = parse_qualities(settings.dataset_quality, env.task_set.names)
-    request = env_request(config, parts.device, parts.source, evaluation=True, seed=config.seed + DATASET_SEED_OFFSET)
+    seed = config.seed + DATASET_SEED_OFFSET  # the datasets' own stream, never the training env's
+    request = env_request(config, parts.device, parts.source, evaluation=True, seed=seed)
     # the family's evaluation env: fixed tasks per copy, _dataset_copies of each
     maker = env_family(config.env).make(
         settings, dataclasses.replace(request, eval_episodes=_dataset_copies(settings.dataset_steps))
@@ -72,7 +73,7 @@ def preload_datasets(parts: RunParts) -> int:
             f"{config.env!r} has no scripted expert to make datasets with; allowed envs: {', '.join(_dataset_families())}",
         )
         check_preload_fits(parts.replay, dataset_steps(config, env), "--dataset-quality's datasets")
-        episodes = collect_task_datasets(maker, qualities, settings.dataset_steps, config.seed)
+        episodes = collect_task_datasets(maker, qualities, settings.dataset_steps, seed)
     finally:
         maker.close()
     check_preload_fits(parts.replay, episodes.num_transitions, "--dataset-quality's datasets")
