@@ -492,8 +492,8 @@ def test_stored_datasets_are_drawn_apart_from_the_training_envs_stream():
     Mutation: passing the run's seed to ``collect_task_datasets`` (the old line) makes both datasets equal."""
     import dataclasses
 
-    from taskrl.presets import preset_config
     from taskrl.envs.registry import env_family
+    from taskrl.presets import preset_config
     from taskrl.run import build
     from taskrl.wiring.parts import env_request
     from taskrl.wiring.stored_data import _dataset_copies, preload_datasets
