@@ -84,17 +84,32 @@ def test_qtopt_from_pixels_trains_its_encoder_and_each_target_has_its_own(encode
 
 
 def test_every_update_shifts_the_pictures_of_both_states_unless_turned_off(monkeypatch):
-    import taskrl.encoders as encoders
+    """The online network's encoder is handed the shifted pictures of s, the target's those of s'. Mutation: QT-Opt
+    computes the shifted batch, then updates on the stored one (``qtopt.py``'s ``learn``) fails."""
+    import taskrl.agents.qtopt as qtopt
 
-    seen = []
-    monkeypatch.setattr(encoders, "random_shift", lambda images, pad, generator: seen.append(pad) or images)
+    shifted = []
+    shift = qtopt.shift_pictures
+    monkeypatch.setattr(
+        qtopt, "shift_pictures", lambda obs, pad, generator: shifted.append(shift(obs, pad, generator)) or shifted[-1]
+    )
     env = Grasp(GraspSettings(image_size=16), num_envs=4, seed=0)
     batch = one_step(env, env.reset(seed=0), torch.zeros(4, 4))
-    for pad, expected in ((4, [4, 4]), (0, [])):
-        seen.clear()
+    for pad in (4, 0):
+        shifted.clear()
         config = QTOptConfig(hidden_sizes=(8,), augment_pad=pad)
-        QTOptAgent(("observation", "image"), 5 + 768, env.single_action_space, config, image_shape=(16, 16, 3)).update(batch)
-        assert seen == expected
+        agent = QTOptAgent(("observation", "image"), 5 + 768, env.single_action_space, config, image_shape=(16, 16, 3))
+        seen = {"online": [], "target": []}
+        agent.q.state_input.register_forward_hook(lambda m, args, out: seen["online"].append(args[0][:, 5:]))
+        agent.q_target1.state_input.register_forward_hook(lambda m, args, out: seen["target"].append(args[0][:, 5:]))
+        agent.update(batch, generator=torch.Generator().manual_seed(0))
+        pictures = {"online": batch.obs["image"], "target": batch.next_obs["image"]}
+        if pad:
+            assert len(shifted) == 2
+            pictures = {"online": shifted[0]["image"], "target": shifted[1]["image"]}
+            assert not torch.equal(shifted[0]["image"], batch.obs["image"])
+        for who, picture in pictures.items():
+            assert seen[who] and torch.equal(seen[who][-1], picture.flatten(1).float()), who
 
 
 def test_sac_from_pixels_shares_one_encoder_trained_by_the_critics_only_and_targets_read_a_lagged_copy(monkeypatch):

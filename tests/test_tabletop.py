@@ -119,29 +119,46 @@ def _pixel_agent(**settings) -> BCAgent:
 
 
 def test_the_picture_encoder_is_modulated_by_the_task_in_every_block():
+    """Each FiLM layer, perturbed alone, changes the features. Mutation: FiLM applied in block 0 only (the per-block
+    loop of ``FiLMPictureEncoder._trunk``) leaves the others' perturbations without effect and fails."""
     torch.manual_seed(0)
     encoder = FiLMPictureEncoder((32, 32, 3), "conv", 16, context_dim=2)
     pictures = torch.randint(0, 255, (4, 32, 32, 3), dtype=torch.uint8)
     one, other = torch.tensor([[1.0, 0.0]]).expand(4, 2), torch.tensor([[0.0, 1.0]]).expand(4, 2)
     assert torch.allclose(encoder(pictures, one), encoder(pictures, other))  # FiLM starts as the identity
-    for film in encoder.films:
-        torch.nn.init.normal_(film.generator.weight, std=0.5)
     assert len(encoder.films) == len(encoder.blocks) == 4
-    assert not torch.allclose(encoder(pictures, one), encoder(pictures, other), atol=1e-3)
+    for i, film in enumerate(encoder.films):
+        for each in encoder.films:
+            torch.nn.init.zeros_(each.generator.weight)
+        torch.nn.init.normal_(film.generator.weight, std=0.5)
+        assert not torch.allclose(encoder(pictures, one), encoder(pictures, other), atol=1e-3), f"FiLM {i} has no effect"
 
 
 def test_every_pixel_bc_update_shifts_the_pictures(monkeypatch, reach_demos):
+    """The encoder is handed the shifted pictures (or, with no pad, the stored ones). Mutation: BC computes the
+    shifted pictures, then trains on the unshifted ones (``bc.py``'s update) fails."""
     import taskrl.agents.bc as bc
 
-    seen = []
+    shifted = []
     shift = bc.shift_pictures
-    monkeypatch.setattr(bc, "shift_pictures", lambda obs, pad, generator=None: seen.append(pad) or shift(obs, pad, generator))
+    monkeypatch.setattr(
+        bc, "shift_pictures", lambda obs, pad, generator=None: shifted.append(shift(obs, pad, generator)) or shifted[-1]
+    )
     demos = read_demonstrations(reach_demos)
-    for pad, expected in ((2, [2]), (0, [])):
-        seen.clear()
+    for pad in (2, 0):
+        shifted.clear()
         agent = _pixel_agent(augment_pad=pad)
-        agent.update(agent.use_dataset(demos).sample(8, torch.Generator().manual_seed(0)))
-        assert seen == expected
+        received = []
+        agent.encoder.register_forward_hook(lambda module, args, out: received.append(args[0]))
+        batch = agent.use_dataset(demos).sample(8, torch.Generator().manual_seed(0))
+        agent.update(batch)
+        assert len(received) == 1
+        got = received[0].reshape(batch.obs["image"].shape)
+        if pad:
+            assert len(shifted) == 1 and torch.equal(got, shifted[0]["image"].to(got.dtype))
+            assert not torch.equal(got, batch.obs["image"].to(got.dtype))  # moved: 8 pictures at random offsets
+        else:
+            assert shifted == [] and torch.equal(got, batch.obs["image"].to(got.dtype))
 
 
 @pytest.mark.slow
