@@ -152,21 +152,24 @@ def test_metaworld_experts_collect_successful_episodes(tmp_path):
         assert episode.infos["success"][first] and demos.lengths[e] == first + 1 + 5  # 5 steps kept after the first success
 
 
-def test_a_hidden_goal_run_trains_and_is_prompted_on_demonstrations_with_the_goal_hidden(tmp_path):
+@pytest.mark.slow
+@pytest.mark.timeout(300)
+def test_a_hidden_goal_run_trains_and_is_prompted_on_demonstrations_with_the_goal_hidden(tmp_path, monkeypatch):
+    """A demo-prompted run with the goal hidden sees prompt demonstrations with the goal hidden too. Mutation:
+    deleting the line of ``prompting.py`` that shows prompt demonstrations as the run sees them fails."""
+    from taskrl.agents.bc import BCAgent
     from taskrl.envs.metaworld_tasks import MetaWorldSettings
+    from taskrl.prompting import evaluate_prompted
 
-    collect_demos("reach", 3, tmp_path / "mw", seed=1)
+    collect_demos("mt10", 1, tmp_path / "mw", seed=1, after_success=0)
     demos = read_demonstrations(tmp_path / "mw")
     seen = demos.as_seen_under(MetaWorldSettings(hidden_goal=True)).observations
     assert demos.observations[:, 36:39].abs().sum() > 0 and seen[:, 36:39].abs().sum() == 0
     assert torch.equal(seen[:, :36], demos.observations[:, :36])
     assert torch.equal(demos.as_seen_under(MetaWorldSettings()).observations, demos.observations)
     run = small_run(
-        "bc-mt10-onehot",
+        "bc-mt10-demo",
         tmp_path / "run",
-        env="mt1",
-        task="reach",
-        num_envs=1,
         dataset=str(tmp_path / "mw"),
         hidden_goal=True,
         total_steps=20,
@@ -176,6 +179,12 @@ def test_a_hidden_goal_run_trains_and_is_prompted_on_demonstrations_with_the_goa
     )
     normaliser = run.agent.inputs.normalize
     assert normaliser.mean[36:39].abs().sum() == 0 and normaliser.mean[:3].abs().sum() > 0  # fit on what the policy sees
+    prompts = []
+    prompt = BCAgent.prompt_with_demos
+    monkeypatch.setattr(BCAgent, "prompt_with_demos", lambda agent, frames: prompts.append(frames) or prompt(agent, frames))
+    result = evaluate_prompted(tmp_path / "run", tasks=["reach"], prompt="demo", episodes=1)
+    assert result["tasks"]["reach"]["episodes"] == 1
+    assert len(prompts) == 1 and prompts[0][..., 36:39].abs().sum() == 0 and prompts[0][..., :3].abs().sum() > 0
 
 
 # ---------------------------------------------------------------------- sampling
@@ -299,9 +308,21 @@ def test_held_out_tasks_are_not_trained_on_and_are_evaluated_by_prompt(point_dem
 
 @pytest.mark.slow
 @pytest.mark.timeout(300)
-def test_zero_shot_controls_fail_where_the_prompt_carries_the_task(point_demos, tmp_path):
+def test_zero_shot_controls_fail_where_the_prompt_carries_the_task(point_demos, tmp_path, monkeypatch):
     """On tasks it trained on, a language-prompted policy succeeds by description; prompted with nothing, or as
-    another task, it goes elsewhere: the controls a zero-shot figure is read against."""
+    another task, it goes elsewhere: the controls a zero-shot figure is read against, on the description's own
+    episodes. Mutation: the controls evaluated on ``seed + 7`` (other start states) fails."""
+    import taskrl.prompting as prompting
+
+    starts = []
+    evaluate = prompting.evaluate_per_task
+
+    def recording(policy, env, *args, **kwargs):
+        reset = env.reset
+        env.reset = lambda *a, **k: starts.append(reset(*a, **k)) or starts[-1]
+        return evaluate(policy, env, *args, **kwargs)
+
+    monkeypatch.setattr(prompting, "evaluate_per_task", recording)
     small_run("pointreach-mt-bc", tmp_path / "run", dataset=str(point_demos), task_encoder="language")
     tasks = ["top-left", "top-right", "bottom-left", "bottom-right"]
     told = evaluate_prompted(tmp_path / "run", tasks=tasks, prompt="description", episodes=10)
@@ -311,6 +332,9 @@ def test_zero_shot_controls_fail_where_the_prompt_carries_the_task(point_demos, 
     assert other["success_rate"] <= 0.1 and nothing["success_rate"] <= 0.5
     assert other["tasks"]["top-left"]["prompt"] == told["tasks"]["top-right"]["prompt"]  # told the next task
     assert nothing["tasks"]["top-left"]["prompt"] == "(null prompt)"
+    assert len(starts) == 3  # the controls start where the description's episodes start
+    for control in starts[1:]:
+        assert all(torch.equal(control[k], starts[0][k]) for k in starts[0])
     with pytest.raises(ConfigError, match="name two tasks or more"):
         evaluate_prompted(tmp_path / "run", tasks=["top-left"], prompt="other-task", episodes=1)
 
