@@ -37,6 +37,10 @@ def test_presets_lists_each_with_a_description(capsys):
         (["train", "bitflip-her", "--algo", "a2c"], "'dqn', 'qtopt', 'sac', 'td3', 'ppo'"),
         (["train", "pointreach-sac-her", "--env-id", "nobody/Nothing-v0"], "--env-module"),
         (["train", "pointreach-sac-her", "--env-module", "no_such_module_here"], "--env-module cannot import"),
+        (["train", "grasp-qtopt-pixels", "--tolerance", "-0.1"], "--tolerance must be in (0, opening / 2)"),
+        (["train", "grasp-qtopt-pixels", "--scripted-exploration", "0.5", "--scripted-steps", "-100"], "--scripted-steps"),
+        (["demos", "collect", "pointreach-mt:,", "--episodes", "1", "--out", "/nonexistent/d"], "names no task"),
+        (["plot", "/nonexistent/run", "--out", "/nonexistent/run/metrics.csv"], "--out must name an image file"),
     ],
 )
 def test_bad_input_gets_one_line_naming_the_allowed_values_and_exit_2(capsys, args, expected):
@@ -198,3 +202,48 @@ def test_multitask_train_then_eval_per_task_from_the_command_line(capsys, tmp_pa
     code, stdout, err = run_cli(capsys, "eval", str(out), "--episodes", "3", "--json")
     result = json.loads(stdout)
     assert code == 0 and result["episodes"] == 3 and {"success/top-left", "success/centre"} <= set(result)
+
+
+def test_files_in_the_way_are_one_line_and_leave_nothing_behind(capsys, tmp_path):
+    """A file where a folder goes, a folder that is not a run, a name too long, an empty sentence: one line, exit 2."""
+    (tmp_path / "file").write_text("")
+    foreign = tmp_path / "foreign"
+    foreign.mkdir()
+    (foreign / "config.json").write_text('{"a": 1}')
+    (foreign / "metrics.csv").write_text("x,y\n1,2\n")
+    for args, expected in (
+        (["demos", "collect", "pointreach-mt", "--episodes", "1", "--out", str(tmp_path / "file")], "is a file"),
+        (["plot", str(foreign), "--out", str(tmp_path / "p.png")], "is not a run directory"),
+        (["eval", str(foreign), "--task", " "], "--task must be a sentence"),
+        (["export", str(foreign), "--out", str(tmp_path / ("a" * 300))], "--out cannot use"),
+    ):
+        code, _, err = run_cli(capsys, *args)
+        assert code == 2 and len(err.strip().splitlines()) == 1 and expected in err, (args, err)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file", "foreign"]
+
+
+def test_pixels_from_an_env_that_does_not_render_are_one_line(capsys, tmp_path):
+    code, _, err = run_cli(
+        capsys,
+        "train",
+        "pointreach-sac-her",
+        "--env-id",
+        "testenvs/SlideTo-v0",
+        "--env-module",
+        "test_custom_envs",
+        "--observation",
+        "pixels",
+        "--out",
+        str(tmp_path / "run"),
+    )
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "rgb_array" in err, err
+    assert not (tmp_path / "run").exists()
+
+
+def test_train_seeds_checks_its_seeds_before_any_run():
+    import taskrl
+    from taskrl.errors import ConfigError
+
+    for seeds in (3, [0, "x"], [0, 0], [-1]):
+        with pytest.raises(ConfigError, match="seeds"):
+            taskrl.train_seeds("bitflip-her", seeds=seeds)

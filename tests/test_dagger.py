@@ -80,3 +80,29 @@ def test_cli_dagger_and_merge(weak_run, tmp_path):
     assert done.returncode == 0 and (tmp_path / "m" / "data").exists(), done.stderr
     bad = cli("demos", "dagger", str(weak_run / "run"), "--out", str(tmp_path / "d"), "--patience", "0")
     assert bad.returncode == 2 and "patience" in bad.stderr and "Traceback" not in bad.stderr
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(300)
+def test_corrections_of_a_pixel_run_keep_their_pictures_and_merge_with_its_demonstrations(weak_run, tmp_path):
+    """A pixel tabletop policy's corrections hold the camera's pictures of the states the expert drove (the old
+    recorder wrote none, and merging them with the pictures' demonstrations crashed); datasets of different kinds are
+    refused in one line."""
+    collect_demos("tabletop", 1, tmp_path / "demos", seed=3)
+    small_run(
+        "bc-tabletop-language",
+        tmp_path / "run",
+        dataset=str(tmp_path / "demos"),
+        total_steps=20,
+        eval_interval=20,
+        eval_episodes=1,
+    )
+    card = collect_interventions(tmp_path / "run", tmp_path / "c", episodes=1, rule=InterventionRule(1e-9, 1), seed=5)
+    corrections = read_demonstrations(tmp_path / "c")
+    assert card["expert_steps_total"] > 0 and corrections.images is not None
+    assert corrections.images.shape == (corrections.num_steps, 32, 32, 3)
+    merged = merge_datasets([tmp_path / "demos", tmp_path / "c"], tmp_path / "m")
+    assert read_demonstrations(tmp_path / "m").images.shape[0] == merged["card"]["steps"]
+    done = cli("demos", "merge", str(weak_run / "demos"), str(tmp_path / "demos"), "--out", str(tmp_path / "x"))
+    assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1, done.stderr
+    assert "pictures none in" in done.stderr and not (tmp_path / "x").exists()

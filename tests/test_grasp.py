@@ -115,6 +115,8 @@ def test_bad_settings_name_the_setting():
         Grasp(GraspSettings(objects="unseen"))
     with pytest.raises(ConfigError, match="image_size"):
         Grasp(GraspSettings(image_size=8))
+    with pytest.raises(ConfigError, match="tolerance"):
+        Grasp(GraspSettings(tolerance=-0.1))
 
 
 def _scripted_success(env: Grasp, **kwargs) -> float:
@@ -164,3 +166,33 @@ def test_scripted_exploration_is_refused_where_the_env_has_no_scripted_policy(tm
     with pytest.raises(ConfigError, match="scripted_exploration.*distributed"):
         validate(with_overrides(preset_config("grasp-qtopt-pixels"), {"scripted_exploration": 0.5, "distributed": True}))
     validate(with_overrides(preset_config("grasp-qtopt-pixels"), {"scripted_exploration": 0.5}))
+
+
+def test_a_grasp_run_is_evaluated_on_its_held_out_objects_from_the_cli(tmp_path, monkeypatch):
+    """``taskrl eval RUN --held-out`` builds the run's env on the held-out objects (and plain eval on its own)."""
+    import json
+
+    from helpers import cli, small_run
+    from taskrl import loading
+
+    small_run(
+        "grasp-qtopt-pixels",
+        tmp_path / "run",
+        total_steps=32,
+        learning_starts=16,
+        eval_interval=32,
+        eval_episodes=2,
+        image_size=16,
+    )
+    built = []
+    make = loading.make_env
+    monkeypatch.setattr(
+        loading, "make_env", lambda config, *a, **k: built.append(config.env_settings.objects) or make(config, *a, **k)
+    )
+    for held_out in (True, False):
+        result = loading.evaluate_run(tmp_path / "run", episodes=2, held_out=held_out)
+        assert result["episodes"] == 2
+    assert built == ["held_out", "train"]
+    done = cli("eval", str(tmp_path / "run"), "--held-out", "--episodes", "2", "--json")
+    assert done.returncode == 0, done.stderr
+    assert json.loads(done.stdout)["episodes"] == 2

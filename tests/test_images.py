@@ -100,8 +100,8 @@ def test_every_update_shifts_the_pictures_of_both_states_unless_turned_off(monke
         config = QTOptConfig(hidden_sizes=(8,), augment_pad=pad)
         agent = QTOptAgent(("observation", "image"), 5 + 768, env.single_action_space, config, image_shape=(16, 16, 3))
         seen = {"online": [], "target": []}
-        agent.q.state_input.register_forward_hook(lambda m, args, out: seen["online"].append(args[0][:, 5:]))
-        agent.q_target1.state_input.register_forward_hook(lambda m, args, out: seen["target"].append(args[0][:, 5:]))
+        agent.q.state_input.register_forward_hook(lambda m, args, out, seen=seen: seen["online"].append(args[0][:, 5:]))
+        agent.q_target1.state_input.register_forward_hook(lambda m, args, out, seen=seen: seen["target"].append(args[0][:, 5:]))
         agent.update(batch, generator=torch.Generator().manual_seed(0))
         pictures = {"online": batch.obs["image"], "target": batch.next_obs["image"]}
         if pad:

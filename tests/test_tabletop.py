@@ -149,7 +149,7 @@ def test_every_pixel_bc_update_shifts_the_pictures(monkeypatch, reach_demos):
         shifted.clear()
         agent = _pixel_agent(augment_pad=pad)
         received = []
-        agent.encoder.register_forward_hook(lambda module, args, out: received.append(args[0]))
+        agent.encoder.register_forward_hook(lambda module, args, out, received=received: received.append(args[0]))
         batch = agent.use_dataset(demos).sample(8, torch.Generator().manual_seed(0))
         agent.update(batch)
         assert len(received) == 1

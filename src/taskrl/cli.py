@@ -328,7 +328,11 @@ def cmd_eval(argv: Sequence[str]) -> int:
     parser.add_argument("--json", action="store_true", help="print one line of JSON instead of tables")
     parser.add_argument("--env-module", default=None, help="import this module first (one that registers the run's gymnasium id)")
     prompted = parser.add_argument_group("prompted policies (--algo bc with language or demo input)")
-    prompted.add_argument("--held-out", action="store_true", help="evaluate the run's held-out tasks, zero-shot")
+    prompted.add_argument(
+        "--held-out",
+        action="store_true",
+        help="evaluate the run's held-out tasks, zero-shot; on a family with held-out objects (grasp), on those objects",
+    )
     prompted.add_argument(
         "--tasks", default=None, metavar="NAME,NAME", help="evaluate these tasks of the run's family, zero-shot"
     )
@@ -347,9 +351,15 @@ def cmd_eval(argv: Sequence[str]) -> int:
         raise UsageError(f"--episodes must be >= 1 (got {args.episodes})")
     if args.video < 0:
         raise UsageError(f"--video must be >= 0 episodes (got {args.video})")
-    if args.held_out or args.tasks or args.task:
+    if args.task is not None and not args.task.strip():
+        raise UsageError("--task must be a sentence that describes a task (got an empty one)")
+    if args.tasks is not None and not [n for n in args.tasks.split(",") if n.strip()]:
+        raise UsageError("--tasks must name tasks of the run's family, separated by commas (got none)")
+    from taskrl.loading import evaluate_run, held_out_objects
+
+    objects = args.held_out and not (args.tasks or args.task) and held_out_objects(args.run_dir)
+    if (args.held_out and not objects) or args.tasks or args.task:
         return _eval_prompted(args)
-    from taskrl.loading import evaluate_run
 
     result = evaluate_run(
         args.run_dir,
@@ -360,6 +370,7 @@ def cmd_eval(argv: Sequence[str]) -> int:
         checkpoint=args.checkpoint,
         stochastic=args.stochastic,
         video=args.video,
+        held_out=bool(objects),
     )
     if args.json:
         print(json.dumps(result))
@@ -446,13 +457,17 @@ def cmd_plot(argv: Sequence[str]) -> int:
     from rich.console import Console
 
     from taskrl.console import summary_table
-    from taskrl.plots import compare_runs, find_runs
+    from taskrl.plots import PLOT_FORMATS, RUN_COLUMNS, compare_runs, find_runs
 
+    if Path(args.out).suffix.lower() not in PLOT_FORMATS:
+        raise UsageError(f"--out must name an image file ending in {', '.join(PLOT_FORMATS)} (got {args.out})")
     groups = {}
     for path in args.runs:
         found = find_runs(path)
         if not found:
-            raise UsageError(f"{path} is not a run directory and holds none (no metrics.csv)")
+            raise UsageError(
+                f"{path} is not a run directory and holds none (no metrics.csv with the columns {', '.join(RUN_COLUMNS)})"
+            )
         groups[Path(path).name or str(path)] = found
     summary = compare_runs(groups, Path(args.out), args.threshold)
     Console().print(summary_table(summary))

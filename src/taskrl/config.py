@@ -260,6 +260,7 @@ def check_roles(config: TrainConfig) -> None:
             f"needs an off-policy algorithm with a replay (allowed: {', '.join(a.name for a in ALGORITHMS.values() if a.loop == 'off_policy')})",
         )
     require(0.0 <= c.scripted_exploration <= 1.0, "scripted_exploration", f"must be in [0, 1] (got {c.scripted_exploration})")
+    require(c.scripted_steps >= 0, "scripted_steps", f"must be >= 0 env steps (0: the whole run; got {c.scripted_steps})")
     require(
         c.scripted_exploration == 0 or not c.cluster.distributed,
         "scripted_exploration",

@@ -76,7 +76,11 @@ def export_policy(
     from taskrl.loading import load_run
 
     run_dir, out = Path(run_dir), Path(out)
-    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+    try:
+        occupied = out.exists() and (not out.is_dir() or any(out.iterdir()))
+    except OSError as error:  # a name too long, a folder it may not read
+        raise ConfigError("out", f"cannot use {out}: {error.strerror}") from None
+    if occupied:
         raise ConfigError("out", f"{out} exists and is not an empty directory")
     agent, config, spaces = load_run(run_dir, device, env=env, env_module=env_module)
     meta = {
@@ -87,7 +91,10 @@ def export_policy(
         "task_set": [{"name": t.name, "description": t.description} for t in spaces.task_set] if spaces.task_set else None,
     }
     tensors, skeleton = flatten_state(agent.state_dict(parts=agent.acting))
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as error:  # a name too long, no permission, a file on the way
+        raise ConfigError("out", f"cannot create {out}: {error.strerror}") from None
     save_file(tensors, str(out / "policy.safetensors"))
     atomic_write_text(out / "policy.json", json.dumps({**meta, "state": skeleton}, indent=2) + "\n")
     return out

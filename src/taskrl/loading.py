@@ -48,6 +48,13 @@ def _saved_config(run_dir: Path, env: Any, env_module: str | None) -> tuple[Trai
     return config, None
 
 
+def held_out_objects(run_dir: str | Path) -> bool:
+    """Whether the run's env family declares held-out objects (``--held-out`` then evaluates on them, for any
+    algorithm; otherwise it means the held-out tasks of a prompted policy)."""
+    config, _ = _saved_config(Path(run_dir), None, None)
+    return env_family(config.env).held_out is not None
+
+
 def load(
     run_dir: str | Path, device: str = "cpu", env: Any = None, env_module: str | None = None, checkpoint: int | None = None
 ) -> Any:
@@ -134,6 +141,7 @@ def evaluate_run(
     checkpoint: int | None = None,
     stochastic: bool = False,
     video: int = 0,
+    held_out: bool = False,
 ) -> dict[str, Any]:
     """Re-evaluate a saved agent on ``episodes`` fresh episodes (per task on multi-task envs).
 
@@ -147,6 +155,7 @@ def evaluate_run(
         checkpoint: the env step of the checkpoint to evaluate (default the latest).
         stochastic: act with the algorithm's exploration instead of greedily.
         video: also record this many episodes to ``run_dir/videos/`` (MP4).
+        held_out: evaluate on the env family's held-out objects (a family that declares ``held_out``).
 
     Returns:
         ``success_rate`` with its 95% Wilson interval ``success_ci95``, ``eval_return`` with
@@ -159,6 +168,11 @@ def evaluate_run(
         os.environ.setdefault("MUJOCO_GL", "egl")
     config, source = _saved_config(run_dir, env, env_module)
     config = dataclasses.replace(config, eval_episodes=episodes)
+    if held_out:
+        family = env_family(config.env)
+        if family.held_out is None:
+            raise ConfigError("held_out", f"{config.env!r} declares no held-out objects to evaluate on")
+        config = dataclasses.replace(config, env_settings=family.held_out(config.env_settings))
     use_run_threads(config)
     if video:  # say so before evaluating, not after
         from taskrl.video import check_can_record

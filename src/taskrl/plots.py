@@ -115,12 +115,29 @@ def plot_learning_curve(metrics_csv: Path, out_png: Path, title: str = "") -> Pa
 
 
 # ---------------------------------------------------------------------- several runs
+#: the columns every run's ``metrics.csv`` has (a file without them was not written by a run)
+RUN_COLUMNS = ("env_steps", "updates", "success_rate")
+#: the image formats ``taskrl plot --out`` writes (matplotlib picks the format by the suffix)
+PLOT_FORMATS = (".png", ".pdf", ".svg", ".jpg", ".jpeg")
+
+
+def is_run_metrics(path: Path) -> bool:
+    """Whether ``path`` is a run's ``metrics.csv``: its header names :data:`RUN_COLUMNS`."""
+    try:
+        with Path(path).open() as f:
+            header = next(csv.reader(f), [])
+    except (OSError, UnicodeDecodeError, csv.Error):
+        return False
+    return set(RUN_COLUMNS) <= set(header)
+
+
 def find_runs(path: str | Path) -> list[Path]:
-    """A run directory itself, or the run directories below a folder (e.g. ``seed_0``, ``seed_1``)."""
+    """A run directory itself, or the run directories below a folder (e.g. ``seed_0``, ``seed_1``); a folder
+    whose ``metrics.csv`` was not written by a run (:func:`is_run_metrics`) is none."""
     path = Path(path)
-    if (path / "metrics.csv").exists():
+    if is_run_metrics(path / "metrics.csv"):
         return [path]
-    return sorted(p.parent for p in path.glob("*/metrics.csv"))
+    return sorted(p.parent for p in path.glob("*/metrics.csv") if is_run_metrics(p))
 
 
 def _band(values: Sequence[float]) -> tuple[float, float]:

@@ -79,6 +79,11 @@ def train_seeds(
         a :class:`SeedRuns`. Settings are checked before any run starts (a :class:`ConfigError`); a run that
         fails later is recorded in ``failed`` and the others still run.
     """
+    require(
+        isinstance(seeds, (list, tuple, range)) and all(isinstance(s, int) and not isinstance(s, bool) and s >= 0 for s in seeds),
+        "seeds",
+        f"a list of integers >= 0, e.g. [0, 1, 2] (got {seeds!r})",
+    )
     seeds = list(seeds)
     require(len(seeds) >= 1 and len(set(seeds)) == len(seeds), "seeds", f"distinct seeds, at least one (got {seeds})")
     require("seed" not in overrides, "seeds", "give seeds or seed, not both")

@@ -26,7 +26,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-from taskrl.demos.dataset import DATA_FOLDER, Episode, dataset_card, write_dataset
+from taskrl.demos.dataset import Episode, check_new_dataset_folder, dataset_card, write_dataset
 from taskrl.demos.experts import DemoSource, demo_source
 from taskrl.errors import ConfigError
 
@@ -149,9 +149,7 @@ def collect_demos(
         raise ConfigError(
             "pictures", f"{src.name} cannot render pictures of its states; sources that can: Meta-World's, tabletop"
         )
-    out = Path(out)
-    if (out / DATA_FOLDER).exists():
-        raise ConfigError("out", f"{out} already holds a dataset (see: taskrl demos info {out}); choose another --out")
+    out = check_new_dataset_folder(out)
     max_attempts = max_attempts or 5 * episodes
     settings = {
         "source": src.name,

@@ -31,7 +31,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-from taskrl.demos.dataset import DATA_FOLDER, Episode, _read_episodes, dataset_card, write_dataset
+from taskrl.demos.dataset import Episode, _read_episodes, check_new_dataset_folder, dataset_card, write_dataset
 from taskrl.demos.experts import demo_source
 from taskrl.errors import ConfigError
 
@@ -114,9 +114,7 @@ def collect_interventions(
     rule.validate()
     if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
         raise ConfigError("episodes", f"must be an integer >= 1 (got {episodes!r})")
-    out = Path(out)
-    if (out / DATA_FOLDER).exists():
-        raise ConfigError("out", f"{out} already holds a dataset (see: taskrl demos info {out}); choose another --out")
+    out = check_new_dataset_folder(out)
     agent, config, spaces = load_run(run_dir, device)
     if spaces.task_set is None:
         raise ConfigError("run_dir", f"{run_dir} was trained on {config.env}, which has no task set for a scripted expert")
@@ -124,7 +122,10 @@ def collect_interventions(
     view = getattr(config.env_settings, "policy_observation", None)  # the run's protocol (a hidden goal, say)
     policy = ActingPolicy(agent)
     started = time.perf_counter()
-    env = source.make_env(spaces.task_set.names, 1, seed, after_success)
+    # a policy that reads pictures is shown them at its run's size, and the corrections keep them (BC-Z's data is the
+    # camera's): a dataset of corrections without pictures could not be merged with the pictures' demonstrations
+    size = config.env_settings.image_size if getattr(agent, "image_shape", None) is not None else None
+    env = source.make_env(spaces.task_set.names, 1, seed, after_success, **({"image_size": size} if size else {}))
     try:
         expert = source.expert(env)
         n, names = env.num_envs, [env.task_set.names[int(t)] for t in env.slot_tasks.tolist()]
@@ -135,6 +136,7 @@ def collect_interventions(
         open_rows: list[dict[str, list] | None] = [None] * n
         reached = [False] * n
         obs = env.reset(seed=seed)
+        camera = size is not None and "image" in obs
         with torch.no_grad():
             while min(done.values()) < episodes:
                 expert_action = expert(obs)
@@ -148,6 +150,11 @@ def collect_interventions(
                 after = torch.where(ended[:, None], info["final_obs"]["observation"], next_obs["observation"]).cpu().numpy()
                 labels, rewards = expert_action.cpu().numpy(), reward.cpu().numpy()
                 success = info["is_success"].cpu().numpy().astype(bool)
+                if camera:
+                    pictures = obs["image"].cpu().numpy()
+                    pictures_after = (
+                        torch.where(ended[:, None, None, None], info["final_obs"]["image"], next_obs["image"]).cpu().numpy()
+                    )
                 for s in range(n):
                     counting = done[names[s]] < episodes
                     rows = open_rows[s]
@@ -156,13 +163,16 @@ def collect_interventions(
                         reached[s] = reached[s] or bool(success[s])
                     if by_expert[s] and counting:
                         if rows is None:
-                            rows = open_rows[s] = {"o": [], "a": [], "r": [], "s": []}
+                            rows = open_rows[s] = {"o": [], "a": [], "r": [], "s": [], "i": []}
                             counts["interventions"][names[s]] += 1
                         rows["o"].append(states[s]), rows["a"].append(labels[s])
                         rows["r"].append(rewards[s]), rows["s"].append(success[s])
+                        if camera:
+                            rows["i"].append(pictures[s])
                     if rows is not None and (not by_expert[s] or ended[s]):  # the stretch ends
                         # handed back: it ended in this step's state; the episode ended: in the final state
                         final = after[s] if by_expert[s] else states[s]
+                        final_picture = (pictures_after[s] if by_expert[s] else pictures[s]) if camera else None
                         stretches.append(
                             Episode(
                                 names[s],
@@ -171,6 +181,7 @@ def collect_interventions(
                                 np.asarray(rows["r"], dtype=np.float32),
                                 np.asarray(rows["s"], dtype=bool),
                                 bool(terminated[s]) and bool(by_expert[s]),
+                                np.stack([*rows["i"], final_picture]) if camera else None,
                             )
                         )
                         open_rows[s] = None
@@ -208,6 +219,13 @@ def collect_interventions(
     return card
 
 
+def _dataset_kind(episodes: list[Episode]) -> dict[str, Any]:
+    """What two datasets must share to be merged: the state's and the action's width, and the pictures' shape."""
+    e = episodes[0]
+    pictures = "none" if e.images is None else "x".join(str(n) for n in e.images.shape[1:])
+    return {"state width": e.observations.shape[1], "action width": e.actions.shape[1], "pictures": pictures}
+
+
 def merge_datasets(inputs: Sequence[str | Path], out: str | Path, max_steps: int | None = None) -> dict[str, Any]:
     """One dataset of every episode of ``inputs``, in order; with ``max_steps``, only the first episodes up to that
     many steps (the last one cut to fit), e.g. to give plain BC as many expert labels as HG-DAgger had."""
@@ -215,14 +233,20 @@ def merge_datasets(inputs: Sequence[str | Path], out: str | Path, max_steps: int
         raise ConfigError("datasets", "name one dataset or more to merge")
     if max_steps is not None and (isinstance(max_steps, bool) or not isinstance(max_steps, int) or max_steps < 1):
         raise ConfigError("max_steps", f"must be an integer >= 1 (got {max_steps!r})")
-    out = Path(out)
-    if (out / DATA_FOLDER).exists():
-        raise ConfigError("out", f"{out} already holds a dataset (see: taskrl demos info {out}); choose another --out")
+    out = check_new_dataset_folder(out)
     tasks: dict[str, str] = {}
     episodes: list[Episode] = []
     cards = []
+    first_kind = None
     for path in inputs:
         metadata, read, descriptions = _read_episodes(path)
+        kind = _dataset_kind(read)
+        if first_kind is not None and kind != first_kind:
+            said = ", ".join(
+                f"{k} {first_kind[k]} in {inputs[0]} but {kind[k]} in {path}" for k in kind if kind[k] != first_kind[k]
+            )
+            raise ConfigError("datasets", f"cannot merge datasets of different kinds: {said}")
+        first_kind = first_kind or kind
         cards.append(metadata.get("card") or {})
         for name, text in descriptions.items():
             tasks.setdefault(name, text)

@@ -33,7 +33,15 @@ import torch
 
 from taskrl.errors import ConfigError
 
-__all__ = ["DATA_FOLDER", "Demonstrations", "Episode", "dataset_card", "read_demonstrations", "write_dataset"]
+__all__ = [
+    "DATA_FOLDER",
+    "Demonstrations",
+    "Episode",
+    "check_new_dataset_folder",
+    "dataset_card",
+    "read_demonstrations",
+    "write_dataset",
+]
 
 DATA_FOLDER = "data"  # DIR/data is the Minari dataset (its own layout: metadata.json, main_data.hdf5)
 METADATA_FILE = "metadata.json"
@@ -76,6 +84,17 @@ def _minari():
             f"demonstration datasets need the `imitation` extra (minari, h5py): pip install 'taskrl[imitation]' ({error})",
         ) from None
     return MinariStorage, EpisodeBuffer
+
+
+def check_new_dataset_folder(out: str | Path) -> Path:
+    """``out`` as a folder a new dataset can be written to: a :class:`ConfigError` on ``out`` where it is a file or
+    already holds a dataset."""
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise ConfigError("out", f"{out} is a file, not a folder; choose another --out")
+    if (out / DATA_FOLDER).exists():
+        raise ConfigError("out", f"{out} already holds a dataset (see: taskrl demos info {out}); choose another --out")
+    return out
 
 
 def write_dataset(

@@ -51,6 +51,8 @@ def demo_source(name: str) -> DemoSource:
     if family is None or family.demos is None:
         raise ConfigError("source", f"{family_name!r} has no scripted expert; allowed: {allowed}")
     names = [n.strip() for n in tasks.split(",") if n.strip()] or None
+    if ":" in key and names is None:
+        raise ConfigError("source", f"{family_name}: names no task; give {family_name}:task,task or {family_name} for all")
     try:
         return dataclasses.replace(family.demos(names), name=key)
     except ValueError as error:

@@ -113,6 +113,8 @@ class GraspSettings:
         require(16 <= self.image_size <= 256, "image_size", f"must be in 16..256 pixels (got {self.image_size})")
         require(self.horizon >= 1, "horizon", f"must be >= 1 (got {self.horizon})")
         require(self.max_move > 0 and self.max_turn > 0, "max_move", "max_move and max_turn must be > 0")
+        require(0 < self.opening <= 1, "opening", f"must be in (0, 1] of the bin (got {self.opening})")
+        require(0 < self.tolerance < self.opening / 2, "tolerance", f"must be in (0, opening / 2) (got {self.tolerance})")
 
 
 def _pack(rgb: tuple[int, int, int]) -> int:
@@ -448,5 +450,6 @@ FAMILY = EnvFamily(
     actions="box",
     images=True,
     scripted=True,
+    held_out=lambda s: dataclasses.replace(s, objects="held_out"),
     video_env=lambda s: gym.make("taskrl/Grasp-v0", render_mode="rgb_array", **dataclasses.asdict(s)),
 )

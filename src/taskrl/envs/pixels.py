@@ -26,7 +26,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from taskrl.errors import one_of, require
+from taskrl.errors import ConfigError, one_of, require
 
 __all__ = ["OBSERVATIONS", "PixelObservation", "check_pixel_settings", "pixel_factory"]
 
@@ -51,7 +51,12 @@ class PixelObservation(gym.ObservationWrapper):
     def __init__(self, env: gym.Env, size: int = 64, keep_state: bool = False) -> None:
         super().__init__(env)
         if env.render_mode != "rgb_array":
-            raise ValueError(f"pixel observations need an env made with render_mode='rgb_array' (got {env.render_mode!r})")
+            name = env.spec.id if env.spec is not None else type(env.unwrapped).__name__
+            raise ConfigError(
+                "observation",
+                f"pixels need an env that renders rgb_array frames; {name} has render_mode {env.render_mode!r} "
+                "(allowed: state for this env)",
+            )
         self.size, self.keep_state = int(size), bool(keep_state)
         space = env.observation_space
         entries = dict(space.spaces) if isinstance(space, gym.spaces.Dict) else {"observation": space}

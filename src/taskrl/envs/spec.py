@@ -126,6 +126,8 @@ class EnvFamily:
             ``--scripted-exploration`` hands episodes to); None where only the built env can tell (a user's env).
         demos: families with a scripted expert: ``demos(task names or None) -> DemoSource`` of the named tasks (None:
             the family's own set), what ``taskrl demos collect FAMILY`` (or ``FAMILY:task,task``) records.
+        held_out: families with objects never seen in training: ``held_out(settings) -> settings`` of the same env
+            on those objects, what ``taskrl eval RUN --held-out`` evaluates a run of any algorithm on.
     """
 
     name: str
@@ -148,6 +150,7 @@ class EnvFamily:
     demos: Callable[[Sequence[str] | None], DemoSource] | None = None
     images: bool = False
     scripted: bool | None = False
+    held_out: Callable[[Any], Any] | None = None
 
     def success_criterion(self, settings: Any) -> str:
         """``any`` or ``final``: when a multi-task evaluation episode counts as a success."""
