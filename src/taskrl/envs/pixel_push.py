@@ -2,13 +2,15 @@
 
 The goal-image task with an object to move (where :mod:`~taskrl.envs.pixel_reach` moves the agent itself):
 the policy sees ``image`` (the table now) and ``goal_image`` (the table with the block where it should
-be, the pusher somewhere out of its way), each ``[size, size, 3]`` uint8 drawn by the tabletop's camera
+be, and no pusher), each ``[size, size, 3]`` uint8 drawn by the tabletop's camera
 (:func:`~taskrl.envs.tabletop.draw_table`), and the pusher's own position (``observation``, as a robot knows
 its arm's pose). Where the block is and where it should go are only in the pictures. The state goal stays
 beside them (``achieved_goal``: the block's centre; ``desired_goal``: its goal), so the reward and hindsight
 relabelling are exact: relabelling replaces ``desired_goal`` by where the block was later in the episode and
-``goal_image`` by the picture of that moment (``replay/hindsight.py``). The networks read the pictures, never
-the state goal (``wiring/parts.py``).
+``goal_image`` by :meth:`PixelPush.goal_picture` of it (``replay/hindsight.py``), so the env's goals and hindsight's
+are pictures of one kind: the block alone. (Hindsight once used the picture of that moment, the pusher usually
+beside the block, while the env's goals put the pusher at a random spot: two distributions.) The networks read
+the pictures, never the state goal (``wiring/parts.py``).
 
 ``observation="state"`` is the same task without pictures (``observation`` = pusher and block positions; the
 goal as ``desired_goal``): the control that prices the pixels.
@@ -39,6 +41,7 @@ from taskrl.errors import one_of, require
 __all__ = ["FAMILY", "PixelPush", "PixelPushGymEnv", "PixelPushSettings"]
 
 OBSERVATIONS = ("pixels", "state")
+OFF_TABLE = 10.0  # a pusher drawn here covers no pixel
 
 
 class PixelPush(PointReach):
@@ -71,7 +74,6 @@ class PixelPush(PointReach):
             spaces = {"observation": gym.spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)}
         self.single_observation_space = gym.spaces.Dict({**spaces, "achieved_goal": box, "desired_goal": box})
         self.block = torch.zeros_like(self.position)  # ``position`` is the pusher's; ``goal`` the block's goal
-        self.goal_pusher = torch.zeros_like(self.position)  # where the goal picture shows the pusher
         self._colour = torch.tensor([COLOURS["red"]], dtype=torch.float32, device=self.device)
 
     def _uniform(self, n: int, low: float, high: float) -> torch.Tensor:
@@ -87,16 +89,19 @@ class PixelPush(PointReach):
         pusher = move_pusher(
             torch.stack([self._uniform(n, -0.9, 0.9), self._uniform(n, -0.9, 0.9)], 1), torch.zeros(n, 2, device=self.device)
         )
-        goal_pusher = torch.stack([self._uniform(n, -0.9, 0.9), self._uniform(n, -0.9, 0.9)], 1)
         self.position[mask] = pusher
         self.block[mask] = shove(pusher, block[:, None])[:, 0]  # a pusher dropped onto the block shoves it aside
         self.goal[mask] = goal
-        self.goal_pusher[mask] = _out_of_the_way(goal_pusher, goal)
         self.t[mask] = 0
 
     def picture(self, block: torch.Tensor, pusher: torch.Tensor) -> torch.Tensor:
         """``[B, size, size, 3]`` uint8: the table with the block at ``block`` and the pusher at ``pusher``."""
         return draw_table(block[:, None], self._colour, pusher, self.image_size)
+
+    def goal_picture(self, goal: torch.Tensor) -> torch.Tensor:
+        """``[B, size, size, 3]`` uint8: the table with the block at ``goal`` and no pusher (the pusher is drawn off
+        the table): the env's goal pictures and hindsight's relabelled ones alike."""
+        return self.picture(goal, torch.full_like(goal, OFF_TABLE))
 
     def _obs(self) -> Obs:
         pusher, block = self.position.clone(), self.block.clone()
@@ -106,7 +111,7 @@ class PixelPush(PointReach):
         return {
             "observation": pusher,
             "image": self.picture(block, pusher),
-            "goal_image": self.picture(self.goal, self.goal_pusher),
+            "goal_image": self.goal_picture(self.goal),
             **goals,
         }
 
@@ -121,16 +126,8 @@ class PixelPush(PointReach):
     def render_rgb(self, index: int = 0) -> np.ndarray:
         """Copy ``index``'s scene beside its goal picture, each pixel drawn 4x4."""
         i = slice(index, index + 1)
-        both = torch.cat([self.picture(self.block[i], self.position[i]), self.picture(self.goal[i], self.goal_pusher[i])], 2)[0]
+        both = torch.cat([self.picture(self.block[i], self.position[i]), self.goal_picture(self.goal[i])], 2)[0]
         return both.repeat_interleave(4, 0).repeat_interleave(4, 1).cpu().numpy()
-
-
-def _out_of_the_way(pusher: torch.Tensor, block: torch.Tensor) -> torch.Tensor:
-    """``pusher`` moved off ``block`` (along the line between them) where it would cover it in a picture."""
-    offset = pusher - block
-    distance = torch.linalg.vector_norm(offset, dim=-1, keepdim=True).clamp(min=1e-6)
-    contact = PUSHER + BLOCK
-    return torch.where(distance < contact, block + offset / distance * contact, pusher).clamp(-1.0 + PUSHER, 1.0 - PUSHER)
 
 
 class PixelPushGymEnv(PointReachGymEnv):

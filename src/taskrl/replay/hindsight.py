@@ -5,7 +5,8 @@ been a goal the agent actually achieved: with ``future`` a state reached later i
 episode, ``final`` the episode's last state, ``episode`` any state of the episode, ``random`` any
 stored state. The reward (and termination, where success ends an episode) is recomputed for the
 new goal through the environment's own functions. Where the goal is also shown as a picture
-(``goal_image``), the picture is replaced by the ``image`` of the same state, so the two goals agree.
+(``goal_image``), the picture is replaced by the env's picture of the new goal (``goal_picture(goal)``, where the
+env draws its goals so) or else by the ``image`` of the same state, so the two goals agree.
 """
 
 from __future__ import annotations
@@ -40,6 +41,9 @@ class HindsightRelabeler:
         task_key: on envs whose tasks are reward functions of the goal (``r_j(achieved, goal)``), the
             observation key of the task index: the reward functions then get ``info={task_key: task}``,
             so hindsight goals compose with data sharing's task relabelling (which comes first).
+        goal_picture_fn: ``goal_picture(goal) -> [B, H, W, C]`` of the env, which draws its own goal pictures so:
+            relabelled goal pictures are drawn by it (one distribution with the env's); None: the reached
+            state's ``image``.
     """
 
     def __init__(
@@ -51,6 +55,7 @@ class HindsightRelabeler:
         achieved_key: str = "achieved_goal",
         desired_key: str = "desired_goal",
         task_key: str | None = None,
+        goal_picture_fn: Callable[[torch.Tensor], torch.Tensor] | None = None,
     ) -> None:
         if strategy not in STRATEGIES:
             raise ValueError(f"her strategy must be one of {', '.join(STRATEGIES)}; got {strategy!r}")
@@ -64,6 +69,7 @@ class HindsightRelabeler:
         self.achieved_key = achieved_key
         self.desired_key = desired_key
         self.task_key = task_key
+        self.goal_picture_fn = goal_picture_fn
 
     def goal_indices(
         self, batch: Batch, replay: EpisodeReplay, generator: torch.Generator | None
@@ -102,7 +108,10 @@ class HindsightRelabeler:
             terminated = torch.where(relabel, self.terminated_fn(next_achieved, goal, info), terminated)
         goals = {self.desired_key: goal}
         if GOAL_PICTURE in batch.obs:  # the goal's picture: the picture of the state whose goal replaced it
-            picture = replay.observation_at(ACHIEVED_PICTURE, goal_episode, goal_index)
+            if self.goal_picture_fn is not None:
+                picture = self.goal_picture_fn(achieved)
+            else:
+                picture = replay.observation_at(ACHIEVED_PICTURE, goal_episode, goal_index)
             old = batch.obs[GOAL_PICTURE]
             goals[GOAL_PICTURE] = torch.where(relabel.view(-1, *[1] * (old.dim() - 1)), picture, old)
         return batch.replace(

@@ -161,7 +161,11 @@ def make_relabeler(config: TrainConfig, env: BatchedEnv) -> HindsightRelabeler |
     if config.her == "none":
         return None
     return HindsightRelabeler(
-        env.compute_reward, config.her, config.her_k, terminated_fn=getattr(env, "compute_terminated", None)
+        env.compute_reward,
+        config.her,
+        config.her_k,
+        terminated_fn=getattr(env, "compute_terminated", None),
+        goal_picture_fn=getattr(env, "goal_picture", None),
     )
 
 
