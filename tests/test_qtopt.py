@@ -27,6 +27,8 @@ class Stub(nn.Module):
 def make_agent(low=(-1.0,), high=(1.0,), **cfg):
     torch.manual_seed(0)
     cfg.setdefault("cem", CEMConfig(iterations=4, samples=128, elites=8))
+    for name, value in (("target_iterations", 4), ("target_samples", 128), ("target_elites", 8), ("twin", "lagged")):
+        cfg.setdefault(name, value)
     return QTOptAgent(
         ("observation",),
         2,
@@ -149,6 +151,7 @@ def test_acting_respects_the_bounds_and_explores_uniformly_at_the_requested_rate
         random_action_prob=0.6,
         random_action_prob_end=0.2,
         random_action_decay_steps=1000,
+        noise_std=0.0,  # the random share alone
     )
     assert agent.exploration(750) == {"random_action_prob": pytest.approx(0.3)}
     # greedy actions all at the stub's optimum (0.5 in unit space -> 1.75 / 0.875 in the box)
@@ -234,3 +237,34 @@ def test_the_first_update_refuses_rewards_outside_the_range_the_bound_on_q_assum
         make_agent(loss="cross_entropy").update(negative)
     make_agent(clip_target=True).update(negative)  # in range
     make_agent().update(positive)  # unbounded Huber takes any reward
+
+
+def test_the_bellman_maximum_searches_with_its_own_smaller_cem():
+    """The target's CEM scores ``target_samples`` candidates per row in ``target_iterations`` rounds; acting scores the
+    acting ``cem``'s. Mutation: the target searching with the acting CEM's sizes fails."""
+    agent = make_agent(cem=CEMConfig(iterations=2, samples=64, elites=6), target_samples=16, target_iterations=1, target_elites=2)
+    shapes = []
+    agent.q_target1 = Stub(lambda x, a: shapes.append(tuple(a.shape)) or -a[..., 0].square())
+    agent.q_target2 = constant([0.0, 0.0])
+    agent.bellman_target(onehot_batch([0.0, 0.0, 0.0], [False] * 3, [False] * 3, [0, 1, 0]))
+    assert shapes == [(3, 16, 1)]
+    agent.q = agent.q_target1
+    shapes.clear()
+    agent.act({"observation": torch.eye(2)})
+    assert shapes == [(2, 64, 1), (2, 64, 1)]
+    with pytest.raises(Exception, match="target_elites"):
+        QTOptConfig(target_samples=8, target_elites=9).validate()
+
+
+def test_each_update_reports_the_bound_share_the_q_spread_and_how_often_the_twin_minimum_clips():
+    agent = make_agent(twin="lagged")
+    # stored actions: 2 of 4 components on a bound (the box is [-1, 1])
+    batch = onehot_batch([0.0] * 4, [False] * 4, [False] * 4, [0, 1, 0, 1], action=torch.tensor([[1.0], [-1.0], [0.3], [0.0]]))
+    # target2 below target1 in the rows of state 1 (half the rows); Q_target1 varies with the action in state 0 only
+    agent.q_target1 = Stub(lambda x, a: x[:, :1] * a[..., 0] + 0.0 * x[:, 1:])
+    agent.q_target2 = Stub(lambda x, a: x[:, :1] * a[..., 0] - x[:, 1:] * torch.ones_like(a[..., 0]))
+    metrics = agent.update(batch)
+    assert metrics["action_on_bound"].item() == pytest.approx(0.5)
+    assert metrics["twin_clip_rate"].item() == pytest.approx(0.5)
+    # state 0: Q = a over candidates spread across the box (std about 0.5); state 1: Q constant (std 0)
+    assert 0.15 < metrics["q_spread"].item() < 0.4

@@ -11,8 +11,8 @@ from taskrl.errors import ConfigError
 # Goal reaching with continuous actions: the hindsight paper's Fetch settings where they apply
 # (gamma 0.98, lr 1e-3, batch 256, relabelling future with k = 4; episodes never end on success,
 # the default of PointReach and Fetch). Each algorithm explores its own way (its section's
-# defaults): SAC samples its policy, QT-Opt takes random actions with a probability decaying
-# 0.3 -> 0.1 over 20k env steps.
+# defaults): SAC samples its policy, QT-Opt adds Gaussian noise (0.2) to its CEM action and takes a
+# uniformly random action with probability 0.3 (the hindsight paper's Fetch exploration).
 _CONTINUOUS_HER = {"her": "future", "her_k": 4, "batch_size": 256}
 _SAC = {"algo": "sac"}
 # QT-Opt bounds Q as its paper does; the goal envs' rewards are -1 / 0, so by clipping targets to
@@ -233,6 +233,11 @@ PRESETS: dict[str, Preset] = {
     "pixelpush-state-sac-her": Preset(
         "SAC + hindsight relabelling on PixelPush from positions (pusher, block, goal): the control without pictures",
         {**_PIXELPUSH, "observation": "state"},
+    ),
+    "pixelpush-state-qtopt-her": Preset(
+        "QT-Opt + hindsight relabelling on PixelPush from positions (pusher, block, goal): the five-minute check that "
+        "QT-Opt learns to push (64x64 Q-network, 0.25 updates per env step, 150k env steps)",
+        {**_PIXELPUSH, **_QTOPT, "observation": "state", "hidden_sizes": (64, 64), "total_steps": 150_000},
     ),
     "pointreach-qtopt-her": Preset(
         "QT-Opt (Q-learning, CEM argmax) + hindsight relabelling on PointReach (sparse reward)",

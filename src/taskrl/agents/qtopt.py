@@ -25,16 +25,29 @@ Bounded Q. Loss ``cross_entropy`` is the paper's for rewards in [0, 1]: the netw
 Q = sigmoid(logit), targets are clipped to [0, 1] and the loss is the log loss
 -(y log Q + (1 - y) log(1 - Q)). For rewards in {-1, 0} (the goal envs' sparse reward) ``huber`` /
 ``mse`` regress Q directly and ``clip_target`` clips targets to [-1/(1-gamma), 0], as the hindsight
-paper does; every QT-Opt preset turns it on. The first update checks that the batch's rewards lie
+paper does; the presets on goal envs with that reward (pointreach, fetchreach, fetchpush) turn it on, and
+``grasp-qtopt-pixels`` bounds Q by ``cross_entropy`` instead (its reward is 0/1). The first update checks that the batch's rewards lie
 in the range the chosen bound assumes and otherwise stops with one line naming the setting.
 
 Actions: the networks see actions rescaled from the box [low, high] to [-1, 1]; CEM searches in
 that normalised box and acting maps the result back.
 
+The Bellman maximum. The target's argmax runs its own, smaller CEM (``target_samples`` candidates per row,
+``target_iterations`` rounds, ``target_elites``): by default one round of 32, as TF-Agents' QtOpt samples 32 and
+the QT-Opt team's simulated grasping benchmark (Quillen et al. 2018) took the maximum over 16 random samples; the
+paper's 2 x 64 moved to separate Bellman-updater processes, which a two-core machine does not have. Acting keeps
+the richer ``cem``.
+
 Exploration while collecting: Gaussian noise of std ``noise_std`` around the CEM action and, with
 probability ``random_action_prob`` (decayed linearly to ``random_action_prob_end`` over
-``random_action_decay_steps``), a uniformly random action instead; the hindsight paper's Fetch
-exploration is ``noise_std=0.2`` with a constant 0.3.
+``random_action_decay_steps``), a uniformly random action instead. The default is the hindsight paper's Fetch
+exploration, ``noise_std=0.2`` with a constant 0.3, and CEM samples from the normal truncated to the box
+(``cem.truncate``): with clipped samples and no noise a third of the stored action components sat on a bound.
+
+Diagnostics (every update, averaged per metrics row): ``action_on_bound`` (share of the batch's stored action
+components on a bound of the box), ``q_spread`` (standard deviation of Q_target1(s', .) over the target CEM's first
+candidates, mean over rows: how much Q tells actions apart) and ``twin_clip_rate`` (share of rows where the second
+target is below the first, so the minimum clips).
 """
 
 from __future__ import annotations
@@ -82,14 +95,17 @@ class QTOptConfig:
             same target, each with its own Polyak target network).
         target2_interval: with ``twin=lagged``, updates between copies of the first target network into the second.
         clip_target: clip targets to [-1/(1-gamma), 0], bounding Q for rewards in {-1, 0} (huber/mse;
-            on in every QT-Opt preset; ``cross_entropy`` bounds Q to [0, 1] for rewards in [0, 1]).
+            on in the QT-Opt presets on goal envs; ``cross_entropy`` bounds Q to [0, 1] for rewards in [0, 1]).
         max_grad_norm: gradient-norm clip (0 disables).
         normalize_inputs: standardise observation inputs with running mean/std (clipped to +-5).
         noise_std: while collecting, std of Gaussian noise added to the CEM action (half-widths of the box).
         random_action_prob: while collecting, probability of a uniformly random action instead, when collecting starts.
         random_action_prob_end: that probability after ``random_action_decay_steps``.
         random_action_decay_steps: environment steps over which it decays linearly (0: ``random_action_prob_end`` throughout).
-        cem: cross-entropy-method settings, used both to act and in the Bellman target.
+        cem: cross-entropy-method settings of acting (and of a Bellman updater's warm-started search).
+        target_samples: candidate actions per row in the Bellman target's maximum (its CEM's samples per round).
+        target_iterations: CEM rounds in the Bellman target's maximum.
+        target_elites: elites of the Bellman target's CEM (its refit between rounds).
         encoder: on envs with a camera, the picture's encoder in every Q-network: ``conv`` (four 3x3
             convolutions), ``resnet`` (a small ResNet) or ``keypoints`` (each channel's expected position, a
             spatial softmax: 64 coordinates read to a fraction of a pixel); the action joins after it, so CEM encodes a
@@ -104,16 +120,19 @@ class QTOptConfig:
     hidden_sizes: tuple[int, ...] = (256, 256)
     loss: Literal["huber", "mse", "cross_entropy"] = "huber"
     tau: float = 0.005
-    twin: Literal["lagged", "independent"] = "lagged"
+    twin: Literal["lagged", "independent"] = "independent"
     target2_interval: int = 200
     clip_target: bool = False
     max_grad_norm: float = 10.0
     normalize_inputs: bool = True
-    noise_std: float = 0.0
+    noise_std: float = 0.2
     random_action_prob: float = 0.3
-    random_action_prob_end: float = 0.1
-    random_action_decay_steps: int = 20_000
-    cem: CEMConfig = dataclasses.field(default_factory=CEMConfig)
+    random_action_prob_end: float = 0.3
+    random_action_decay_steps: int = 0
+    cem: CEMConfig = dataclasses.field(default_factory=lambda: CEMConfig(truncate=True))
+    target_samples: int = 32
+    target_iterations: int = 1
+    target_elites: int = 4
     encoder: Literal["conv", "resnet", "keypoints"] = "conv"
     image_features: int = 50
     augment_pad: int = 4
@@ -134,6 +153,12 @@ class QTOptConfig:
         require(self.target2_interval >= 1, "target2_interval", f"must be >= 1 (got {self.target2_interval})")
         check_non_negative(self, "noise_std", "random_action_decay_steps")
         check_probability(self, "random_action_prob", "random_action_prob_end")
+        require(self.target_iterations >= 1, "target_iterations", f"must be >= 1 (got {self.target_iterations})")
+        require(
+            1 <= self.target_elites <= self.target_samples,
+            "target_elites",
+            f"must be in [1, target_samples={self.target_samples}] (got {self.target_elites})",
+        )
         self.cem.validate()
 
 
@@ -207,19 +232,33 @@ class QTOptAgent(Agent):
         return torch.sigmoid(out) if self.config.loss == "cross_entropy" else out
 
     def argmax(
-        self, net: StateActionQ, x: torch.Tensor, generator: torch.Generator | None = None, warm_start: torch.Tensor | None = None
+        self,
+        net: StateActionQ,
+        x: torch.Tensor,
+        generator: torch.Generator | None = None,
+        warm_start: torch.Tensor | None = None,
+        target: bool = False,
+        first_scores: list[torch.Tensor] | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """CEM over [-1, 1]^A: ``(a* [B, A] in [-1, 1], net output at a* [B])``, one forward pass per round.
 
         ``warm_start`` (``[B, A]`` in [-1, 1]) starts the search there (``cem.warm_std``, ``cem.warm_iterations``).
+        ``target``: the Bellman target's search (``target_samples`` x ``target_iterations``, ``target_elites``).
+        ``first_scores``: a list the first round's scores ``[B, N]`` are appended to.
         """
+
+        def score(actions: torch.Tensor) -> torch.Tensor:
+            scores = net.score_actions(x, actions)
+            if first_scores is not None and not first_scores:
+                first_scores.append(scores)
+            return scores
+
+        c = self.config
+        sizes = {}
+        if target and warm_start is None:
+            sizes = {"iterations": c.target_iterations, "samples": c.target_samples, "elites": c.target_elites}
         return self.cem.maximize(
-            lambda a: net.score_actions(x, a),
-            x.shape[0],
-            self.unit_low,
-            self.unit_high,
-            init_mean=warm_start,
-            generator=generator,
+            score, x.shape[0], self.unit_low, self.unit_high, init_mean=warm_start, generator=generator, **sizes
         )
 
     # ---------------------------------------------------------------- acting
@@ -247,21 +286,28 @@ class QTOptAgent(Agent):
         generator: torch.Generator | None = None,
         warm_start: torch.Tensor | None = None,
         return_action: bool = False,
+        diagnostics: dict[str, torch.Tensor] | None = None,
     ):
         """y = r + gamma (1 - terminated) min(Q_target1(s', a*), Q_target2(s', a*)), a* = CEM argmax of Q_target1.
 
         Reads only the batch, the two target networks and the input normaliser (a Bellman
         updater can run it on its own copy of those). A Bellman updater that recomputes targets
         for the same transitions can pass the previous ``a*`` (box units) as ``warm_start`` to
-        search near it with fewer rounds, and gets ``(y, a*)`` back with ``return_action``.
+        search near it with fewer rounds, and gets ``(y, a*)`` back with ``return_action``. ``diagnostics``: a
+        dict given ``q_spread`` and ``twin_clip_rate`` (module docstring).
         """
         cfg = self.config
         with torch.no_grad():
             next_x = self.inputs(batch.next_obs)
             warm = None if warm_start is None else self.box.to_unit(warm_start)
-            next_action, out1 = self.argmax(self.q_target1, next_x, generator, warm)  # out1 = Q_target1(s', a*), from CEM
+            first = [] if diagnostics is not None else None
+            # out1 = Q_target1(s', a*), from CEM
+            next_action, out1 = self.argmax(self.q_target1, next_x, generator, warm, target=True, first_scores=first)
             out2 = self.q_target2(next_x, next_action)
             next_value = self.q_value(torch.minimum(out1, out2))  # sigmoid is monotone
+            if diagnostics is not None:
+                diagnostics["q_spread"] = self.q_value(first[0]).std(dim=1).mean()
+                diagnostics["twin_clip_rate"] = (out2 < out1).float().mean()
             if cfg.loss == "cross_entropy":
                 clip = (0.0, 1.0)
             else:
@@ -295,10 +341,12 @@ class QTOptAgent(Agent):
         if self.image_shape is not None and cfg.augment_pad:  # DrQ: every picture shifted on its own
             shift = lambda obs: shift_pictures(obs, cfg.augment_pad, generator)  # noqa: E731
             batch = batch.replace(obs=shift(batch.obs), next_obs=shift(batch.next_obs))
+        diagnostics: dict[str, torch.Tensor] = {}
         if target is None:
-            target = self.bellman_target(batch, generator)
+            target = self.bellman_target(batch, generator, diagnostics=diagnostics)
         self.inputs.update_statistics(batch.obs)
         x, action = self.inputs(batch.obs), self.box.to_unit(batch.action)
+        diagnostics["action_on_bound"] = (action.abs() >= 1.0 - 1e-6).float().mean()
         out = self.q(x, action)
         loss = self.loss(out, target)
         if self.independent:  # both twins regress onto the same target
@@ -306,7 +354,12 @@ class QTOptAgent(Agent):
 
         gradient_step(self.optimizer, loss, self._params, cfg.max_grad_norm)
         self.update_targets(copy_target2)
-        return {"loss": loss.detach(), "q_mean": self.q_value(out.detach()).mean(), "target_mean": target.mean()}
+        return {
+            "loss": loss.detach(),
+            "q_mean": self.q_value(out.detach()).mean(),
+            "target_mean": target.mean(),
+            **diagnostics,
+        }
 
     def loss(self, out: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
         """The regression loss of network outputs ``out`` towards ``target`` (``loss`` setting)."""

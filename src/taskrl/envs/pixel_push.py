@@ -35,7 +35,7 @@ from taskrl.envs.base import Obs, StepResult
 from taskrl.envs.gymnasium_env import PointReachGymEnv
 from taskrl.envs.point_reach import REWARD_TYPES, PointReach
 from taskrl.envs.spec import EnvFamily, EnvRequest
-from taskrl.envs.tabletop import BLOCK, COLOURS, PUSHER, draw_table, move_pusher, shove
+from taskrl.envs.tabletop import COLOURS, draw_table, move_pusher, shove
 from taskrl.errors import one_of, require
 
 __all__ = ["FAMILY", "PixelPush", "PixelPushGymEnv", "PixelPushSettings"]
