@@ -259,7 +259,9 @@ def equal(args) -> tuple[str, dict]:
             sb3_seconds = _median(runs["sb3"]["target"], "seconds")
             for lib in list(runners)[1:]:
                 lines.append(f"\nWall-clock to 90%, SB3 / {lib}: {sb3_seconds / _median(runs[lib]['target'], 'seconds'):.2f}x")
-        lines += ["", f"Differences left: {DIFFERENCES['sac' if key == 'sac' else 'dqn']}.", ""]
+        differences = DIFFERENCES["sac" if key == "sac" else "dqn"]
+        said = differences in "\n".join(lines)  # one case per section says it; the next ones point back
+        lines += ["", "Differences left: as for the case above." if said else f"Differences left: {differences}.", ""]
         lines.append(
             f"Per-seed throughput runs: {throughput_steps:,} env steps each, no evaluation; time-to-90% runs: up to {to_target:,}."
         )

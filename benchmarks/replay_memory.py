@@ -165,6 +165,9 @@ def sb3_bytes(task: str) -> float:
     return total / CAPACITY
 
 
+RAW = Path(__file__).with_name("results") / "replay_memory_sampling.json"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--before", required=True, help="src folder of the previous storage's commit")
@@ -213,10 +216,11 @@ def main() -> None:
         "episodes end early.\n\n"
         "| task | transitions stored before | after | before (us) | after (us) | after / before |\n"
         "|---|---|---|---|---|---|\n" + "\n".join(time_rows) + "\n\n"
-        "Raw per-block figures (us): " + json.dumps(timing)
+        f"Raw per-block figures (us): `benchmarks/results/{RAW.name}`."
     )
     print(body)
     if args.write:
+        RAW.write_text(json.dumps(timing, indent=1) + "\n")
         append_results("Replay memory and sampling: transitions counted against SB3 and the previous storage", body)
 
 

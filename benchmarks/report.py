@@ -6,6 +6,12 @@ titles carry a commit, as in ``Same learning as commit ...``), and the file is l
 chapter by chapter in the order of :data:`QUESTIONS`, with a table of contents. Older figures live in
 git history and in ``benchmarks/results/``.
 
+The report opens with a summary (``benchmarks/summary.md``, kept by hand: one line per question, our figure
+beside the published or peer figure, linked to its chapter). Figures are shown, not named: a figure's path in a
+section becomes a link and the picture is embedded in the section. ``--check`` also enforces the shape: the
+summary links only to chapters that exist, every figure under ``benchmarks/figures/`` is embedded and every
+embedded one exists, no chapter repeats a paragraph, no raw data is pasted (a line over 1,000 characters).
+
     .venv/bin/python benchmarks/report.py          # lay out RESULTS.md again (idempotent)
     .venv/bin/python benchmarks/report.py --check  # exit 1 if it is not laid out (a test runs this)
 """
@@ -18,6 +24,12 @@ import sys
 from pathlib import Path
 
 RESULTS = Path(__file__).with_name("RESULTS.md")
+SUMMARY = Path(__file__).with_name("summary.md")
+FIGURES = Path(__file__).with_name("figures")
+#: a figure named by its path in a section: `benchmarks/figures/NAME.png` (or `figures/NAME.png`)
+_FIGURE_PATH = re.compile(r"`(?:benchmarks/)?figures/([\w.-]+\.png)`")
+_EMBEDDED = re.compile(r"!\[[^\]]*\]\(figures/([\w.-]+\.png)\)")
+LONGEST_LINE = 1_000
 
 #: (anchor, chapter title, section titles that belong to it by prefix), in the report's order.
 QUESTIONS: list[tuple[str, str, tuple[str, ...]]] = [
@@ -97,10 +109,22 @@ def sections(text: str) -> list[tuple[str, str]]:
     return found
 
 
+def show_figures(body: str) -> str:
+    """A section's figure paths as links, and each of its figures embedded (at the section's end if not yet)."""
+    named = _FIGURE_PATH.findall(body)
+    body = _FIGURE_PATH.sub(lambda m: f"[{m.group(1)}](figures/{m.group(1)})", body)
+    shown = set(_EMBEDDED.findall(body))
+    missing = [name for name in dict.fromkeys(named) if name not in shown]
+    return body + "".join(f"\n\n![{name[:-4]}](figures/{name})" for name in missing)
+
+
 def organise(text: str) -> str:
-    """The report: the newest section per title (per question for titles carrying a commit), grouped by chapter."""
+    """The report: the summary, then the newest section per title (per question for titles carrying a commit),
+    grouped by chapter, figures shown."""
     latest: dict[str, tuple[str, str]] = {}
     for title, body in sections(text):
+        if title == "Summary":
+            continue
         latest.pop(question_key(title), None)  # the newer one takes the place of the older
         latest[question_key(title)] = (title, body)
     chapters = [*QUESTIONS, OTHER]
@@ -112,15 +136,46 @@ def organise(text: str) -> str:
     for anchor, name, _ in chapters:
         if not grouped[anchor]:
             continue
-        contents.append(f"- [{name}](#{anchor}): " + "; ".join(_short(t) for t, _ in grouped[anchor]))
+        contents.append(f"- [{name}](#{anchor}): " + "; ".join(t for t, _ in grouped[anchor]))
         out += ["", f'<a id="{anchor}"></a>', "", f"## {name}", ""]
         for title, body in grouped[anchor]:
-            out += [f"### {title}", "", body.strip("\n"), ""]
-    return HEAD + "\n" + "\n".join(contents) + "\n" + "\n".join(out).rstrip("\n") + "\n"
+            out += [f"### {title}", "", show_figures(body.strip("\n")), ""]
+    summary = ["## Summary", "", SUMMARY.read_text().strip("\n"), ""] if SUMMARY.exists() else []
+    return HEAD + "\n" + "\n".join([*summary, *contents]) + "\n" + "\n".join(out).rstrip("\n") + "\n"
 
 
-def _short(title: str) -> str:
-    return title if len(title) <= 70 else title[:67].rstrip() + "..."
+def problems(text: str) -> list[str]:
+    """What keeps ``text`` from being the report's shape (module docstring), one line each."""
+    found = []
+    if organise(text) != text:
+        found.append("it is not laid out: run .venv/bin/python benchmarks/report.py")
+    if not SUMMARY.exists():
+        found.append(f"{SUMMARY.name} is missing: the report opens with a summary")
+    else:
+        anchors = {anchor for anchor, _, _ in [*QUESTIONS, OTHER]}
+        for link in re.findall(r"\]\(#([\w-]+)\)", SUMMARY.read_text()):
+            if link not in anchors:
+                found.append(f"the summary links to #{link}, which is no chapter")
+    embedded = _EMBEDDED.findall(text)
+    for name in sorted({p.name for p in FIGURES.glob("*.png")} - set(embedded)):
+        found.append(f"figures/{name} is shown nowhere: embed it in its section or delete it")
+    for name in sorted(set(embedded)):
+        if not (FIGURES / name).exists():
+            found.append(f"figures/{name} is embedded but does not exist")
+    for number, line in enumerate(text.splitlines(), 1):
+        if len(line) > LONGEST_LINE:
+            found.append(f"line {number} has {len(line):,} characters: raw data goes to benchmarks/results/*.json")
+    for chapter in re.split(r"\n## ", text):
+        seen: dict[str, int] = {}
+        for paragraph in re.split(r"\n\s*\n", chapter):
+            paragraph = paragraph.strip()
+            if len(paragraph) >= 100 and not paragraph.startswith(("|", "- [", "![")):
+                seen[paragraph] = seen.get(paragraph, 0) + 1
+        for paragraph, count in seen.items():
+            if count > 1:
+                name = chapter.partition("\n")[0]
+                found.append(f"chapter {name!r} repeats a paragraph {count} times (say it once): {paragraph[:70]}...")
+    return found
 
 
 def main() -> int:
@@ -130,10 +185,10 @@ def main() -> int:
     text = RESULTS.read_text()
     laid_out = organise(text)
     if args.check:
-        if laid_out != text:
-            print("benchmarks/RESULTS.md is not laid out: run .venv/bin/python benchmarks/report.py", file=sys.stderr)
-            return 1
-        return 0
+        found = problems(text)
+        for problem in found:
+            print(f"benchmarks/RESULTS.md: {problem}", file=sys.stderr)
+        return 1 if found else 0
     RESULTS.write_text(laid_out)
     return 0
 

@@ -31,7 +31,7 @@ import tempfile
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
-from common import append_results
+from common import append_results, command_line, commit
 
 HERE = Path(__file__).parent
 ONLINE = ("none", "all", "random", "success", "hipi", "conservative", "zero-reward", "mtopt")
@@ -142,6 +142,54 @@ def table(results: list[dict], strategies: list[str], columns: list[str], at: in
     return "\n".join(lines)
 
 
+OFFLINE_INDEX = HERE / "results" / "sharing_offline_index.json"
+OFFLINE_TITLE = "Data sharing, offline: every setting in one table"
+
+
+def offline_summary() -> str:
+    """One table of every offline setting measured (``results/sharing_offline_index.json`` lists them with where and
+    how they ran): the mean success over all tasks and over the tasks whose dataset is expert, per strategy."""
+    index = json.loads(OFFLINE_INDEX.read_text())
+
+    def cell(values: list[float]) -> str:
+        mean, half = interval(values)
+        return f"{mean:.2f} ± {half:.2f}"
+
+    head = "| setting | seeds | " + " | ".join(OFFLINE) + " |"
+    rule = "|---" * (len(OFFLINE) + 2) + "|"
+    every, expert, provenance, figures = [head, rule], [head, rule], [], []
+    for raw, entry in index.items():
+        results = json.loads((HERE / "results" / raw).read_text())
+        seeds = len({r["seed"] for r in results})
+        picked = entry.get("picked_cql_alpha")
+        setting = entry["setting"] + (" (" + ", ".join(f"{k} {v:g}" for k, v in picked.items()) + ")" if picked else "")
+        cells_all, cells_expert = [], []
+        for strategy in OFFLINE:
+            runs = [r for r in results if r["strategy"] == strategy]
+            cells_all.append(cell([at_point(r, None)["all tasks"] for r in runs]) if runs else "-")
+            scores = [statistics.fmean(at_point(r, None)[t] for t in entry["expert_tasks"]) for r in runs]
+            cells_expert.append(cell(scores) if runs else "-")
+        every.append(f"| {setting} | {seeds} | " + " | ".join(cells_all) + " |")
+        expert.append(f"| {setting} ({', '.join(entry['expert_tasks'])}) | {seeds} | " + " | ".join(cells_expert) + " |")
+        provenance.append(f"| {entry['setting']} | {entry['commit']} | {entry['date']} | `{entry['command']}` |")
+        figure = raw.replace(".json", ".png")
+        figures.append(f"![{entry['setting']}](figures/{figure})")
+    return (
+        "Final greedy success after each setting's budget, mean ± 95% t-interval half-width over seeds, one torch "
+        "thread per run, 2 runs at once (CDS's question: does sharing help or hurt, and the task with expert data in "
+        "particular). Per-task figures and curves: the raw data `benchmarks/results/sharing_<setting>.json`.\n\n"
+        "Mean over all tasks:\n\n"
+        + "\n".join(every)
+        + "\n\nMean over the tasks whose dataset is expert:\n\n"
+        + "\n".join(expert)
+        + "\n\nWhere each setting ran (machine: 2 cores, AMD EPYC, Linux, Python 3.11.7, torch 2.13.0+cpu):\n\n"
+        "| setting | measured at commit | date | command |\n|---|---|---|---|\n"
+        + "\n".join(provenance)
+        + "\n\nCurves (mean over seeds; band: min-max):\n\n"
+        + "\n\n".join(figures)
+    )
+
+
 def sampler_costs(transitions: int, batch_size: int, calls: int) -> str:
     """ms per batch of each strategy's sampler against plain task-balanced sampling and a DQN update,
     on a replay of random grid episodes."""
@@ -198,7 +246,9 @@ def sampler_costs(transitions: int, batch_size: int, calls: int) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument(
-        "setting", choices=("online", "offline", "table", "costs"), help="table: re-read --results at --at; costs: ms per batch"
+        "setting",
+        choices=("online", "offline", "table", "costs", "summary"),
+        help="table: re-read --results at --at; costs: ms per batch; summary: the offline settings' one table again",
     )
     parser.add_argument("--results", type=Path, help="table: a results JSON of an earlier run")
     parser.add_argument("--at", type=int, default=None, help="table: the evaluation nearest this step or update")
@@ -212,6 +262,12 @@ def main() -> None:
     parser.add_argument("--sweep-seed", type=int, default=100, help="the seed of the --sweep runs")
     parser.add_argument("--write", action="store_true")
     args = parser.parse_args()
+    if args.setting == "summary":
+        text = offline_summary()
+        print(text)
+        if args.write:
+            append_results(OFFLINE_TITLE, text)
+        return
     if args.setting == "costs":
         text = sampler_costs(100_000, 256, 200)
         print(text)
@@ -274,19 +330,36 @@ def main() -> None:
         (HERE / "results" / f"sharing_{name}.json").write_text(json.dumps(results, indent=1) + "\n")
         figure = HERE / "figures" / f"sharing_{name}.png"
         plot(results, strategies, [*(low or tasks[:2]), "mean"], figure)
+        index = json.loads(OFFLINE_INDEX.read_text()) if OFFLINE_INDEX.exists() else {}
+        if args.setting == "offline":  # one table for every offline setting; this run's row added or replaced
+            quality = per_strategy[strategies[0]].get("dataset_quality") or preset_dataset_quality(preset)
+            index[f"sharing_{name}.json"] = {
+                "setting": f"{preset}{', ' + describe(overrides, args.name) if overrides or args.name else ''}",
+                "commit": commit(),
+                "date": __import__("datetime").date.today().isoformat(),
+                "command": command_line(),
+                "expert_tasks": [k for k, q in (x.split("=") for x in quality.split(",")) if q == "expert"],
+                **({"picked_cql_alpha": {s: per_strategy[s][args.sweep[0]] for s in strategies}} if args.sweep else {}),
+            }
+            OFFLINE_INDEX.write_text(json.dumps(index, indent=1) + "\n")
+            append_results(OFFLINE_TITLE, offline_summary())
+            return
         axis = results[0]["axis"].replace("_", " ")
-        swept = f" at the {args.sweep[0]} a sweep picks per strategy" if args.sweep else ""
         append_results(
-            f"Data sharing, {args.setting}: {preset}{', ' + describe(overrides, args.name) if overrides else ''}{swept}",
+            f"Data sharing, {args.setting}: {preset}{', ' + describe(overrides, args.name) if overrides else ''}",
             f"Final greedy success after the preset's budget ({results[0]['curve'][-1]['at']:,} {axis}), "
             f"mean ± 95% t-interval half-width over seeds {args.seeds}; one torch thread per run, {args.jobs} runs at once. "
-            f"Curves: `benchmarks/figures/{figure.name}`; raw per-seed data and curves: "
-            f"`benchmarks/results/sharing_{name}.json`. The replay held "
+            f"Raw per-seed data and curves: `benchmarks/results/sharing_{name}.json`. The replay held "
             f"{statistics.fmean(r['replay_transitions'] for r in results):,.0f} transitions on average at the last "
             f"evaluation and dropped {max(r['replay_evicted'] for r in results):,} at most.\n\n"
-            + (sweep_text + "\n" if sweep_text else "")
-            + text,
+            f"![{preset}](figures/{figure.name})\n\n" + text,
         )
+
+
+def preset_dataset_quality(preset: str) -> str:
+    from taskrl.presets import preset_config
+
+    return preset_config(preset).env_settings.dataset_quality
 
 
 if __name__ == "__main__":

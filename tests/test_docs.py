@@ -177,3 +177,57 @@ def test_wandb_without_the_package_is_one_line_and_writes_nothing(tmp_path, monk
     with pytest.raises(taskrl.errors.ConfigError, match="wandb"):
         small_run("bitflip-her", tmp_path / "run", total_steps=100, wandb=True)
     assert not (tmp_path / "run").exists()
+
+
+def _report():
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    try:
+        import report
+    finally:
+        sys.path.remove(str(ROOT / "benchmarks"))
+    return report
+
+
+def test_the_report_shows_its_figures_and_refuses_repeats_and_pasted_data():
+    report = _report()
+    body = "Curves: `benchmarks/figures/mt10_curves.png`."
+    shown = report.show_figures(body)
+    assert "[mt10_curves.png](figures/mt10_curves.png)" in shown and "![mt10_curves](figures/mt10_curves.png)" in shown
+    assert report.show_figures(shown) == shown  # once
+    laid = report.organise((ROOT / "benchmarks" / "RESULTS.md").read_text())
+    assert report.problems(laid) == []
+    paragraph = "A protocol paragraph long enough to count as provenance, " * 3
+    repeated = laid.replace("## Contents", f"## Contents\n\n{paragraph}\n\n{paragraph}\n", 1)
+    assert any("repeats a paragraph" in p for p in report.problems(repeated))
+    pasted = laid.rstrip("\n") + "\n\nRaw: " + "[1.0, 2.0] " * 200 + "\n"
+    assert any("raw data goes to" in p for p in report.problems(pasted))
+    unshown = laid.replace("![mt10_curves](figures/mt10_curves.png)", "")
+    assert any("mt10_curves.png is shown nowhere" in p for p in report.problems(unshown))
+    assert laid.index("## Summary") < laid.index("## Contents")
+
+
+def test_the_docs_build_fails_on_a_raw_sphinx_role_and_the_source_has_none():
+    import importlib.util
+    from types import SimpleNamespace
+
+    from mkdocs.exceptions import PluginError
+
+    spec = importlib.util.spec_from_file_location("docs_hooks", ROOT / "docs" / "hooks.py")
+    hooks = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(hooks)
+    page = SimpleNamespace(file=SimpleNamespace(src_uri="reference/python.md"))
+    assert hooks.on_page_content("<p>see <code>x</code></p>", page, None, None) == "<p>see <code>x</code></p>"
+    with pytest.raises(PluginError, match="raw Sphinx role"):
+        hooks.on_page_content("<p>see :func:<code>taskrl.train</code></p>", page, None, None)
+    raw = re.compile(r":(func|class|meth|mod|attr|data|exc|obj):`")
+    offenders = [str(p) for p in (ROOT / "src").rglob("*.py") if raw.search(p.read_text())]
+    assert offenders == []
+
+
+def test_preset_help_reads_as_plain_text_in_a_terminal(capsys):
+    from taskrl.cli import main
+
+    with pytest.raises(SystemExit):
+        main(["train", "grasp-qtopt-pixels", "--help"])
+    out = capsys.readouterr().out
+    assert "--algo.target-samples" in out and "``" not in out and "][taskrl." not in out

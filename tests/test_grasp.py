@@ -53,6 +53,8 @@ def test_a_bar_is_held_across_the_fingers_only_and_on_its_spine():
 
 
 def test_a_disc_is_held_at_any_yaw_and_a_wide_square_only_turned_to_fit():
+    """The rule, shown on a square of half-side 0.066, wider than the env samples (0.035-0.05): as sampled, only
+    squares of half-side above 0.0495 must turn."""
     for yaw in (0.0, 0.7, 1.9):
         assert attempt(one_object("disc", (0.05, 0.05)), (0.5, 0.5), yaw)[1].item() == 1.0
     square = (0.066, 0.066)  # fits face on (0.132), not corner to corner (0.187)

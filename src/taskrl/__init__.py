@@ -13,42 +13,42 @@ register_gymnasium_envs()  # gymnasium.make("taskrl/BitFlip-v0") works after `im
 
 
 def train(*args, **kwargs):
-    """See :func:`taskrl.run.train`."""
+    """See [`taskrl.run.train`][taskrl.run.train]."""
     from taskrl.run import train as _train
 
     return _train(*args, **kwargs)
 
 
 def train_seeds(*args, **kwargs):
-    """See :func:`taskrl.seeds.train_seeds` (one run per seed, then their comparison)."""
+    """See [`taskrl.seeds.train_seeds`][taskrl.seeds.train_seeds] (one run per seed, then their comparison)."""
     from taskrl.seeds import train_seeds as _train_seeds
 
     return _train_seeds(*args, **kwargs)
 
 
 def load(*args, **kwargs):
-    """See :func:`taskrl.loading.load`."""
+    """See [`taskrl.loading.load`][taskrl.loading.load]."""
     from taskrl.loading import load as _load
 
     return _load(*args, **kwargs)
 
 
 def evaluate_run(*args, **kwargs):
-    """See :func:`taskrl.loading.evaluate_run`."""
+    """See [`taskrl.loading.evaluate_run`][taskrl.loading.evaluate_run]."""
     from taskrl.loading import evaluate_run as _evaluate_run
 
     return _evaluate_run(*args, **kwargs)
 
 
 def evaluate_prompted(*args, **kwargs):
-    """See :func:`taskrl.prompting.evaluate_prompted` (held-out tasks of a prompted policy)."""
+    """See [`taskrl.prompting.evaluate_prompted`][taskrl.prompting.evaluate_prompted] (held-out tasks of a prompted policy)."""
     from taskrl.prompting import evaluate_prompted as _evaluate_prompted
 
     return _evaluate_prompted(*args, **kwargs)
 
 
 def load_policy(*args, **kwargs):
-    """See :func:`taskrl.export.load_policy`."""
+    """See [`taskrl.export.load_policy`][taskrl.export.load_policy]."""
     from taskrl.export import load_policy as _load_policy
 
     return _load_policy(*args, **kwargs)

@@ -6,7 +6,7 @@ Each checkpoint is written to a folder of its own (a new name every time, even f
 step), its files fsync'd, and then published by atomically replacing the ``latest`` pointer; the
 folder ``latest`` names is never deleted. A run killed at any moment, mid-write included, keeps
 its previous checkpoint intact. Any defect of a checkpoint (missing, truncated, foreign or
-pickled files, a pointer outside the directory) is one :class:`~taskrl.errors.ConfigError` line.
+pickled files, a pointer outside the directory) is one `ConfigError` line.
 """
 
 from __future__ import annotations
@@ -162,7 +162,7 @@ def load_checkpoint(
 
 
 def read_checkpoint(folder: Path, parts: tuple[str, ...], device: str | torch.device = "cpu") -> dict[str, Any]:
-    """Load the named parts of one checkpoint folder (see :func:`load_checkpoint`)."""
+    """Load the named parts of one checkpoint folder (see `load_checkpoint`)."""
     out = {}
     for part in parts:
         skeleton_file, tensor_file = folder / f"{part}.json", folder / f"{part}.safetensors"

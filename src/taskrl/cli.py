@@ -60,10 +60,17 @@ def _flag(name: str) -> str:
     return "--" + name.replace("_", "-")
 
 
+def terminal_text(markup: str) -> str:
+    """A docstring's markup as a terminal shows it: ````code```` and `` `code` `` as the code, cross-references
+    ``[`name`][taskrl.path]`` as the name."""
+    text = re.sub(r"\[`([^`]+)`\]\[[\w.]+\]", r"\1", markup)
+    return re.sub(r"``?([^`]+)``?", r"\1", text)
+
+
 def _add_config_flags(parser: argparse.ArgumentParser, env: str, algo: str, base: Any = None) -> dict[str, list[str]]:
     """One flag per setting, in sections (``--algo.lr``, ``--env.n-bits``, ``--algo.cem.samples``,
     ``--data-sharing.share-fraction``), each also under its short name (``--lr``) where no other setting
-    has it; the ``dest`` is the dotted name :func:`taskrl.config.with_overrides` reads. Returns the
+    has it; the ``dest`` is the dotted name [`taskrl.config.with_overrides`][taskrl.config.with_overrides] reads. Returns the
     ambiguous short names (``{short flag: [its dotted flags]}``) for the error that names them."""
     from taskrl.agents.registry import ALGORITHMS
     from taskrl.config import dotted_name, leaf_fields, setting_help, setting_names, to_dict
@@ -90,7 +97,7 @@ def _add_config_flags(parser: argparse.ArgumentParser, env: str, algo: str, base
         if section not in groups:  # one block per section of config.json, so --help reads as the reference does
             groups[section] = parser.add_argument_group(f"settings: {titles.get(section, 'run')}")
         name, dotted = path[-1], dotted_name(path, env, algo)
-        text = docs.get(path, "").replace("%", "%%")
+        text = terminal_text(docs.get(path, "")).replace("%", "%%")
         node: Any = values
         for key in path:
             node = node.get(key, {}) if isinstance(node, dict) else {}
@@ -487,7 +494,7 @@ def _train_seeds(
     base: Any,
     settings: dict[str, Any],
 ) -> int:
-    """``--seeds``: :func:`taskrl.seeds.train_seeds`, its comparison table and where it wrote."""
+    """``--seeds``: [`taskrl.seeds.train_seeds`][taskrl.seeds.train_seeds], its comparison table and where it wrote."""
     from rich.console import Console
 
     from taskrl.console import summary_table

@@ -321,7 +321,7 @@ def _env_label(config: TrainConfig) -> str:
 
 
 def check_device(name: str, field: str = "device") -> None:
-    """``cpu``, ``cuda``, ``cuda:N`` or ``auto``; anything else is a :class:`ConfigError` on ``field``."""
+    """``cpu``, ``cuda``, ``cuda:N`` or ``auto``; anything else is a `ConfigError` on ``field``."""
     require(
         isinstance(name, str) and re.fullmatch(r"cpu|auto|cuda(:\d+)?", name) is not None,
         field,
@@ -330,11 +330,11 @@ def check_device(name: str, field: str = "device") -> None:
 
 
 def validate(config: TrainConfig) -> TrainConfig:
-    """Raise :class:`ConfigError` naming the field and the allowed values; return the config.
+    """Raise `ConfigError` naming the field and the allowed values; return the config.
 
     Run-level settings are checked here, each section by its own ``validate()``, the env family's
     rules between its section and the run by ``family.check``, and env against algorithm by
-    :func:`check_fit`.
+    `check_fit`.
     """
     c = config
     family = env_family(c.env)
@@ -420,7 +420,7 @@ def _leaves_with_help(cls: type, prefix: tuple[str, ...]) -> dict[tuple[str, ...
 
 
 def setting_help(env: str = "bitflip", algo: str = "dqn") -> dict[tuple[str, ...], str]:
-    """``{path: description}`` of every setting of a run on ``env`` with ``algo`` (paths as :func:`leaf_fields`)."""
+    """``{path: description}`` of every setting of a run on ``env`` with ``algo`` (paths as `leaf_fields`)."""
     family = env_family(env)
     return {
         **_leaves_with_help(TrainConfig, ()),
@@ -463,7 +463,7 @@ class SettingNames:
 
 
 def setting_names(env: str = "bitflip", algo: str = "dqn") -> SettingNames:
-    """The names settings answer to on a run of ``env`` with ``algo``, see :class:`SettingNames`."""
+    """The names settings answer to on a run of ``env`` with ``algo``, see `SettingNames`."""
     leaves = [path for path, _, _ in leaf_fields(env, algo)]
     paths: dict[str, tuple[str, ...]] = {}
     by_short: dict[str, list[tuple[str, ...]]] = {}
@@ -568,10 +568,10 @@ def _selected_family(config: TrainConfig, overrides: dict[str, Any]) -> str:
 def with_overrides(config: TrainConfig, overrides: dict[str, Any], notes: list[str] | None = None) -> TrainConfig:
     """A copy of ``config`` with settings replaced by name (``{"n_bits": 30, "lr": 1e-3}``).
 
-    Names are those :func:`setting_names` gives for the resulting ``env`` and ``algo``: in sections
+    Names are those `setting_names` gives for the resulting ``env`` and ``algo``: in sections
     (``{"algo.lr": 1e-3, "env.n_bits": 30, "algo.cem.samples": 32}``) or short where unambiguous. Changing ``env``
     starts its family's section from defaults (families sharing a section keep it); changing
-    ``algo`` keeps the :data:`SHARED_ALGO_SETTINGS` the old section had changed (every setting both sections
+    ``algo`` keeps the `SHARED_ALGO_SETTINGS` the old section had changed (every setting both sections
     have, between a variant and its ``parent``). What was kept
     or dropped is appended to ``notes``.
     """
@@ -642,7 +642,7 @@ def _build(cls: type, data: dict[str, Any], where: str) -> Any:
 
 
 def checked_value(name: str, value: Any, tp: Any) -> Any:
-    """``value`` as a setting of type ``tp``, or a :class:`ConfigError` naming ``name`` and what it must be.
+    """``value`` as a setting of type ``tp``, or a `ConfigError` naming ``name`` and what it must be.
 
     The one type check of every setting, however it arrives (a flag, a keyword of ``taskrl.train``,
     a saved ``config.json``): integers (an integral float such as ``1e6`` is accepted), finite
@@ -712,7 +712,7 @@ def _migrate(data: dict[str, Any]) -> dict[str, Any]:
 
 
 def from_dict(data: dict[str, Any]) -> TrainConfig:
-    """Rebuild a config from :func:`to_dict` output (e.g. a run's ``config.json``)."""
+    """Rebuild a config from `to_dict` output (e.g. a run's ``config.json``)."""
     data = _migrate(dict(data))
     env, algo = data.get("env", TrainConfig.env), data.get("algo", TrainConfig.algo)
     family, spec = env_family(env), algorithm(algo)
@@ -731,7 +731,7 @@ def save(config: TrainConfig, path: Path) -> None:
 
 def load(path: Path) -> TrainConfig:
     """A saved ``config.json``; any defect (unreadable, not JSON, foreign, wrong types) is one
-    :class:`ConfigError` line naming the file or the setting."""
+    `ConfigError` line naming the file or the setting."""
     path = Path(path)
     try:
         data = json.loads(path.read_text())

@@ -130,7 +130,7 @@ def final_table(row: dict[str, Any], run_dir: Path, curve: Path | None) -> Table
 
 
 def per_task_table(result: dict[str, Any], title: str = "per-task success"):
-    """A ``rich`` table of :func:`~taskrl.training.per_task.evaluate_per_task`'s result, with the mean over tasks last."""
+    """A ``rich`` table of [`evaluate_per_task`][taskrl.training.per_task.evaluate_per_task]'s result, with the mean over tasks last."""
     table = Table(title=title)
     table.add_column("#", justify="right")
     table.add_column("task")

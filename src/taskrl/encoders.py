@@ -1,9 +1,9 @@
 """Image encoders and the image augmentation of the update.
 
 An image observation reaches a network as uint8 values (0-255) in the last columns of its flat input
-(:class:`~taskrl.agents.parts.ObservationInput` leaves them unnormalised); :class:`ImageStateInput` splits
+([`ObservationInput`][taskrl.agents.parts.ObservationInput] leaves them unnormalised); `ImageStateInput` splits
 them off, encodes the picture once per state with a conv stack or a small ResNet, and hands
-``[vector part, image features]`` on. :func:`random_shift` is DrQ's augmentation: pad by replicating the
+``[vector part, image features]`` on. `random_shift` is DrQ's augmentation: pad by replicating the
 border, crop back at a random offset drawn per observation (a scene and its goal picture move together).
 """
 
@@ -31,7 +31,7 @@ __all__ = [
 ]
 
 ENCODERS = ("conv", "resnet", "keypoints")
-#: the encoders :class:`FiLMPictureEncoder` (behaviour cloning) builds
+#: the encoders `FiLMPictureEncoder` (behaviour cloning) builds
 FILM_ENCODERS = ("conv", "resnet")
 #: the observation keys that hold pictures, in the order their columns end the flat input
 PICTURE_KEYS = ("image", "goal_image")
@@ -113,7 +113,7 @@ class SpatialSoftmax(nn.Module):
 
 def keypoint_stack(channels: int, height: int, width: int, orthogonal: bool = True) -> nn.Sequential:
     """A stride-2 3x3 convolution of 16 channels, two 3x3 convolutions of 16 and 32 at that half resolution, then
-    :class:`SpatialSoftmax`: 64 coordinates. A 64x64 picture costs about 15 MFLOP (the conv stack's 9)."""
+    `SpatialSoftmax`: 64 coordinates. A 64x64 picture costs about 15 MFLOP (the conv stack's 9)."""
     return nn.Sequential(
         _conv(channels, 16, 2, orthogonal),
         nn.ReLU(),
@@ -133,8 +133,8 @@ class ImageStateInput(nn.Module):
     Args:
         vector_dim: the leading columns that are not the image.
         image_shape: ``(H, W, C)``, or ``(K, H, W, C)`` for K pictures one after the other.
-        kind: ``conv`` (:func:`conv_stack`), ``resnet`` (:func:`small_resnet`) or ``keypoints``
-            (:func:`keypoint_stack`: coordinates, which go to the network as they are, without the head).
+        kind: ``conv`` (`conv_stack`), ``resnet`` (`small_resnet`) or ``keypoints``
+            (`keypoint_stack`: coordinates, which go to the network as they are, without the head).
         features: the image's feature size (``conv`` and ``resnet``).
     """
 
@@ -167,7 +167,7 @@ class ImageStateInput(nn.Module):
 class FiLMPictureEncoder(nn.Module):
     """BC-Z's vision network at CPU scale: ``(pictures [B, H, W, C] uint8, context [B, X]) -> [B, features]``.
 
-    The blocks of :func:`conv_stack` (each convolution) or :func:`small_resnet` (each stage's convolution and
+    The blocks of `conv_stack` (each convolution) or `small_resnet` (each stage's convolution and
     each residual block), every block's output FiLM-modulated channel by channel by the task's context
     (``(1 + gamma(c)) * h + beta(c)``, identity at initialisation) as BC-Z conditions every ResNet block on the
     task embedding, then DrQ's head (linear to ``features``, LayerNorm, tanh). Without a context
@@ -235,7 +235,7 @@ def random_shift(images: torch.Tensor, pad: int, generator: torch.Generator | No
 
 
 def shift_pictures(obs: dict[str, torch.Tensor], pad: int, generator: torch.Generator | None = None) -> dict[str, torch.Tensor]:
-    """``obs`` with its pictures (:data:`PICTURE_KEYS`) shifted by :func:`random_shift`: one offset per row,
+    """``obs`` with its pictures (`PICTURE_KEYS`) shifted by `random_shift`: one offset per row,
     shared by the row's pictures, since a scene and its goal picture come from one camera and the policy
     reads where the scene differs from the goal (independent offsets would move that difference by up to
     ``2 * pad`` pixels)."""

@@ -1,6 +1,6 @@
-"""The one error a bad setting raises, wherever it is checked: :class:`ConfigError`.
+"""The one error a bad setting raises, wherever it is checked: `ConfigError`.
 
-Every config section checks itself (``section.validate()``) with :func:`require`, so a rule is
+Every config section checks itself (``section.validate()``) with `require`, so a rule is
 written once and reads the same from the command line (one line, exit code 2) and from Python.
 """
 
@@ -22,7 +22,7 @@ class ConfigError(ValueError):
 
 
 def require(ok: bool, field: str, message: str) -> None:
-    """Raise :class:`ConfigError` for ``field`` with ``message`` unless ``ok``."""
+    """Raise `ConfigError` for ``field`` with ``message`` unless ``ok``."""
     if not ok:
         raise ConfigError(field, message)
 

@@ -2,7 +2,7 @@
 
 ``taskrl export RUN_DIR --out policy/`` writes ``policy/policy.safetensors`` (the acting networks and
 the input normaliser) and ``policy/policy.json`` (the settings, the observation and action spaces,
-the task set), and ``taskrl.load_policy("policy/")`` gives a :class:`Policy` whose ``predict(obs)``
+the task set), and ``taskrl.load_policy("policy/")`` gives a `Policy` whose ``predict(obs)``
 takes one observation or a batch, numpy in, numpy out. Loading reads safetensors and JSON only.
 """
 
@@ -49,7 +49,7 @@ def space_to_json(space: gym.spaces.Space) -> dict[str, Any]:
 
 
 def space_from_json(data: dict[str, Any]) -> gym.spaces.Space:
-    """The space :func:`space_to_json` described."""
+    """The space `space_to_json` described."""
     kind = data.get("type")
     if kind == "Dict":
         return gym.spaces.Dict({k: space_from_json(v) for k, v in data["spaces"].items()})

@@ -1,4 +1,4 @@
-"""A trained run, read back: its agent (:func:`load`), re-evaluated (:func:`evaluate_run`) with intervals.
+"""A trained run, read back: its agent (`load`), re-evaluated (`evaluate_run`) with intervals.
 
 Only safetensors and JSON are read: loading never executes code, and never imports a module the run
 directory names.
@@ -64,7 +64,7 @@ def load(
     the run directory names (pass ``env_module`` to register a gymnasium id of yours first).
 
     Args:
-        run_dir: a directory written by :func:`train`.
+        run_dir: a directory written by `train`.
         device: where the networks go.
         env: the Python factory or TaskSet the run was trained on, if it was trained on one.
         env_module: a module to import first (one that registers the run's gymnasium id).
@@ -89,7 +89,7 @@ class RunSpaces:
 def load_run(
     run_dir: str | Path, device: str = "cpu", env: Any = None, env_module: str | None = None, checkpoint: int | None = None
 ) -> tuple[Any, TrainConfig, RunSpaces]:
-    """``(agent, config, spaces)`` of a run directory (arguments as :func:`load`); the env is built
+    """``(agent, config, spaces)`` of a run directory (arguments as `load`); the env is built
     once, or not at all where its family can give the spaces without it (Meta-World)."""
     run_dir = Path(run_dir)
     config, source = _saved_config(run_dir, env, env_module)
@@ -150,8 +150,8 @@ def evaluate_run(
         episodes: episodes (per task on multi-task envs).
         seed: evaluation seed (default the run's own evaluation seed: the same episodes it was scored on).
         device: where the networks go.
-        env: as for :func:`load`.
-        env_module: as for :func:`load`.
+        env: as for `load`.
+        env_module: as for `load`.
         checkpoint: the env step of the checkpoint to evaluate (default the latest).
         stochastic: act with the algorithm's exploration instead of greedily.
         video: also record this many episodes to ``run_dir/videos/`` (MP4).

@@ -50,7 +50,7 @@ class RunLogger:
         axis: the column that counts the run's progress (``env_steps``; ``updates`` for offline runs).
         resume_from_step: when resuming, rows logged after this step (by a run killed before
             its next checkpoint) are dropped so the file has no duplicates.
-        wandb: also log to Weights & Biases: ``{"name": ..., "config": {...}}`` of the run (see :func:`start_wandb`).
+        wandb: also log to Weights & Biases: ``{"name": ..., "config": {...}}`` of the run (see `start_wandb`).
     """
 
     def __init__(
@@ -150,7 +150,7 @@ def wandb_mode() -> str:
 
 
 def require_wandb() -> Any:
-    """The ``wandb`` module; a :class:`~taskrl.errors.ConfigError` naming the extra where it is not installed."""
+    """The ``wandb`` module; a `ConfigError` naming the extra where it is not installed."""
     try:
         import wandb
     except ImportError:

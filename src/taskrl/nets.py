@@ -26,7 +26,7 @@ class Linear(nn.Linear):
       ``W`` padded with zero rows to a multiple of 16, the extra columns dropped, is 2x faster;
     - the weight gradient ``dW = g^T x`` is ``in_features`` wide; where ``in_features < out_features``
       (a first layer from 30 inputs to 256 units) ``(x^T g)^T`` is 256 wide and about 2x faster. It
-      needs its own backward (:class:`_LaidOutLinear`), which only compiled updates take: eagerly an
+      needs its own backward (`_LaidOutLinear`), which only compiled updates take: eagerly an
       ``autograd.Function`` costs more than it saves. (Torch's cache of traced graphs refuses an
       ``autograd.Function``, so a later run of the same shapes traces the update again; the same layouts as
       plain tensor operations were cached but compiled slower on a first run: ``benchmarks/compile_cache.py``.)
@@ -71,7 +71,7 @@ def _padded_linear(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor, pa
 
 
 class _LaidOutLinear(torch.autograd.Function):
-    """``y = x W^T + b`` through :func:`_padded_linear`; its backward takes the plain products of ``g``
+    """``y = x W^T + b`` through `_padded_linear`; its backward takes the plain products of ``g``
     (not the padded ones: a wider sum adds in another order), ``dW`` as ``(x^T g)^T`` if asked."""
 
     @staticmethod
@@ -107,7 +107,7 @@ def activation_after(layer: nn.Module, activation: type[nn.Module]) -> nn.Module
 def mlp(in_dim: int, hidden_sizes: Sequence[int], out_dim: int, activation: type[nn.Module] = nn.ReLU) -> nn.Sequential:
     """``Linear -> activation`` for each hidden size, then a final ``Linear`` to ``out_dim`` (``nets.Linear``:
     ``nn.Linear`` with faster CPU layouts). ReLUs run in place where the product before them is not a view
-    (:func:`activation_after`)."""
+    (`activation_after`)."""
     layers: list[nn.Module] = []
     for size in hidden_sizes:
         layer = Linear(in_dim, size)
@@ -144,7 +144,7 @@ class StateActionQ(nn.Module):
     the first layer, W [x; a] + b = (W_x x + b) + W_a a, so the state's share is computed once
     per state instead of once per sample and no [B * N, in] copy of the states is built.
 
-    ``state_input`` (e.g. :class:`~taskrl.encoders.ImageStateInput`) maps ``x`` first, once per state: an
+    ``state_input`` (e.g. [`ImageStateInput`][taskrl.encoders.ImageStateInput]) maps ``x`` first, once per state: an
     image is encoded once however many actions are scored, and the action joins after the encoder.
     """
 

@@ -1,9 +1,9 @@
 """Pictures of runs from their ``metrics.csv``.
 
-- :func:`plot_learning_curve`: one run's ``learning_curve.png``: success and return against env steps
+- `plot_learning_curve`: one run's ``learning_curve.png``: success and return against env steps
   and wall-clock, the agent's training scalars (losses, Q, temperature), and per-task success for
   multi-task runs;
-- :func:`compare_runs`: ``taskrl plot``: several runs or folders of seeds, success (and return)
+- `compare_runs`: ``taskrl plot``: several runs or folders of seeds, success (and return)
   with the mean and a 95% band over seeds, per-task panels, and a summary table (final and best
   success, env steps and time to a threshold).
 
@@ -122,7 +122,7 @@ PLOT_FORMATS = (".png", ".pdf", ".svg", ".jpg", ".jpeg")
 
 
 def is_run_metrics(path: Path) -> bool:
-    """Whether ``path`` is a run's ``metrics.csv``: its header names :data:`RUN_COLUMNS`."""
+    """Whether ``path`` is a run's ``metrics.csv``: its header names `RUN_COLUMNS`."""
     try:
         with Path(path).open() as f:
             header = next(csv.reader(f), [])
@@ -133,7 +133,7 @@ def is_run_metrics(path: Path) -> bool:
 
 def find_runs(path: str | Path) -> list[Path]:
     """A run directory itself, or the run directories below a folder (e.g. ``seed_0``, ``seed_1``); a folder
-    whose ``metrics.csv`` was not written by a run (:func:`is_run_metrics`) is none."""
+    whose ``metrics.csv`` was not written by a run (`is_run_metrics`) is none."""
     path = Path(path)
     if is_run_metrics(path / "metrics.csv"):
         return [path]

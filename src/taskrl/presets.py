@@ -452,7 +452,7 @@ PRESETS: dict[str, Preset] = {
 
 
 def preset_config(name: str) -> TrainConfig:
-    """The configuration of a named preset; unknown names raise :class:`ConfigError`."""
+    """The configuration of a named preset; unknown names raise `ConfigError`."""
     if name not in PRESETS:
         raise ConfigError("preset", f"unknown preset {name!r}; allowed: {', '.join(PRESETS)}")
     return with_overrides(TrainConfig(), PRESETS[name].overrides)

@@ -1,7 +1,7 @@
 """Evaluating a prompted policy on tasks it was not trained on: by their description, a paraphrase, or one demonstration.
 
 A policy that reads a task *embedding* (behaviour cloning with language or demo input) can be told a
-task it never trained on. :func:`evaluate_prompted` builds an env of those tasks (the family's
+task it never trained on. `evaluate_prompted` builds an env of those tasks (the family's
 ``tasks_env``), gives the policy one context per task and runs the per-task evaluation:
 
 - ``description``: the sentence embedding of the task's description;

@@ -2,8 +2,8 @@
 
 Every env family, algorithm, preset and setting is listed with its default and meaning, read from the code
 itself (``EnvFamily`` / ``AlgorithmSpec`` entries, the ``Attributes:`` sections of the settings dataclasses,
-:data:`taskrl.presets.PRESETS`, each command's ``--help``), so the reference cannot drift from what runs.
-``docs/hooks.py`` adds :func:`pages` to the site at build time (``make docs``).
+[`taskrl.presets.PRESETS`][taskrl.presets.PRESETS], each command's ``--help``), so the reference cannot drift from what runs.
+``docs/hooks.py`` adds `pages` to the site at build time (``make docs``).
 """
 
 from __future__ import annotations

@@ -36,7 +36,7 @@ class Registry(dict[str, T], Generic[T]):
         return spec
 
     def lookup(self, name: str) -> T:
-        """The spec called ``name``; a :class:`ConfigError` on the setting listing the registered names."""
+        """The spec called ``name``; a `ConfigError` on the setting listing the registered names."""
         if name not in self:
             raise ConfigError(self.setting, f"unknown {self.setting} {name!r}; allowed: {', '.join(self)}{self.hint}")
         return self[name]

@@ -13,9 +13,9 @@ Run directory layout::
         per_task_success.json  multi-task runs: the last evaluation, per task
         tasks.json           runs on a TaskSet given in Python: its tasks
 
-How the run runs comes from its run mode (:mod:`taskrl.runmodes`), its parts from :mod:`taskrl.wiring`, and
+How the run runs comes from its run mode ([`taskrl.runmodes`][taskrl.runmodes]), its parts from [`taskrl.wiring`][taskrl.wiring], and
 everything env- or algorithm-specific from the registries: this file names no environment, algorithm or mode.
-Reading a trained run back is :mod:`taskrl.loading`; several seeds of one setting, :mod:`taskrl.seeds`.
+Reading a trained run back is [`taskrl.loading`][taskrl.loading]; several seeds of one setting, [`taskrl.seeds`][taskrl.seeds].
 """
 
 from __future__ import annotations
@@ -49,7 +49,7 @@ __all__ = ["Run", "RunParts", "build", "evaluate_run", "load", "load_run", "make
 
 @dataclasses.dataclass
 class Run:
-    """The result of :func:`train`: where it was written, its settings, last metrics, and agent.
+    """The result of `train`: where it was written, its settings, last metrics, and agent.
 
     Attributes:
         notes: what changing ``env`` or ``algo`` on a preset kept or dropped (also printed).
@@ -99,11 +99,11 @@ def train(
         base: a full configuration to start from instead of the preset's (``--config FILE``).
         **overrides: any setting by name (``n_bits=30``, ``lr=1e-3``; see ``taskrl train PRESET --help``).
             ``env`` may also be a gymnasium id (``env="my/Slider-v0"``), a zero-argument factory
-            of a ``gymnasium.Env``, or a :class:`~taskrl.tasks.TaskSet`; a run on a Python object
-            needs the same ``env=`` again to resume (and to :func:`load`).
+            of a ``gymnasium.Env``, or a [`TaskSet`][taskrl.tasks.TaskSet]; a run on a Python object
+            needs the same ``env=`` again to resume (and to `load`).
 
     Returns:
-        a :class:`Run` with the run directory, configuration, final metrics and trained agent.
+        a `Run` with the run directory, configuration, final metrics and trained agent.
     """
     overrides = dict(overrides)
     source = env_source(overrides)

@@ -1,10 +1,10 @@
 """Keeping run directories whole: what may become one, one process at a time, files replaced atomically.
 
-- :func:`check_new_run_dir`: ``--out`` must be a new or empty directory (a run is continued with
+- `check_new_run_dir`: ``--out`` must be a new or empty directory (a run is continued with
   ``--resume``; any other directory is left untouched);
-- :class:`RunLock`: one process per run directory (an advisory ``flock`` the OS releases when the
+- `RunLock`: one process per run directory (an advisory ``flock`` the OS releases when the
   process dies, so a killed run never leaves a stale lock);
-- :func:`atomic_write_text`: temp file, fsync, rename: a reader sees the old file or the new one.
+- `atomic_write_text`: temp file, fsync, rename: a reader sees the old file or the new one.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ LOCK_NAME = ".lock"
 
 
 def check_new_run_dir(out: str | os.PathLike) -> Path:
-    """The path of a run to start at ``out``; a :class:`ConfigError` on ``out`` when it is not new or empty."""
+    """The path of a run to start at ``out``; a `ConfigError` on ``out`` when it is not new or empty."""
     if str(out).strip() == "":
         raise ConfigError("out", "must name a directory (got an empty string)")
     path = Path(out)
@@ -39,7 +39,7 @@ def check_new_run_dir(out: str | os.PathLike) -> Path:
 
 
 class RunLock:
-    """Held while a process trains in ``run_dir``; a second process gets a :class:`ConfigError` on ``field``.
+    """Held while a process trains in ``run_dir``; a second process gets a `ConfigError` on ``field``.
 
     Args:
         run_dir: the run directory (must exist).

@@ -1,6 +1,6 @@
 """Several seeds of one setting: one run per seed into one folder, then their comparison (mean and 95% band).
 
-``taskrl train PRESET --seeds 0 1 2`` calls :func:`train_seeds`; so can a script.
+``taskrl train PRESET --seeds 0 1 2`` calls `train_seeds`; so can a script.
 """
 
 from __future__ import annotations
@@ -27,12 +27,12 @@ __all__ = ["SeedRuns", "train_seeds"]
 
 @dataclasses.dataclass
 class SeedRuns:
-    """What :func:`train_seeds` made.
+    """What `train_seeds` made.
 
     Attributes:
         folder: the folder holding ``seed_<s>/`` run directories and ``seeds.png`` (with ``seeds.csv``).
-        runs: seed -> its :class:`~taskrl.run.Run`, for the runs that finished (a run made in another
-            process has ``agent`` None: load it with :func:`taskrl.load`).
+        runs: seed -> its [`Run`][taskrl.run.Run], for the runs that finished (a run made in another
+            process has ``agent`` None: load it with [`taskrl.load`][taskrl.load]).
         failed: seed -> the error that ended its run.
         summary: the comparison's summary (success reached, env steps to the threshold, ...).
         plot: the comparison plot, when any run finished.
@@ -65,18 +65,18 @@ def train_seeds(
     """Train ``preset`` once per seed into ``out/seed_<s>``, then compare the runs.
 
     Args:
-        preset: as for :func:`taskrl.train`.
+        preset: as for `taskrl.train`.
         seeds: the runs' seeds (distinct).
         out: the folder of the runs (default ``runs/<preset>-seeds-<timestamp>``); must not hold a run already.
         parallel: runs at once: 1 trains them in turn in this process; more trains each in a process of its
             own (an env given as a Python object needs 1).
         progress: a progress bar per run (in turn only) and the comparison table.
-        base: as for :func:`taskrl.train`.
+        base: as for `taskrl.train`.
         console: where tables and notes go (default stderr).
-        **overrides: as for :func:`taskrl.train` (``tensorboard``, ``wandb`` and settings), except ``seed``.
+        **overrides: as for `taskrl.train` (``tensorboard``, ``wandb`` and settings), except ``seed``.
 
     Returns:
-        a :class:`SeedRuns`. Settings are checked before any run starts (a :class:`ConfigError`); a run that
+        a `SeedRuns`. Settings are checked before any run starts (a `ConfigError`); a run that
         fails later is recorded in ``failed`` and the others still run.
     """
     require(

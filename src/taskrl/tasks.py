@@ -1,9 +1,9 @@
 """Tasks and task sets: what a multi-task run trains on.
 
-A :class:`TaskSpec` is one task: a version-free ``name`` (``reach``, ``pick-place``,
+A `TaskSpec` is one task: a version-free ``name`` (``reach``, ``pick-place``,
 ``top-left``), a one-sentence human-written ``description`` (the metadata that language
 conditioning, e.g. CARE, embeds) and its ``index`` in the task set (the integer that
-observations carry under the ``task`` key). A :class:`TaskSet` is the ordered list a run trains
+observations carry under the ``task`` key). A `TaskSet` is the ordered list a run trains
 on; ``TaskSet.from_pairs([(name, description), ...])`` numbers the tasks in order.
 
 A task may also say where it runs (``env``): a gymnasium id (with ``env_kwargs``) or a zero-argument
@@ -59,8 +59,8 @@ class TaskSpec:
 class TaskSet(Sequence[TaskSpec]):
     """An ordered, immutable collection of tasks; task ``i`` has ``index == i``.
 
-    ``task_set[i]`` is the i-th :class:`TaskSpec`, ``task_set["reach"]`` (or
-    :meth:`get`) looks a task up by name and raises a ``KeyError`` listing the allowed names.
+    ``task_set[i]`` is the i-th `TaskSpec`, ``task_set["reach"]`` (or
+    `get`) looks a task up by name and raises a ``KeyError`` listing the allowed names.
     """
 
     def __init__(self, tasks: Iterable[TaskSpec]) -> None:
@@ -163,7 +163,7 @@ class TaskSet(Sequence[TaskSpec]):
             raise KeyError(f"unknown task {name!r}; allowed names: {', '.join(self.names)}") from None
 
     def index(self, name: str) -> int:  # type: ignore[override]
-        """The index of the task called ``name`` (same error as :meth:`get`)."""
+        """The index of the task called ``name`` (same error as `get`)."""
         return self.get(name).index
 
     def __eq__(self, other: object) -> bool:

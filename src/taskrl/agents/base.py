@@ -1,17 +1,17 @@
 """What every agent shares: acting on any form of observation, and one save / load of its parts.
 
-An agent subclasses :class:`Agent` and implements
+An agent subclasses `Agent` and implements
 
 - ``policy(obs, explore, generator, env_steps) -> actions``: actions for a batch of observation
   tensors, greedy when ``explore`` is False, with the algorithm's own exploration when True (DQN's
   epsilon, QT-Opt's random actions, TD3's noise, SAC's and PPO's sampling), decayed by
   ``env_steps`` where its schedule says so;
 - ``update(batch) -> dict of scalars``: counters and schedules, around ``self.step(...)``, the
-  update itself (``learn``), run eagerly or compiled (:meth:`Agent.compile`);
+  update itself (``learn``), run eagerly or compiled (`Agent.compile`);
 - ``checkpointed``: checkpoint name -> attribute path of each module, optimiser or tensor to save.
 
-and gets :meth:`Agent.act`, :meth:`Agent.exploration`, :meth:`Agent.state_dict` and
-:meth:`Agent.load_state_dict`.
+and gets `Agent.act`, `Agent.exploration`, `Agent.state_dict` and
+`Agent.load_state_dict`.
 """
 
 from __future__ import annotations
@@ -133,7 +133,7 @@ class Agent:
     # ---------------------------------------------------------------- acting
     @torch.no_grad()
     def act(self, obs: Any, explore: bool = False, generator: torch.Generator | None = None, env_steps: int = 0) -> Any:
-        """Actions for ``obs``: one observation or a batch, numpy or tensors (see :func:`batch_observations`).
+        """Actions for ``obs``: one observation or a batch, numpy or tensors (see `batch_observations`).
 
         Args:
             obs: observations as an env gives them; actions come back in the same form (numpy in,
@@ -155,20 +155,20 @@ class Agent:
 
     # ---------------------------------------------------------------- learning
     def learn(self, *args: Any) -> dict[str, torch.Tensor]:
-        """One update's tensor work (implemented by each agent that compiles; see :meth:`compile`)."""
+        """One update's tensor work (implemented by each agent that compiles; see `compile`)."""
         raise NotImplementedError
 
     def schedule(self, update: int) -> tuple:
-        """What :meth:`learn` takes after the batch at update number ``update`` (1-based): the flags of
+        """What `learn` takes after the batch at update number ``update`` (1-based): the flags of
         its schedules (whether a target network refreshes, an actor steps), fixed by the count alone."""
         return ()
 
     def step(self, *args: Any) -> dict[str, torch.Tensor]:
-        """The update step as this agent runs it: :meth:`learn` eagerly, or compiled after :meth:`compile`."""
+        """The update step as this agent runs it: `learn` eagerly, or compiled after `compile`."""
         return self.learn(*args)
 
     def counted_step(self, batch: Any, *args: Any) -> dict[str, torch.Tensor]:
-        """One update: count it, then :meth:`step` on ``batch`` with its :meth:`schedule` flags and ``args``."""
+        """One update: count it, then `step` on ``batch`` with its `schedule` flags and ``args``."""
         if self.updates == 0:
             self.check_batch(batch)
         self.updates += 1
@@ -180,7 +180,7 @@ class Agent:
 
     def update_many(self, batch: Any, k: int) -> list[dict[str, torch.Tensor]]:
         """``k`` updates in one call, one on each of the ``k`` batches ``batch.split(k)`` makes, in order (after
-        :meth:`compile`: one graph for all of them, the split included, which saves the per-call overhead
+        `compile`: one graph for all of them, the split included, which saves the per-call overhead
         ``k - 1`` times and the split's own small operations); the metrics of each."""
         if self.updates == 0:
             self.check_batch(batch)
@@ -189,15 +189,15 @@ class Agent:
         return self.step_many(batch, flags)
 
     def learn_many(self, batch: Any, flags: tuple[tuple, ...]) -> list[dict[str, torch.Tensor]]:
-        """:meth:`learn` on each of the ``len(flags)`` batches ``batch.split(len(flags))`` makes, with its flags."""
+        """`learn` on each of the ``len(flags)`` batches ``batch.split(len(flags))`` makes, with its flags."""
         return [self.learn(part, *part_flags) for part, part_flags in zip(batch.split(len(flags)), flags)]
 
     def step_many(self, batch: Any, flags: tuple[tuple, ...]) -> list[dict[str, torch.Tensor]]:
-        """:meth:`learn_many` eagerly, or compiled after :meth:`compile`."""
+        """`learn_many` eagerly, or compiled after `compile`."""
         return self.learn_many(batch, flags)
 
     def compile(self, mode: str, say: Callable[[str], None] | None = None) -> None:
-        """Run :meth:`learn` as one ``torch.compile`` graph (``mode``: see :mod:`taskrl.agents.compiled`),
+        """Run `learn` as one ``torch.compile`` graph (``mode``: see `taskrl.agents.compiled`),
         or eagerly again with ``"off"``. ``say`` gets the one-line notice if compilation turns out unavailable."""
         one_of(mode, COMPILE_MODES, "compile", "mode")
         if mode == "off":
@@ -245,7 +245,7 @@ class Agent:
                 obj.load_state_dict(state[name])
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
-        """Restore what :meth:`state_dict` saved: every part, and the update count."""
+        """Restore what `state_dict` saved: every part, and the update count."""
         missing = [name for name in (*self._parts(), "updates") if name not in state]
         if missing:
             raise KeyError(f"the saved agent lacks {missing}")

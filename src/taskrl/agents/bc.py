@@ -11,16 +11,16 @@
     L      = L_BC + language_weight * L_lang
 
 From pixels (BC-Z's camera policy, at CPU scale): on an env with a camera the picture goes through a conv
-encoder whose every block is FiLM-modulated by the same context c (:class:`~taskrl.encoders.FiLMPictureEncoder`,
+encoder whose every block is FiLM-modulated by the same context c ([`FiLMPictureEncoder`][taskrl.encoders.FiLMPictureEncoder],
 ``--encoder conv|resnet``), each training picture randomly shifted (``--augment-pad``, BC-Z's random crop);
 its features join the state vector (the robot's own pose) before the policy network.
 
 With demo input and sentence embeddings, a fraction ``language_prompts`` of each batch is conditioned
 on the sentence embedding instead of the demonstration's, so one policy follows either prompt.
-Batches are stratified over tasks (:class:`~taskrl.demos.sampling.DemoSampler`).
+Batches are stratified over tasks ([`DemoSampler`][taskrl.demos.sampling.DemoSampler]).
 
 At run time the policy acts on its prompt table: the training tasks' contexts by default, or the
-contexts of other tasks (:meth:`BCAgent.prompt_with_descriptions`, :meth:`BCAgent.prompt_with_demos`),
+contexts of other tasks (`BCAgent.prompt_with_descriptions`, `BCAgent.prompt_with_demos`),
 so held-out tasks are evaluated zero-shot from a sentence or one demonstration. With chunks (H > 1),
 overlapping predictions for the same step are averaged, weighted ``exp(-ensemble_decay * h)`` by how
 far ahead (h) each was made (temporal ensembling).
@@ -106,7 +106,7 @@ class BCConfig:
         return [n.strip() for n in self.held_out_tasks.split(",") if n.strip()]
 
     def validate(self) -> None:
-        """Raise :class:`~taskrl.errors.ConfigError` naming the first bad setting."""
+        """Raise `ConfigError` naming the first bad setting."""
         check_learning_settings(self)
         one_of(self.loss, ("huber", "gaussian"), "loss", "loss")
         one_of(self.task_input, ("task", "demo"), "task_input", "task input")
@@ -124,9 +124,9 @@ class BCAgent(Agent):
 
     Args:
         inputs: observation keys and their width, and the action box.
-        config: settings, see :class:`BCConfig`.
+        config: settings, see `BCConfig`.
         device: where the networks live.
-        conditioning: the run's :class:`~taskrl.conditioning.networks.TaskConditioning` on multi-task
+        conditioning: the run's [`TaskConditioning`][taskrl.conditioning.networks.TaskConditioning] on multi-task
             envs (its encoder gives ``task`` input's context and, when it embeds sentences, the
             language targets of ``demo`` input), None on single-task envs.
     """
@@ -336,7 +336,7 @@ class BCAgent(Agent):
 
     # ---------------------------------------------------------------- learning
     def update(self, batch: Any) -> dict[str, torch.Tensor]:
-        """One gradient step on a :class:`~taskrl.demos.sampling.DemoBatch`; returns ``bc_loss``,
+        """One gradient step on a [`DemoBatch`][taskrl.demos.sampling.DemoBatch]; returns ``bc_loss``,
         ``action_error`` (mean absolute error of the first action) and, with alignment, ``language_loss``."""
         cfg = self.config
         obs = batch.obs

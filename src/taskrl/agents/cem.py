@@ -100,7 +100,7 @@ class CEMConfig:
     truncate: bool = False
 
     def validate(self) -> None:
-        """Raise :class:`~taskrl.errors.ConfigError` naming the first bad setting."""
+        """Raise `ConfigError` naming the first bad setting."""
         require(self.iterations >= 1, "iterations", f"must be >= 1 (got {self.iterations})")
         require(1 <= self.elites <= self.samples, "elites", f"must be in [1, samples={self.samples}] (got {self.elites})")
         require(self.init_std > 0, "init_std", f"must be > 0 (got {self.init_std})")
@@ -172,7 +172,7 @@ def maximize(
         generator: random generator for reproducible sampling.
         return_distribution: also return the final refitted ``(mean, std)``, e.g. to warm-start
             the next call.
-        sampling: ``clip`` or ``truncated``, see :func:`sample_in_box`.
+        sampling: ``clip`` or ``truncated``, see `sample_in_box`.
 
     Returns:
         ``(best_actions [B, A], best_scores [B])``, plus ``(mean [B, A], std [B, A])`` when
@@ -209,7 +209,7 @@ def maximize(
 
 
 class CrossEntropyMethod:
-    """:func:`maximize` with its defaults taken from a :class:`CEMConfig`.
+    """`maximize` with its defaults taken from a `CEMConfig`.
 
     ``cem.maximize(score_fn, batch_size, low, high)`` uses the configured iterations, samples
     (``first_samples`` in the first round), elites and initial spread (``init_std`` x half-width

@@ -82,11 +82,11 @@ class CompiledStep:
     Args:
         fn: the update step: tensors (and a batch of them) in, metrics out; no Python-side state
             that changes between calls.
-        mode: a ``torch.compile`` mode (:data:`COMPILE_MODES` without ``off``).
+        mode: a ``torch.compile`` mode (`COMPILE_MODES` without ``off``).
         optimizers: the Adam optimisers ``fn`` steps; their state is completed before the first trace.
         say: where the one-line notices go (the compile time; a fallback), default stderr.
         what: what it compiles, for those notices.
-        device: where ``fn``'s tensors live (the compiler's options differ on CPU, :func:`compile_options`).
+        device: where ``fn``'s tensors live (the compiler's options differ on CPU, `compile_options`).
     """
 
     def __init__(
@@ -140,7 +140,7 @@ class CompiledStep:
 
     def _run(self, *args: Any) -> Any:
         """The compiled call. Once a graph exists, a call first runs under the stance that refuses to
-        compile, which is cheaper to enter than :data:`COMPILE_SETTINGS` (side by side, a batch-32 DQN
+        compile, which is cheaper to enter than `COMPILE_SETTINGS` (side by side, a batch-32 DQN
         update took 0.87x the time, ``benchmarks/per_call_costs.py``); a call that needs a new graph (a
         schedule's other variant) is refused before anything runs and goes on to compile with them."""
         if self.calls:

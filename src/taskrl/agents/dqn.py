@@ -85,7 +85,7 @@ class DQNConfig:
     cql_alpha: float = 0.0
 
     def validate(self) -> None:
-        """Raise :class:`~taskrl.errors.ConfigError` naming the first bad setting."""
+        """Raise `ConfigError` naming the first bad setting."""
         check_learning_settings(self)
         one_of(self.loss, ("huber", "mse"), "loss", "loss")
         require(self.target_update_interval >= 1, "target_update_interval", f"must be >= 1 (got {self.target_update_interval})")
@@ -119,7 +119,7 @@ class DQNAgent(Agent):
         input_keys: observation keys the Q-network reads (e.g. ``("observation", "desired_goal")``).
         input_dim: total flattened size of those keys.
         n_actions: number of discrete actions.
-        config: hyperparameters, see :class:`DQNConfig`.
+        config: hyperparameters, see `DQNConfig`.
         device: torch device of the networks.
         conditioning: multi-task runs: the task encoder and architecture of the Q-network;
             observations then carry the task index under ``conditioning.task_key``.

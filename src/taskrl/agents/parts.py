@@ -1,16 +1,16 @@
 """Pieces every agent shares, so each agent's file holds only its own algorithm.
 
-- :class:`ObservationInput`: the network input (chosen observation keys -> float -> running
+- `ObservationInput`: the network input (chosen observation keys -> float -> running
   normalisation), one module for the online and target networks alike;
-- :class:`ActionBox`: between an action box ``[low, high]`` and the ``[-1, 1]^A`` networks see;
-- :func:`td_target`: ``y = r + gamma (1 - terminated) v'``, optionally clipped;
-- :func:`polyak_update`: ``theta_target <- tau theta + (1 - tau) theta_target`` over parameter lists;
-- :func:`gradient_step`: zero the gradients, backpropagate, clip the norm, step (functionally
-  inside a compiled update: :func:`functional_adam_step`);
-- :func:`set_requires_grad`: gradients of some parameters off and on again (eager updates);
-- :func:`explore_in_box`: the hindsight paper's exploration for deterministic policies;
-- :func:`linear_schedule`: an exploration level decaying linearly with env steps;
-- :func:`check_learning_settings`: the checks every algorithm's section shares.
+- `ActionBox`: between an action box ``[low, high]`` and the ``[-1, 1]^A`` networks see;
+- `td_target`: ``y = r + gamma (1 - terminated) v'``, optionally clipped;
+- `polyak_update`: ``theta_target <- tau theta + (1 - tau) theta_target`` over parameter lists;
+- `gradient_step`: zero the gradients, backpropagate, clip the norm, step (functionally
+  inside a compiled update: `functional_adam_step`);
+- `set_requires_grad`: gradients of some parameters off and on again (eager updates);
+- `explore_in_box`: the hindsight paper's exploration for deterministic policies;
+- `linear_schedule`: an exploration level decaying linearly with env steps;
+- `check_learning_settings`: the checks every algorithm's section shares.
 """
 
 from __future__ import annotations
@@ -123,8 +123,8 @@ def polyak_update(target: list[torch.Tensor], online: list[torch.Tensor], tau: f
 def gradient_step(optimizer: torch.optim.Optimizer, loss: torch.Tensor, params: list[torch.Tensor], max_grad_norm: float) -> None:
     """``zero_grad -> backward -> clip_grad_norm (if max_grad_norm > 0) -> step``.
 
-    Inside a compiled update (:mod:`taskrl.agents.compiled`) the same step is taken without touching
-    ``.grad``, which a compiled graph cannot: :func:`functional_adam_step`.
+    Inside a compiled update (`taskrl.agents.compiled`) the same step is taken without touching
+    ``.grad``, which a compiled graph cannot: `functional_adam_step`.
     """
     if torch.compiler.is_compiling():
         functional_adam_step(optimizer, loss, params, max_grad_norm)
@@ -156,7 +156,7 @@ def gradient_norms(grads: list[torch.Tensor]) -> list[torch.Tensor]:
 def functional_adam_step(
     optimizer: torch.optim.Optimizer, loss: torch.Tensor, clipped: list[torch.Tensor], max_grad_norm: float
 ) -> None:
-    """The step of :func:`gradient_step` as pure tensor operations (what ``torch.compile`` fuses into one graph):
+    """The step of `gradient_step` as pure tensor operations (what ``torch.compile`` fuses into one graph):
 
         g = d loss / d theta                                        (torch.autograd.grad)
         g <- g * min(1, max_grad_norm / (||g_clipped||_2 + 1e-6))   (over ``clipped``' gradients only, as clip_grad_norm_)
@@ -166,7 +166,7 @@ def functional_adam_step(
 
     Adam as ``torch.optim.Adam`` takes it, on the optimiser's own state. Parameters the loss does not
     reach are left alone, as ``optimizer.step`` leaves a parameter without a gradient. The optimiser's
-    state must exist first (:func:`init_adam_state`).
+    state must exist first (`init_adam_state`).
     """
     group = optimizer.param_groups[0]
     grads = torch.autograd.grad(loss, group["params"], allow_unused=True)

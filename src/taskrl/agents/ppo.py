@@ -105,7 +105,7 @@ class PPOConfig:
     normalize_inputs: bool = True
 
     def validate(self) -> None:
-        """Raise :class:`~taskrl.errors.ConfigError` naming the first bad setting (gamma = 1 is allowed:
+        """Raise `ConfigError` naming the first bad setting (gamma = 1 is allowed:
         rollouts are finite)."""
         one_of(self.estimator, ESTIMATORS, "estimator", "estimator")
         check_learning_settings(self, gamma_may_be_one=True)
@@ -213,7 +213,7 @@ class PPOAgent(Agent):
         input_dim: total flattened size of those keys.
         action_space: a gymnasium ``Box`` (or a ``(low, high)`` pair): Gaussian policy; or a
             gymnasium ``Discrete``: Categorical policy.
-        config: hyperparameters, see :class:`PPOConfig`.
+        config: hyperparameters, see `PPOConfig`.
         device: torch device of the networks.
         conditioning: the shared task encoder and architecture of a multi-task agent; the policy
             and the value read the context ``encoder(obs[task_key])``. ``None``: plain MLPs.

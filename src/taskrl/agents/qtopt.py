@@ -17,9 +17,9 @@ Two target networks (``twin``):
   Polyak averages, so the minimum is over two estimates that err independently.
 
 In the paper the targets come from separate "Bellman updater" processes and the regression from
-the "trainer": :meth:`QTOptAgent.bellman_target` reads only the batch, the target networks and
-the shared input normaliser, and :meth:`QTOptAgent.regress` takes the batch with its targets.
-:meth:`QTOptAgent.update` runs one after the other.
+the "trainer": `QTOptAgent.bellman_target` reads only the batch, the target networks and
+the shared input normaliser, and `QTOptAgent.regress` takes the batch with its targets.
+`QTOptAgent.update` runs one after the other.
 
 Bounded Q. Loss ``cross_entropy`` is the paper's for rewards in [0, 1]: the network outputs a logit,
 Q = sigmoid(logit), targets are clipped to [0, 1] and the loss is the log loss
@@ -138,7 +138,7 @@ class QTOptConfig:
     augment_pad: int = 4
 
     def validate(self) -> None:
-        """Raise :class:`~taskrl.errors.ConfigError` naming the first bad setting."""
+        """Raise `ConfigError` naming the first bad setting."""
         check_learning_settings(self)
         one_of(self.loss, ("huber", "mse", "cross_entropy"), "loss", "loss")
         one_of(self.twin, ("lagged", "independent"), "twin", "twin")
@@ -169,7 +169,7 @@ class QTOptAgent(Agent):
         input_keys: observation keys the Q-network reads (e.g. ``("observation", "desired_goal")``).
         input_dim: total flattened size of those keys.
         action_space: a gymnasium ``Box`` or a ``(low, high)`` pair of tensors / arrays.
-        config: hyperparameters, see :class:`QTOptConfig`.
+        config: hyperparameters, see `QTOptConfig`.
         device: torch device of the networks.
         image_shape: ``(H, W, C)`` of an ``image`` observation (the last of ``input_keys``), or None.
     """

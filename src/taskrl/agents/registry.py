@@ -1,7 +1,7 @@
-"""The algorithms a run can use, by name: one :class:`~taskrl.agents.spec.AlgorithmSpec` each.
+"""The algorithms a run can use, by name: one [`AlgorithmSpec`][taskrl.agents.spec.AlgorithmSpec] each.
 
 Each algorithm's file declares its ``SPEC``; adding one is that file plus one line in
-:data:`BUILT_IN`. A user's own algorithm enters through :func:`register_algorithm`.
+`BUILT_IN`. A user's own algorithm enters through `register_algorithm`.
 """
 
 from __future__ import annotations
@@ -24,5 +24,5 @@ def register_algorithm(spec: AlgorithmSpec, replace: bool = False) -> AlgorithmS
 
 
 def algorithm(name: str) -> AlgorithmSpec:
-    """The spec of ``name``; a :class:`~taskrl.errors.ConfigError` on ``algo`` listing the registered names otherwise."""
+    """The spec of ``name``; a `ConfigError` on ``algo`` listing the registered names otherwise."""
     return ALGORITHMS.lookup(name)

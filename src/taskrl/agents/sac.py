@@ -34,7 +34,7 @@ f(s) as a constant; the target critics read a Polyak-averaged copy of it; every 
 of s and s' at random (``--augment-pad``).
 
 Multi-task SAC (Yu et al., 2019; Sodhani et al., 2021): given a
-:class:`~taskrl.conditioning.networks.TaskConditioning`, the actor and both critics take the task
+[`TaskConditioning`][taskrl.conditioning.networks.TaskConditioning], the actor and both critics take the task
 context c = encoder(task) as well (``concat``, ``film`` or ``care``; optionally one output head per
 task), every row of a batch with its own task, all tasks in one forward pass. The temperature is
 per task, alpha_k = exp(log_alpha[k]), so a task that is already solved does not set the
@@ -120,7 +120,7 @@ class SACConfig:
     augment_pad: int = 4
 
     def validate(self) -> None:
-        """Raise :class:`~taskrl.errors.ConfigError` naming the first bad setting."""
+        """Raise `ConfigError` naming the first bad setting."""
         check_learning_settings(self)
         one_of(self.encoder, ENCODERS, "encoder", "encoder")
         require(self.image_features >= 1, "image_features", f"must be >= 1 (got {self.image_features})")
@@ -209,7 +209,7 @@ class SACAgent(Agent):
         input_keys: observation keys the networks read (e.g. ``("observation", "desired_goal")``).
         input_dim: total flattened size of those keys.
         action_space: a gymnasium ``Box`` or a ``(low, high)`` pair of tensors / arrays.
-        config: hyperparameters, see :class:`SACConfig`.
+        config: hyperparameters, see `SACConfig`.
         device: torch device of the networks.
         conditioning: multi-task runs: the task encoder and architecture the actor and critics
             use; observations then carry the task index under ``conditioning.task_key``.

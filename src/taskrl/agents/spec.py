@@ -1,4 +1,4 @@
-"""What the registry knows about an algorithm: :class:`AlgorithmSpec` (each agent's file declares its ``SPEC``)."""
+"""What the registry knows about an algorithm: `AlgorithmSpec` (each agent's file declares its ``SPEC``)."""
 
 from __future__ import annotations
 
@@ -44,7 +44,7 @@ class AlgorithmSpec:
             ``regress(batch, target)`` with ``bellman_parts`` (the weights targets read), so Bellman
             updaters can compute targets apart from the trainer (QT-Opt).
         compiles: whether its update runs as one compiled graph (``--compile``; its agent
-            implements ``learn``, see :mod:`taskrl.agents.compiled`).
+            implements ``learn``, see `taskrl.agents.compiled`).
         q_values: whether its agent has ``q_value(obs, action) -> [B]``, the Q of each row under the row's task
             (what a sharing strategy that ranks rows by Q reads).
         images: whether its networks encode an ``image`` observation (a conv encoder); others refuse envs with a camera.

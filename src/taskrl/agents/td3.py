@@ -77,7 +77,7 @@ class TD3Config:
     random_action_prob: float = 0.0
 
     def validate(self) -> None:
-        """Raise :class:`~taskrl.errors.ConfigError` naming the first bad setting."""
+        """Raise `ConfigError` naming the first bad setting."""
         check_learning_settings(self)
         require(self.policy_delay >= 1, "policy_delay", f"must be >= 1 (got {self.policy_delay})")
         check_non_negative(self, "target_noise", "target_noise_clip", "noise_std")
@@ -102,7 +102,7 @@ class TD3Agent(Agent):
         input_keys: observation keys the networks read.
         input_dim: total flattened size of those keys.
         action_space: a gymnasium ``Box`` or a ``(low, high)`` pair of tensors / arrays.
-        config: hyperparameters, see :class:`TD3Config`.
+        config: hyperparameters, see `TD3Config`.
         device: torch device of the networks.
     """
 

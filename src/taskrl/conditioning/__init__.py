@@ -1,10 +1,10 @@
 """Task conditioning: encoders from a task index to a context, and networks that use the context.
 
-- :mod:`task_encoders` — one-hot, learned embedding, language (frozen sentence embeddings).
-- :mod:`language` — all-MiniLM-L6-v2 embeddings of task descriptions, offline, cached on disk
+- `task_encoders` — one-hot, learned embedding, language (frozen sentence embeddings).
+- `language` — all-MiniLM-L6-v2 embeddings of task descriptions, offline, cached on disk
   (needs the ``language`` extra only when the cache misses).
-- :mod:`film` — FiLM layers and an MLP whose hidden layers are modulated by the context.
-- :mod:`care` — CARE: k state encoders mixed by attention on the context.
+- `film` — FiLM layers and an MLP whose hidden layers are modulated by the context.
+- `care` — CARE: k state encoders mixed by attention on the context.
 
 See ``docs/conditioning.md`` for the equations.
 """

@@ -4,11 +4,11 @@
     FiLM(h; c)        = (1 + gamma(c)) * h + beta(c)
 
 ``W`` and ``b`` start at zero, so at initialisation the scale is 1 and the shift 0 for every context:
-FiLM is the identity and a :class:`FiLMMLP` computes exactly the plain MLP it wraps. The context
+FiLM is the identity and a `FiLMMLP` computes exactly the plain MLP it wraps. The context
 then receives gradient from the second update on (once ``W`` has moved away from zero); the FiLM
 parameters themselves receive gradient from the first.
 
-:class:`FiLMMLP` modulates every hidden layer before its activation, as BC-Z does in every block:
+`FiLMMLP` modulates every hidden layer before its activation, as BC-Z does in every block:
 
     h_0 = x,   h_l = act(FiLM_l(A_l h_{l-1} + a_l; c)),   y = A_out h_L + a_out
 """

@@ -1,6 +1,6 @@
 """Networks told which task to do: ``f(x, context, task)`` for every agent's actor, critic or policy.
 
-One module, :class:`ConditionedMLP`, covers the architectures a run can choose (``architecture``):
+One module, `ConditionedMLP`, covers the architectures a run can choose (``architecture``):
 
     none     y = MLP([x, e])                                      single-task (no context)
     concat   y = MLP([x, e, c])                                   the union MDP: context appended
@@ -8,13 +8,13 @@ One module, :class:`ConditionedMLP`, covers the architectures a run can choose (
     care     y = MLP([CARE(x, c), e]) = MLP([sum_j w_j(c) f_j(x), c, e])     k encoders mixed by attention
 
 ``x`` is the (normalised) state, ``c`` the task context from a
-:class:`~taskrl.conditioning.task_encoders.TaskEncoder`, and ``e`` an optional extra input that joins
+[`TaskEncoder`][taskrl.conditioning.task_encoders.TaskEncoder], and ``e`` an optional extra input that joins
 after the conditioning (a critic's action: CARE encodes the state, as in the paper, and the action
 enters the trunk). With ``num_heads > 1`` the last layer has one head per task and row ``b`` reads
 head ``task[b]`` (multi-head SAC); the trunk stays shared. All tasks go through one forward pass.
 
-:class:`ConditioningConfig` is the section of a run's configuration that picks these, and
-:func:`make_conditioning` builds the shared task encoder from it.
+`ConditioningConfig` is the section of a run's configuration that picks these, and
+`make_conditioning` builds the shared task encoder from it.
 """
 
 from __future__ import annotations
@@ -65,7 +65,7 @@ class ConditioningConfig:
     care_encoder_dim: int = 64
 
     def validate(self) -> None:
-        """Raise :class:`~taskrl.errors.ConfigError` naming the first bad setting."""
+        """Raise `ConfigError` naming the first bad setting."""
         one_of(self.task_encoder, TASK_ENCODERS, "task_encoder", "task encoder")
         one_of(self.architecture, ARCHITECTURES, "architecture", "architecture")
         for name in ("embedding_dim", "care_encoders", "care_encoder_dim"):
@@ -171,7 +171,7 @@ class TaskConditioning:
         return self.encoder(task), task
 
     def network(self, in_dim: int, out_dim: int, hidden_sizes: Sequence[int], extra_dim: int = 0) -> ConditionedMLP:
-        """A :class:`ConditionedMLP` with this conditioning (one head per task if ``multi_head``)."""
+        """A `ConditionedMLP` with this conditioning (one head per task if ``multi_head``)."""
         c = self.config
         return ConditionedMLP(
             in_dim,
@@ -189,7 +189,7 @@ class TaskConditioning:
 def make_conditioning(
     config: ConditioningConfig, num_tasks: int, descriptions: Sequence[str] | None = None, task_key: str = "task"
 ) -> TaskConditioning:
-    """The :class:`TaskConditioning` a config names, for ``num_tasks`` tasks described by ``descriptions``."""
+    """The `TaskConditioning` a config names, for ``num_tasks`` tasks described by ``descriptions``."""
     encoder = make_task_encoder(
         config.task_encoder,
         num_tasks,

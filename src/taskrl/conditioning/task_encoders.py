@@ -2,8 +2,8 @@
 
 Every encoder is an ``nn.Module`` with ``forward(task_index) -> context`` and the attribute
 ``context_dim`` (= C), so the networks that consume the context (a plain MLP on
-``[state, context]``, :class:`~taskrl.conditioning.film.FiLMMLP`,
-:class:`~taskrl.conditioning.care.CAREEncoder`) never need to know which encoder made it.
+``[state, context]``, [`FiLMMLP`][taskrl.conditioning.film.FiLMMLP],
+[`CAREEncoder`][taskrl.conditioning.care.CAREEncoder]) never need to know which encoder made it.
 
     one-hot            c = e_i                      (exact, no parameters)
     learned embedding  c = E[i],  E in R^{T x d}    (trained with the agent)
@@ -102,7 +102,7 @@ class LanguageTaskEncoder(TaskEncoder):
 
     Args:
         embeddings: ``[T, D]`` precomputed embeddings (``D = 384`` for all-MiniLM-L6-v2; see
-            :func:`taskrl.conditioning.language.sentence_embeddings`). Stored as a buffer: never
+            [`taskrl.conditioning.language.sentence_embeddings`][taskrl.conditioning.language.sentence_embeddings]). Stored as a buffer: never
             trained, saved in ``state_dict`` so a checkpoint is self-contained.
         trainable_projection_dim: if given, a trainable ``nn.Linear(D, P)`` maps the embedding to the
             context (``context_dim = P``); otherwise ``context_dim = D``.

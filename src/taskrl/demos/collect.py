@@ -117,7 +117,7 @@ def collect_demos(
 
     Args:
         source: ``mt10``, ``mt50``, ``ml45``, ``pointreach-mt``, Meta-World names separated by commas, or a
-            :class:`DemoSource`.
+            `DemoSource`.
         episodes: successful episodes to keep per task.
         out: dataset folder (``out/data`` is the Minari dataset).
         seed: seed of the goal positions, the goal draws and the action noise (evaluation of a

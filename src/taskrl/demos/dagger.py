@@ -60,7 +60,7 @@ class InterventionRule:
 
 
 class _Gate:
-    """Who drives each env copy, under an :class:`InterventionRule`."""
+    """Who drives each env copy, under an `InterventionRule`."""
 
     def __init__(self, n: int, rule: InterventionRule, device: torch.device) -> None:
         self.rule = rule
@@ -101,7 +101,7 @@ def collect_interventions(
         run_dir: a run trained on a family with a scripted expert (``taskrl demos collect`` lists them).
         out: the folder of the new dataset (``out/data``); nothing is written when the expert never took over.
         episodes: episodes per task, the policy and the expert sharing the control.
-        rule: the intervention rule (default :class:`InterventionRule()`).
+        rule: the intervention rule (default `InterventionRule`).
         seed: seed of the goals (keep it apart from the demonstrations' and the evaluation's).
         after_success: steps an episode goes on after its first success (as ``taskrl demos collect``).
         device: where the policy runs.

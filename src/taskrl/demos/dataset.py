@@ -2,7 +2,7 @@
 
 A dataset folder ``DIR`` holds one Minari dataset in ``DIR/data`` (``metadata.json`` and
 ``main_data.hdf5``, what ``minari.MinariDataset(DIR/data)`` reads), written by
-:func:`write_dataset`:
+`write_dataset`:
 
 - observations ``{"observation": Box, "task": Discrete(T)}`` (the task index into the dataset's
   own task list), and ``"image"`` (uint8 ``[H, W, 3]``) where the env has a camera; actions a ``Box``;
@@ -10,9 +10,9 @@ A dataset folder ``DIR`` holds one Minari dataset in ``DIR/data`` (``metadata.js
 - the dataset's metadata adds ``tasks`` (``[{"name", "description"}, ...]``, in index order) and
   ``card`` (how it was made: source, episodes and expert success per task, seed, action noise).
 
-:func:`read_demonstrations` reads any Minari dataset whose episodes say their task (episode metadata
+`read_demonstrations` reads any Minari dataset whose episodes say their task (episode metadata
 ``task``, or a ``task`` observation key with the dataset's ``tasks`` list) into a
-:class:`Demonstrations`: flat tensors of every step, with episode boundaries and task indices.
+`Demonstrations`: flat tensors of every step, with episode boundaries and task indices.
 Only HDF5 and JSON are read: loading a dataset never executes code.
 """
 
@@ -87,7 +87,7 @@ def _minari():
 
 
 def check_new_dataset_folder(out: str | Path) -> Path:
-    """``out`` as a folder a new dataset can be written to: a :class:`ConfigError` on ``out`` where it is a file or
+    """``out`` as a folder a new dataset can be written to: a `ConfigError` on ``out`` where it is a file or
     already holds a dataset."""
     out = Path(out)
     if out.exists() and not out.is_dir():
@@ -291,7 +291,7 @@ class Demonstrations:
     def select_tasks(self, names: Sequence[str], setting: str = "dataset") -> Demonstrations:
         """The episodes of ``names`` only, re-indexed so task ``i`` is ``names[i]`` (an env's task order).
 
-        A :class:`ConfigError` on ``setting`` names the tasks the dataset lacks.
+        A `ConfigError` on ``setting`` names the tasks the dataset lacks.
         """
         missing = [n for n in names if n not in self.task_names]
         if missing:
@@ -355,7 +355,7 @@ def _read_episodes(path: str | Path) -> tuple[dict[str, Any], list[Episode], dic
 
 
 def read_episodes(path: str | Path) -> list[Episode]:
-    """Every episode of a Minari dataset as :class:`Episode` records (final states included)."""
+    """Every episode of a Minari dataset as `Episode` records (final states included)."""
     return _read_episodes(path)[1]
 
 

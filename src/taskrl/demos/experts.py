@@ -1,5 +1,5 @@
 """Where demonstrations come from: an env family that declares a scripted expert for its tasks
-(:attr:`~taskrl.envs.spec.EnvFamily.demos`, a :class:`~taskrl.envs.spec.DemoSource`).
+([`demos`][taskrl.envs.spec.EnvFamily.demos], a [`DemoSource`][taskrl.envs.spec.DemoSource]).
 
 ``taskrl demos collect SOURCE`` names the family, or some of its tasks:
 
@@ -39,7 +39,7 @@ def demo_sources() -> list[str]:
 
 def demo_source(name: str) -> DemoSource:
     """The source ``taskrl demos collect`` names: a family with a scripted expert, ``FAMILY:task,task``, or a
-    comma-separated list of Meta-World tasks; a :class:`ConfigError` on ``source`` otherwise."""
+    comma-separated list of Meta-World tasks; a `ConfigError` on ``source`` otherwise."""
     allowed = f"{', '.join(demo_sources())}, FAMILY:task,task or Meta-World task names separated by commas"
     if not isinstance(name, str) or not name.strip():
         raise ConfigError("source", f"expected one of {allowed}")

@@ -32,7 +32,7 @@ def _ray() -> Any:
 def start_ray(settings: DistributedConfig, actors: int) -> bool:
     """Start a local Ray or join ``ray_address``; whether this call started it (and should shut it down).
 
-    An unreachable address or a cluster that is not there is a :class:`ConfigError` on
+    An unreachable address or a cluster that is not there is a `ConfigError` on
     ``ray_address`` (one line, exit 2), never a hang.
     """
     ray = _ray()
@@ -93,7 +93,7 @@ def _auto_address() -> str:
 
 
 def check_capacity(settings: DistributedConfig, actors: int) -> None:
-    """A :class:`ConfigError` on ``actor_cpus`` when the cluster cannot place every actor (they would
+    """A `ConfigError` on ``actor_cpus`` when the cluster cannot place every actor (they would
     wait for CPUs forever)."""
     have = _ray().cluster_resources().get("CPU", 0.0)
     need = actors * settings.actor_cpus
@@ -106,7 +106,7 @@ def check_capacity(settings: DistributedConfig, actors: int) -> None:
 
 
 def _checked(settings: DistributedConfig, actors: int) -> None:
-    """:func:`check_capacity` of the Ray this call started or joined (left again when it does not fit)."""
+    """`check_capacity` of the Ray this call started or joined (left again when it does not fit)."""
     try:
         check_capacity(settings, actors)
     except ConfigError:

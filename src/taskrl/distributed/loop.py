@@ -4,7 +4,7 @@ The trainer process keeps the replay, so a collector or updater that dies loses 
 had in hand, never a stored episode. Each turn of the loop
 
 1. sends idle collectors out for ``collector_steps`` steps of their env copies, when the limiter
-   allows (:class:`~taskrl.distributed.limiter.UpdateToDataLimiter`);
+   allows ([`UpdateToDataLimiter`][taskrl.distributed.limiter.UpdateToDataLimiter]);
 2. stores the episodes of every collect call that came back;
 3. learns: with Bellman updaters, keeps up to ``queue_size`` sampled batches being labelled or
    waiting, and regresses on labelled ones (``agent.regress(batch, y)``, QT-Opt's trainer); without,
@@ -13,10 +13,10 @@ had in hand, never a stored episode. Each turn of the loop
    count (a role pulls them when the tag is newer than its own);
 5. runs the bookkeeping (evaluation, metric rows with per-role figures, checkpoints).
 
-Roles are called through a :class:`~taskrl.distributed.pools.Pool`: Ray actors, or the same role
+Roles are called through a [`Pool`][taskrl.distributed.pools.Pool]: Ray actors, or the same role
 objects in this process. The loop starts once every role is up, so all collectors' first calls
 leave together; a role whose constructor raises stops the run with its reason
-(:class:`~taskrl.distributed.pools.RoleCannotStart`) instead of being re-sent work forever.
+([`RoleCannotStart`][taskrl.distributed.pools.RoleCannotStart]) instead of being re-sent work forever.
 """
 
 from __future__ import annotations
@@ -103,7 +103,7 @@ class RoleLives:
 
 class RoleMeters:
     """Per-role figures since the last metrics row, and restart counts since the run started (the
-    deaths its :class:`RoleLives` counted).
+    deaths its `RoleLives` counted).
 
     Args:
         collector_lives, updater_lives: the lives of each kind of role.
@@ -331,7 +331,7 @@ class DistributedLoop:
             self.live_updaters.remove(j)  # none left: the trainer computes its own targets
 
     def learn(self, state: LoopState) -> int:
-        """Up to :data:`UPDATE_BURST` updates while the limiter allows and batches are at hand."""
+        """Up to `UPDATE_BURST` updates while the limiter allows and batches are at hand."""
         made = 0
         device = self.agent.device
         while (

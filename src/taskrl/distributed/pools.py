@@ -1,6 +1,6 @@
-"""A group of role objects the trainer calls asynchronously: :class:`LocalPool` runs them in this
-process (each call at once), :class:`LatePool` also returns them late and out of order,
-:class:`~taskrl.distributed.actors.RayPool` as Ray actors. The loop speaks only this interface, so it reads
+"""A group of role objects the trainer calls asynchronously: `LocalPool` runs them in this
+process (each call at once), `LatePool` also returns them late and out of order,
+[`RayPool`][taskrl.distributed.actors.RayPool] as Ray actors. The loop speaks only this interface, so it reads
 the same either way and is tested without Ray."""
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ class Pool(Protocol):
     size: int
 
     def wait_started(self, timeout: float) -> None:
-        """Wait up to ``timeout`` s until every role is constructed; :class:`RoleCannotStart` if one cannot be."""
+        """Wait up to ``timeout`` s until every role is constructed; `RoleCannotStart` if one cannot be."""
 
     def submit(self, index: int, method: str, *args: Any) -> Any:
         """Start ``role[index].method(*args)``; a handle to its result."""
@@ -42,7 +42,7 @@ class Pool(Protocol):
         """Those of ``handles`` whose calls have finished, waiting up to ``timeout`` s for at least one."""
 
     def result(self, handle: Any) -> Any:
-        """The call's return value; :class:`RoleDied` if its process died."""
+        """The call's return value; `RoleDied` if its process died."""
 
     def publish(self, value: Any) -> Callable[[], Any]:
         """``fetch() -> value`` for roles to pull a published object (weights) when they need it."""
@@ -63,7 +63,7 @@ class LocalPool:
     """Role objects in this process; ``submit`` runs the call before returning.
 
     Args:
-        roles: the role objects (e.g. :class:`~taskrl.distributed.roles.Collector`).
+        roles: the role objects (e.g. [`Collector`][taskrl.distributed.roles.Collector]).
     """
 
     def __init__(self, roles: Sequence[Any]) -> None:
@@ -101,9 +101,9 @@ class LocalPool:
 
 
 class LatePool(LocalPool):
-    """A :class:`LocalPool` whose calls finish late and out of order, as on Ray: each call runs when it is
+    """A `LocalPool` whose calls finish late and out of order, as on Ray: each call runs when it is
     submitted (with the weights of that moment) but shows as finished only after 0 to ``max_polls`` looks of
-    :meth:`ready`, drawn at random, and those finished together come back shuffled.
+    `ready`, drawn at random, and those finished together come back shuffled.
 
     Args:
         roles: the role objects.

@@ -1,5 +1,5 @@
 """The roles of a distributed run as plain classes: they run in one process as they are, and as Ray
-actors through :mod:`taskrl.distributed.actors` (``ray::Collector``, ``ray::BellmanUpdater``).
+actors through [`taskrl.distributed.actors`][taskrl.distributed.actors] (``ray::Collector``, ``ray::BellmanUpdater``).
 
 Neither keeps anything that a restart may not lose: a collector's unfinished episodes and an
 updater's batch in flight are redone, while every finished episode already lives in the trainer's
@@ -45,7 +45,7 @@ class Collected:
     """What one collect call returns.
 
     Attributes:
-        episodes: the episodes that finished (as :meth:`EpisodeRecorder.drain` gives them).
+        episodes: the episodes that finished (as `EpisodeRecorder.drain` gives them).
         steps: env steps taken (all copies).
         ended, succeeded: training episodes that finished, and how many of them succeeded.
         seconds: wall-clock of the call.
@@ -195,5 +195,5 @@ class BellmanUpdater:
         return Labelled(batch, target, time.perf_counter() - started, self.version)
 
     def label_all(self, batches: list[Batch], version: int, fetch: Fetch) -> list[Labelled]:
-        """:meth:`label` of each batch, in one call (one transfer each way for all of them)."""
+        """`label` of each batch, in one call (one transfer each way for all of them)."""
         return [self.label(batch, version, fetch) for batch in batches]

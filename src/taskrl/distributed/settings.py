@@ -58,7 +58,7 @@ class DistributedConfig:
     max_restarts: int = -1
 
     def validate(self) -> None:
-        """Raise :class:`~taskrl.errors.ConfigError` naming the first bad setting."""
+        """Raise `ConfigError` naming the first bad setting."""
         for name in ("collectors", "collector_steps", "queue_size", "publish_interval", "batches_per_call"):
             require(getattr(self, name) >= 1, name, f"must be >= 1 (got {getattr(self, name)})")
         for name in ("envs_per_collector", "bellman_updaters", "ray_cpus"):

@@ -1,7 +1,7 @@
 """The Fetch robotics tasks (gymnasium-robotics ``*-v4``, MuJoCo) as env families.
 
 They need the ``robotics`` extra. Every copy is a gymnasium env behind
-:class:`~taskrl.envs.gymnasium_adapter.GymnasiumGoalEnv`; success is the env's ``is_success``.
+[`GymnasiumGoalEnv`][taskrl.envs.gymnasium_adapter.GymnasiumGoalEnv]; success is the env's ``is_success``.
 """
 
 from __future__ import annotations

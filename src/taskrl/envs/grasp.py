@@ -14,8 +14,10 @@ A closed gripper holds an object when both hold:
 
 - its centre is over the object's spine: within ``tolerance`` of the object's long axis, and along it no
   further than the object's half-length minus its half-width (a disc's spine is its centre);
-- the object's extent along the closing direction fits between the open jaws (``opening``): an
-  elongated object fits only across the fingers, a square only when turned so that its width fits.
+- the object's extent along the closing direction fits between the open jaws (``opening``): a bar or an
+  ellipse fits only across the fingers; a disc at any yaw; a square of half-side ``h`` at a yaw where
+  ``2h (|cos| + |sin|)`` fits, which as sampled (``h`` 0.035-0.05 against the 0.14 opening) is every yaw except for
+  the 3% of squares with ``h`` above 0.0495.
 
 Reward 1 at the end of a successful attempt, 0 otherwise; an episode is one attempt (it ends at the close
 or after ``horizon`` steps without one; either way it terminates: the time left is part of the state).
@@ -26,7 +28,7 @@ orange and white.
 
 Success detection (the lecture's): after an attempt the gripper moves over the bin and opens. The
 camera takes the bin before and after it opens; whatever was held drops back into the bin, so the two
-pictures differ where it lands. :func:`detect_grasp` says whether something was held from those two
+pictures differ where it lands. `detect_grasp` says whether something was held from those two
 pictures alone (each under its own lighting and sensor noise), and ``reward="detector"`` trains on its
 labels instead of the simulator's.
 """
@@ -88,7 +90,7 @@ class GraspSettings:
         num_objects: objects in the bin.
         image_size: the camera picture's side in pixels.
         horizon: steps of an attempt before it ends without a close.
-        reward: ``simulator`` (the hold the simulator checks) or ``detector`` (what :func:`detect_grasp`
+        reward: ``simulator`` (the hold the simulator checks) or ``detector`` (what `detect_grasp`
             reads from the pictures before and after the gripper opens over the bin).
         max_move: largest move of the gripper per step in x and y (the bin is 1 wide).
         max_turn: largest turn of the gripper per step, radians.
@@ -154,7 +156,7 @@ class Grasp(NativeEnv):
     Observations: ``image`` ``[B, H, W, 3]`` uint8 and ``observation`` ``[B, 5]`` (gripper x, y in [0, 1], cos and
     sin of twice its yaw, as a parallel jaw is the same turned by pi, and the share of the attempt's steps
     left). ``info`` at every step: ``is_success`` (held, by the simulator), ``attempted`` (closed this
-    step); where an attempt ended, ``detected`` (:func:`detect_grasp`'s answer) and the two pictures
+    step); where an attempt ended, ``detected`` (`detect_grasp`'s answer) and the two pictures
     ``bin_before`` / ``bin_after`` (zeros elsewhere).
     """
 
@@ -283,11 +285,12 @@ class Grasp(NativeEnv):
 
     # ------------------------------------------------------------------ scripted exploration
     def scripted_action(self, obs: Obs, aim_noise: float = 0.04) -> torch.Tensor:
-        """``[B, 4]``: QT-Opt's scripted exploration, which knows where the objects are: move over the nearest
-        object's centre, turn the jaws across its long axis (squares: along a side), close when there. Each attempt
+        """``[B, 4]``: a scripted grasp for exploration, told the objects' positions by the simulator (which a robot's
+        scripted policy is not; QT-Opt's paper reports its own scripted exploration only as succeeding in 15-30% of
+        attempts): move over the nearest object's centre, turn the jaws across its long axis (squares: along a side), close when there. Each attempt
         aims off by a normal offset of ``aim_noise`` per axis and 15 degrees of yaw, drawn when it starts from the
         policy's own generator (the env's random stream is untouched), so that it succeeds in 29-30% of
-        attempts (``benchmarks/grasp_env.py --part scripted``; the paper's scripted policy: 15-30%)."""
+        attempts (``benchmarks/grasp_env.py --part scripted``), within the paper's 15-30%."""
         b, s = self.num_envs, self.settings
         if getattr(self, "_aim", None) is None:
             self._aim_generator = torch.Generator(device=self.device).manual_seed(int(self.generator.initial_seed()) + 1)
@@ -390,7 +393,7 @@ class Grasp(NativeEnv):
 
 
 def scripted_attempts(env: Grasp, steps: int = 40, aim_noise: float = 0.04, seed: int = 0) -> tuple[int, int]:
-    """``(attempts, held)``: the attempts :meth:`Grasp.scripted_action` finished in ``steps`` steps of every bin of
+    """``(attempts, held)``: the attempts `Grasp.scripted_action` finished in ``steps`` steps of every bin of
     ``env`` (reset with ``seed``), and how many of them held an object."""
     obs = env.reset(seed=seed)
     attempts = held = 0
@@ -402,11 +405,11 @@ def scripted_attempts(env: Grasp, steps: int = 40, aim_noise: float = 0.04, seed
 
 
 class GraspGymEnv(gym.Env):
-    """One bin of :class:`Grasp` as a standard ``gymnasium.Env`` (numpy observations), ``taskrl/Grasp-v0``.
+    """One bin of `Grasp` as a standard ``gymnasium.Env`` (numpy observations), ``taskrl/Grasp-v0``.
 
     Args:
         render_mode: None or ``rgb_array`` (the camera picture).
-        **settings: fields of :class:`GraspSettings` (``objects="held_out"``, ``image_size=84``, ...).
+        **settings: fields of `GraspSettings` (``objects="held_out"``, ``image_size=84``, ...).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 4}

@@ -6,9 +6,9 @@ A walker stands on a cell ``(x, y)`` of a 7 x 7 grid and moves one cell per step
 
     {"observation": one-hot of the cell (49-d float32), "task": int64 index into env.task_set}
 
-The tasks (:data:`GRID_TASKS`): reach one of the four corners, reach the centre, and reach the top-left
+The tasks (`GRID_TASKS`): reach one of the four corners, reach the centre, and reach the top-left
 corner *without stepping on the middle column* (stepping on it ends the episode unsolved). Reward,
-success and termination are those of :mod:`taskrl.envs.reward_tasks`: 1 on reaching the task's cell,
+success and termination are those of [`taskrl.envs.reward_tasks`][taskrl.envs.reward_tasks]: 1 on reaching the task's cell,
 episodes end there, after a hazard, or after 30 steps. Episodes start on a random cell that is no
 task's target or hazard.
 
@@ -52,7 +52,7 @@ class GridTasks(RewardTaskEnv):
     Args:
         num_envs: copies stepped in parallel.
         device: torch device of the state.
-        tasks: the tasks (default :data:`GRID_TASKS`); boxes in cell coordinates ``0 .. 6``.
+        tasks: the tasks (default `GRID_TASKS`); boxes in cell coordinates ``0 .. 6``.
         horizon: steps before truncation.
         task_weights: relative share of episodes of each task (imbalance).
         task_sampling: ``uniform`` (drawn by ``task_weights`` every episode) or ``fixed`` (copy i: task i % T).
@@ -119,7 +119,7 @@ class GridTasks(RewardTaskEnv):
 
 
 class GridTasksGymEnv(TaskChoiceEnv):
-    """Gymnasium view of one copy of :class:`GridTasks` (``taskrl/GridTasks-v0``); ``options={"task": name}`` fixes the task."""
+    """Gymnasium view of one copy of `GridTasks` (``taskrl/GridTasks-v0``); ``options={"task": name}`` fixes the task."""
 
     def __init__(self, render_mode: str | None = None) -> None:
         self._wrap_tasks(GridTasks(num_envs=1, horizon=2**62, seed=0), render_mode)

@@ -1,8 +1,8 @@
 """Gymnasium environments (Fetch, Meta-World, ``taskrl/PointReach-v0``, a user's own) as batched envs.
 
-:class:`GymnasiumVectorEnv` runs ``num_envs`` copies of any gymnasium env with ``Dict`` or ``Box``
+`GymnasiumVectorEnv` runs ``num_envs`` copies of any gymnasium env with ``Dict`` or ``Box``
 observations through gymnasium's vector API (sync or async) with same-step autoreset, and is the
-only place where gymnasium's numpy data becomes torch tensors. :class:`GymnasiumGoalEnv` adds the
+only place where gymnasium's numpy data becomes torch tensors. `GymnasiumGoalEnv` adds the
 goal-env part (``achieved_goal`` / ``desired_goal`` and the goal functions).
 
 - observations: dict of numpy batches -> dict of tensors on ``device`` (float64 keys become
@@ -333,7 +333,7 @@ class GymnasiumVectorEnv(BatchedEnv):
 class GymnasiumGoalEnv(GoalEnvMixin, GymnasiumVectorEnv):
     """``num_envs`` copies of a gymnasium goal env behind the batched contract.
 
-    Arguments as :class:`GymnasiumVectorEnv`. The env must have a ``Dict`` observation space with
+    Arguments as `GymnasiumVectorEnv`. The env must have a ``Dict`` observation space with
     ``achieved_goal`` and ``desired_goal`` and a ``compute_reward(achieved_goal, desired_goal,
     info)``. The goal functions are those of copy 0 with ``"sync"``, and of one extra local
     instance with ``"async"`` (``goal_env``).

@@ -23,7 +23,7 @@ __all__ = ["BitFlipGymEnv", "PointReachGymEnv", "SingleCopyEnv", "TaskChoiceEnv"
 class SingleCopyEnv(gym.Env):
     """One copy of a native batched environment as a standard ``gymnasium.Env`` with numpy data.
 
-    Subclasses build the copy (``num_envs=1``) and pass it to :meth:`_wrap`. Auto-reset belongs
+    Subclasses build the copy (``num_envs=1``) and pass it to `_wrap`. Auto-reset belongs
     to gymnasium's wrappers here, so ``step`` returns the observation an episode ended in.
     """
 
@@ -64,7 +64,7 @@ class TaskChoiceEnv(SingleCopyEnv):
     """One copy of a native multi-task environment (observations ``observation`` and ``task``): the task
     is drawn at every reset, or fixed by ``options={"task": i}`` (an index or a task name).
 
-    Subclasses pass the copy to :meth:`_wrap_tasks`; it must have a ``task_set`` and a ``task`` tensor.
+    Subclasses pass the copy to `_wrap_tasks`; it must have a ``task_set`` and a ``task`` tensor.
     """
 
     def _wrap_tasks(self, env: Any, render_mode: str | None = None) -> None:
@@ -90,7 +90,7 @@ class TaskChoiceEnv(SingleCopyEnv):
 
 
 class BitFlipGymEnv(SingleCopyEnv):
-    """Gymnasium wrapper around one copy of :class:`BitFlip` (random start and random target).
+    """Gymnasium wrapper around one copy of `BitFlip` (random start and random target).
 
     Args:
         n_bits: length of the bit string.
@@ -106,13 +106,13 @@ class BitFlipGymEnv(SingleCopyEnv):
 
 
 class PointReachGymEnv(SingleCopyEnv):
-    """Gymnasium wrapper around one copy of :class:`PointReach` (random start and random goal).
+    """Gymnasium wrapper around one copy of `PointReach` (random start and random goal).
 
     The episode length is gymnasium's time limit (``max_episode_steps``, registered as 50, the
     native default); the wrapped copy never truncates by itself.
 
     Args:
-        reward: ``"sparse"`` or ``"dense"`` (see :class:`PointReach`).
+        reward: ``"sparse"`` or ``"dense"`` (see `PointReach`).
         max_speed: largest move per step along each axis.
         distance_threshold: success radius around the goal.
         terminate_on_success: end the episode when the goal is reached.

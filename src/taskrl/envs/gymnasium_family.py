@@ -77,7 +77,7 @@ def factory_name(obj: Any) -> str:
 
 
 def check_registered(env_id: str) -> None:
-    """A :class:`ConfigError` on ``env_id`` unless gymnasium knows the id."""
+    """A `ConfigError` on ``env_id`` unless gymnasium knows the id."""
     try:
         gym.spec(env_id)
     except gym.error.Error as error:

@@ -1,21 +1,21 @@
 """Meta-World v3 task sets (MT1, MT10, MT50, custom lists) as batched multi-task environments.
 
 Needs the ``metaworld`` extra (``pip install 'taskrl[metaworld]'``, Meta-World 3.1.1 with MuJoCo
-3.3.0); everything except :class:`MetaWorldMultiTaskEnv` works without it.
+3.3.0); everything except `MetaWorldMultiTaskEnv` works without it.
 
-- :data:`METAWORLD_DESCRIPTIONS`: one human-written sentence for each of the 50 tasks, keyed by
+- `METAWORLD_DESCRIPTIONS`: one human-written sentence for each of the 50 tasks, keyed by
   the version-free name (``reach``, ``pick-place``) in Meta-World's MT50 order; the metadata
   that language conditioning (CARE) embeds.
-- :func:`metaworld_task_set`: the :class:`~taskrl.tasks.TaskSet` of a benchmark.
-- :class:`MetaWorldMultiTaskEnv`: one vector slot per task (or ``envs_per_task``), observations
+- `metaworld_task_set`: the [`TaskSet`][taskrl.tasks.TaskSet] of a benchmark.
+- `MetaWorldMultiTaskEnv`: one vector slot per task (or ``envs_per_task``), observations
   ``{"observation": 39-d float32, "task": int64 index}``, ``info["is_success"]`` from Meta-World's
   ``info["success"]``, goal positions drawn afresh at every reset. It is a
-  :class:`~taskrl.envs.gymnasium_adapter.GymnasiumVectorEnv`, so numpy becomes torch, autoreset
+  [`GymnasiumVectorEnv`][taskrl.envs.gymnasium_adapter.GymnasiumVectorEnv], so numpy becomes torch, autoreset
   and final observations are handled in that one place.
 - the families ``mt1``, ``mt10`` and ``mt50`` (section ``metaworld``).
 
 Meta-World's evaluation protocol (per task, episodes over distinct goal positions, success if
-reached at any step) is :func:`taskrl.training.per_task.evaluate_per_task`.
+reached at any step) is [`taskrl.training.per_task.evaluate_per_task`][taskrl.training.per_task.evaluate_per_task].
 
 Meta-World settings chosen (see ``docs/multitask.md``): ``use_one_hot`` always passed explicitly;
 ``task_select="random"`` so every reset picks one of the task's 50 pre-drawn goal positions
@@ -227,7 +227,7 @@ def metaworld_task_set(benchmark: str | Sequence[str] = "MT10", task: str | None
 
 @dataclasses.dataclass
 class MetaWorldSpec:
-    """What an agent is built from — the task set and the spaces of :class:`MetaWorldMultiTaskEnv` —
+    """What an agent is built from — the task set and the spaces of `MetaWorldMultiTaskEnv` —
     without building the env (each task's MuJoCo model and goal draws take seconds), e.g. to load a
     trained agent. ``test_metaworld_tasks`` checks that it matches a real env."""
 
@@ -247,8 +247,8 @@ def metaworld_spec(
     observation: str = "state",
     image_size: int = 64,
 ) -> MetaWorldSpec:
-    """The :class:`MetaWorldSpec` of a benchmark (arguments as :func:`metaworld_task_set` and
-    :class:`MetaWorldMultiTaskEnv`)."""
+    """The `MetaWorldSpec` of a benchmark (arguments as `metaworld_task_set` and
+    `MetaWorldMultiTaskEnv`)."""
     task_set = metaworld_task_set(benchmark, task)
     entries: dict[str, gym.spaces.Space] = {"task": gym.spaces.Discrete(len(task_set))}
     if observation != "pixels":
@@ -272,7 +272,7 @@ class MetaWorldTaskWrapper(gym.Wrapper):
     With ``use_one_hot``, the task index is read from Meta-World's one-hot (the last
     ``num_tasks`` entries of its observation) and checked against ``task_index``; otherwise it
     is ``task_index``. ``set_goal_schedules`` pins the goal positions of the next resets (used by
-    :func:`~taskrl.training.per_task.evaluate_per_task` to visit distinct goals); ``None`` restores random goals.
+    [`evaluate_per_task`][taskrl.training.per_task.evaluate_per_task] to visit distinct goals); ``None`` restores random goals.
     With ``hidden_goal`` the goal position in the observation is zeroed (ML45's protocol); ``goal()`` still
     tells it (the scripted experts read it).
     """
@@ -591,7 +591,7 @@ class MetaWorldVideoEnv(gym.Env):
     """One renderable copy of each task of a Meta-World benchmark, for videos (``taskrl eval --video``).
 
     ``reset(options={"task": k})`` picks task ``k`` (its copy is built on first use); observations are
-    those of :class:`MetaWorldMultiTaskEnv` (``observation`` and ``task``), frames come from MuJoCo.
+    those of `MetaWorldMultiTaskEnv` (``observation`` and ``task``), frames come from MuJoCo.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 40}

@@ -1,7 +1,7 @@
 """Multi-task point reaching: K named target regions, the task index in the observation.
 
 A point lives in the box ``[-1, 1]^2`` and moves by ``clip(action, -1, 1) * max_speed`` per step
-(clipped to the box), as in :class:`~taskrl.envs.point_reach.PointReach`. There is no goal in
+(clipped to the box), as in [`PointReach`][taskrl.envs.point_reach.PointReach]. There is no goal in
 the observation: each episode has a *task*, one of K named regions described in words
 ("Move the point into the top-left corner of the square."), and the observation says only which
 one, by its index::
@@ -72,7 +72,7 @@ class MultiTaskPointReach(NativeEnv):
         num_envs: copies stepped in parallel.
         device: torch device the state lives on.
         regions: ``(name, description, (x, y))`` triples, one per task (default: the four
-            corners and the centre, :data:`DEFAULT_REGIONS`). Centres must lie in ``[-1, 1]^2``.
+            corners and the centre, `DEFAULT_REGIONS`). Centres must lie in ``[-1, 1]^2``.
         horizon: steps before truncation.
         reward: ``"sparse"`` (0 within ``radius`` of the task's centre, else -1) or ``"dense"``
             (minus the distance to it).
@@ -84,11 +84,11 @@ class MultiTaskPointReach(NativeEnv):
         seed: seed of the environment's generator.
 
     Attributes:
-        task_set: the :class:`~taskrl.tasks.TaskSet` of the regions (names and descriptions).
+        task_set: the [`TaskSet`][taskrl.tasks.TaskSet] of the regions (names and descriptions).
         centres: ``[K, 2]`` region centres.
         task: ``[num_envs]`` current task of every copy.
         slot_tasks: ``[num_envs]`` task of each copy with ``task_sampling="fixed"`` (``None`` when
-            uniform); :func:`~taskrl.training.per_task.evaluate_per_task` uses it.
+            uniform); [`evaluate_per_task`][taskrl.training.per_task.evaluate_per_task] uses it.
     """
 
     def __init__(
@@ -197,7 +197,7 @@ class MultiTaskPointReach(NativeEnv):
 
 
 class MultiTaskPointReachGymEnv(TaskChoiceEnv):
-    """Gymnasium view of one copy of :class:`MultiTaskPointReach` (``taskrl/MultiTaskPointReach-v0``).
+    """Gymnasium view of one copy of `MultiTaskPointReach` (``taskrl/MultiTaskPointReach-v0``).
 
     The task is drawn uniformly at every reset, or fixed by ``options={"task": i}`` (an index or a
     region name). The episode length is gymnasium's time limit (registered as 50); the wrapped

@@ -1,13 +1,13 @@
 """Pushing a block to a goal shown as a picture: the tabletop's pusher and one block, batched in torch.
 
-The goal-image task with an object to move (where :mod:`~taskrl.envs.pixel_reach` moves the agent itself):
+The goal-image task with an object to move (where [`pixel_reach`][taskrl.envs.pixel_reach] moves the agent itself):
 the policy sees ``image`` (the table now) and ``goal_image`` (the table with the block where it should
 be, and no pusher), each ``[size, size, 3]`` uint8 drawn by the tabletop's camera
-(:func:`~taskrl.envs.tabletop.draw_table`), and the pusher's own position (``observation``, as a robot knows
+([`draw_table`][taskrl.envs.tabletop.draw_table]), and the pusher's own position (``observation``, as a robot knows
 its arm's pose). Where the block is and where it should go are only in the pictures. The state goal stays
 beside them (``achieved_goal``: the block's centre; ``desired_goal``: its goal), so the reward and hindsight
 relabelling are exact: relabelling replaces ``desired_goal`` by where the block was later in the episode and
-``goal_image`` by :meth:`PixelPush.goal_picture` of it (``replay/hindsight.py``), so the env's goals and hindsight's
+``goal_image`` by `PixelPush.goal_picture` of it (``replay/hindsight.py``), so the env's goals and hindsight's
 are pictures of one kind: the block alone. (Hindsight once used the picture of that moment, the pusher usually
 beside the block, while the env's goals put the pusher at a random spot: two distributions.) The networks read
 the pictures, never the state goal (``wiring/parts.py``).
@@ -15,7 +15,7 @@ the pictures, never the state goal (``wiring/parts.py``).
 ``observation="state"`` is the same task without pictures (``observation`` = pusher and block positions; the
 goal as ``desired_goal``): the control that prices the pixels.
 
-Dynamics are the tabletop's (:func:`~taskrl.envs.tabletop.shove`): the pusher moves by ``action * 0.1`` and
+Dynamics are the tabletop's ([`shove`][taskrl.envs.tabletop.shove]): the pusher moves by ``action * 0.1`` and
 shoves the block out of its way. The block starts in ``[-0.5, 0.5]^2``, its goal 0.2 to 0.5 away, the pusher
 anywhere on the table. Success: the block's centre within ``distance_threshold`` (0.1, 1.6 pixels at 32x32)
 of the goal; sparse reward (0 there, else -1) by default; episodes of ``horizon`` steps, as FetchPush's.
@@ -51,7 +51,7 @@ class PixelPush(PointReach):
         image_size: side of both pictures in pixels.
         observation: ``pixels`` (pictures and the pusher's position) or ``state`` (pusher and block positions).
         distance_threshold: success radius of the block around its goal.
-        **kwargs: :class:`~taskrl.envs.point_reach.PointReach`'s (``num_envs``, ``device``, ``horizon``, ``reward``,
+        **kwargs: [`PointReach`][taskrl.envs.point_reach.PointReach]'s (``num_envs``, ``device``, ``horizon``, ``reward``,
             ``seed``).
     """
 
@@ -131,7 +131,7 @@ class PixelPush(PointReach):
 
 
 class PixelPushGymEnv(PointReachGymEnv):
-    """One copy of :class:`PixelPush` as a standard ``gymnasium.Env``, ``taskrl/PixelPush-v0`` (time limit 50).
+    """One copy of `PixelPush` as a standard ``gymnasium.Env``, ``taskrl/PixelPush-v0`` (time limit 50).
 
     Args:
         reward: ``"sparse"`` or ``"dense"``.

@@ -39,7 +39,7 @@ class PixelReach(PointReach):
     Args:
         image_size: side of both pictures in pixels.
         point_radius: the disc's radius, in units of the ``[-1, 1]`` box.
-        **kwargs: :class:`~taskrl.envs.point_reach.PointReach`'s (``num_envs``, ``device``, ``reward``, ...).
+        **kwargs: [`PointReach`][taskrl.envs.point_reach.PointReach]'s (``num_envs``, ``device``, ``reward``, ...).
     """
 
     def __init__(self, image_size: int = 32, point_radius: float = 0.12, **kwargs) -> None:
@@ -81,7 +81,7 @@ class PixelReach(PointReach):
 
 
 class PixelReachGymEnv(PointReachGymEnv):
-    """One copy of :class:`PixelReach` as a standard ``gymnasium.Env``, ``taskrl/PixelReach-v0`` (time limit 50).
+    """One copy of `PixelReach` as a standard ``gymnasium.Env``, ``taskrl/PixelReach-v0`` (time limit 50).
 
     Args:
         reward: ``"sparse"`` or ``"dense"``.

@@ -1,7 +1,7 @@
 """Pixels from any gymnasium env that renders: its ``render()`` frame as an ``image`` observation.
 
 ``--observation pixels`` (or ``pixels+state``) on the Fetch families and the ``gym`` family wraps every copy
-in :class:`PixelObservation`: the env is made with ``render_mode="rgb_array"`` (at ``--image-size`` where its
+in `PixelObservation`: the env is made with ``render_mode="rgb_array"`` (at ``--image-size`` where its
 renderer takes ``width`` / ``height``, as MuJoCo's do; otherwise the frame is resized), and the observation
 becomes a dict with
 

@@ -2,13 +2,13 @@
 of data sharing).
 
 A point in ``[-1, 1]^2`` moves by ``clip(action, -1, 1) * 0.1`` per step (clipped to the box), as in
-:class:`~taskrl.envs.point_reach.PointReach`. Observations::
+[`PointReach`][taskrl.envs.point_reach.PointReach]. Observations::
 
     {"observation": position (2-d float32), "task": int64 index into env.task_set}
 
-The tasks (:data:`POINT_TASKS`): reach one of the four corner regions, the centre region, or the
+The tasks (`POINT_TASKS`): reach one of the four corner regions, the centre region, or the
 middle of the right edge, each a box of half-width 0.15. Reward, success and termination are those
-of :mod:`taskrl.envs.reward_tasks`: 1 on entering the task's region, episodes end there or after 40
+of [`taskrl.envs.reward_tasks`][taskrl.envs.reward_tasks]: 1 on entering the task's region, episodes end there or after 40
 steps. Episodes start uniformly in the box, outside every region.
 
 The scripted expert flies straight to its region's centre at full speed: what ``expert`` datasets
@@ -49,7 +49,7 @@ class PointTasks(RewardTaskEnv):
     Args:
         num_envs: copies stepped in parallel.
         device: torch device of the state.
-        tasks: the tasks (default :data:`POINT_TASKS`); boxes in ``[-1, 1]^2``.
+        tasks: the tasks (default `POINT_TASKS`); boxes in ``[-1, 1]^2``.
         horizon: steps before truncation.
         task_weights: relative share of episodes of each task (imbalance).
         task_sampling: ``uniform`` (drawn by ``task_weights`` every episode) or ``fixed`` (copy i: task i % T).
@@ -101,7 +101,7 @@ class PointTasks(RewardTaskEnv):
 
 
 class PointTasksGymEnv(TaskChoiceEnv):
-    """Gymnasium view of one copy of :class:`PointTasks` (``taskrl/PointTasks-v0``); ``options={"task": name}`` fixes the task."""
+    """Gymnasium view of one copy of `PointTasks` (``taskrl/PointTasks-v0``); ``options={"task": name}`` fixes the task."""
 
     def __init__(self, render_mode: str | None = None) -> None:
         self._wrap_tasks(PointTasks(num_envs=1, horizon=2**62, seed=0), render_mode)

@@ -1,7 +1,7 @@
-"""The environment families a run can use, by name: one :class:`~taskrl.envs.spec.EnvFamily` each.
+"""The environment families a run can use, by name: one [`EnvFamily`][taskrl.envs.spec.EnvFamily] each.
 
 Each family is declared in its environment's own file; adding one is that file plus one line in
-:data:`BUILT_IN`. A user's own family enters through :func:`register_env_family`; a user's own
+`BUILT_IN`. A user's own family enters through `register_env_family`; a user's own
 gymnasium environment needs no family at all (``--env-id``, the ``gym`` family).
 """
 
@@ -56,7 +56,7 @@ def register_env_family(family: EnvFamily, replace: bool = False) -> EnvFamily:
 
 
 def env_family(name: str) -> EnvFamily:
-    """The family called ``name``; a :class:`~taskrl.errors.ConfigError` on ``env`` listing the registered ones otherwise."""
+    """The family called ``name``; a `ConfigError` on ``env`` listing the registered ones otherwise."""
     return ENV_FAMILIES.lookup(name)
 
 

@@ -11,10 +11,10 @@ stored transition can be scored under any task (MT-Opt's task impersonation, HIP
 Rewards are 0 / 1, so 0 is the lowest reward: what data sharing with zero rewards (UDS) assumes of
 unlabeled data. An episode ends at its task's success or failure, or after ``horizon`` steps.
 
-Two families use this base: :mod:`taskrl.envs.grid_tasks` (a grid world, discrete actions, for
-DQN) and :mod:`taskrl.envs.point_tasks` (point navigation, continuous actions, for SAC). Each
+Two families use this base: [`taskrl.envs.grid_tasks`][taskrl.envs.grid_tasks] (a grid world, discrete actions, for
+DQN) and [`taskrl.envs.point_tasks`][taskrl.envs.point_tasks] (point navigation, continuous actions, for SAC). Each
 also has a scripted expert (``expert_action``), from which the offline datasets of
-:mod:`taskrl.sharing.datasets` are made.
+[`taskrl.sharing.datasets`][taskrl.sharing.datasets] are made.
 
 Imbalance, as in MT-Opt: ``task_weights`` sets the share of training episodes each task gets
 (``--low-data-tasks A,B --low-data-fraction 0.1`` gives A and B a tenth of the others' weight).
@@ -74,7 +74,7 @@ class RewardTaskEnv(NativeEnv):
     stored data), and ``expert_action(obs)``.
 
     Args:
-        tasks: the tasks, one :class:`RegionTask` each.
+        tasks: the tasks, one `RegionTask` each.
         num_envs: copies stepped in parallel.
         device: where the state lives.
         horizon: steps before truncation.

@@ -1,5 +1,5 @@
-"""What the registry knows about an environment family: :class:`EnvFamily`, and what a run asks
-of it: :class:`EnvRequest`. Each family's file declares its families next to its environments."""
+"""What the registry knows about an environment family: `EnvFamily`, and what a run asks
+of it: `EnvRequest`. Each family's file declares its families next to its environments."""
 
 from __future__ import annotations
 
@@ -40,7 +40,7 @@ class EnvRequest:
         eval_episodes: evaluation episodes (per task on multi-task envs).
         run_seed: the run's seed (Meta-World draws its goal positions from it).
         source: a Python object the env is built from instead of a name (a factory of a
-            ``gymnasium.Env``, a :class:`~taskrl.tasks.TaskSet`), for families that accept one.
+            ``gymnasium.Env``, a [`TaskSet`][taskrl.tasks.TaskSet]), for families that accept one.
     """
 
     num_envs: int

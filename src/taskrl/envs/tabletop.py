@@ -3,14 +3,14 @@
 BC-Z's setting at a scale that trains on a CPU: the policy sees a small camera picture of the table
 (``image``, ``[size, size, 3]`` uint8, channels last) and the pusher's own position (``observation``,
 proprioception, as a robot knows its arm's pose); where the blocks are is only in the picture. The task
-index (``task``) names one of :data:`TABLETOP_TASKS`:
+index (``task``) names one of `TABLETOP_TASKS`:
 
 - ``reach-<colour>``: "Move to the red block." — success when the pusher touches the block (centres
   within ``TOUCH``);
 - ``push-left-<colour>`` / ``push-right-<colour>``: "Push the red block to the left." — success when the
   block's centre is past ``x = -EDGE`` / ``x = +EDGE``.
 
-Three verbs on three blocks (red, green, blue) make nine tasks. :data:`HELD_OUT` keeps three of them out
+Three verbs on three blocks (red, green, blue) make nine tasks. `HELD_OUT` keeps three of them out
 of imitation, one per verb and one per colour (a Latin-square diagonal), so every verb and every colour is
 seen in training but never these combinations: zero-shot by description tests composition, as BC-Z's
 held-out tasks did.
@@ -115,7 +115,7 @@ class Tabletop(NativeEnv):
 
     Args:
         num_envs: copies stepped in parallel.
-        tasks: the task names this env runs (default every task of :data:`TABLETOP_TASKS`), in index order.
+        tasks: the task names this env runs (default every task of `TABLETOP_TASKS`), in index order.
         image_size: the camera picture's side in pixels.
         horizon: steps before an episode is cut.
         task_sampling: ``uniform`` (a random task every episode) or ``fixed`` (copy ``i`` runs task ``i % K``).
@@ -230,7 +230,7 @@ class Tabletop(NativeEnv):
 
 
 class TabletopGymEnv(TaskChoiceEnv):
-    """One copy of :class:`Tabletop` as a ``gymnasium.Env``, ``taskrl/Tabletop-v0`` (time limit 50): the task is
+    """One copy of `Tabletop` as a ``gymnasium.Env``, ``taskrl/Tabletop-v0`` (time limit 50): the task is
     drawn at every reset or fixed by ``options={"task": i}`` (an index or a name).
 
     Args:
@@ -248,7 +248,7 @@ class TabletopSettings:
     """Settings of the ``tabletop`` family.
 
     Attributes:
-        tasks: ``train`` (the six tasks left when :data:`HELD_OUT` is taken out: what runs train and evaluate on;
+        tasks: ``train`` (the six tasks left when `HELD_OUT` is taken out: what runs train and evaluate on;
             the held-out ones are evaluated with ``taskrl eval RUN --held-out``) or ``all`` (the nine).
         image_size: the camera picture's side in pixels.
         horizon: steps before an episode is cut.

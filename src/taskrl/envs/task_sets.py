@@ -1,12 +1,12 @@
 """The ``tasks`` family: a multi-task run over a user's own list of tasks.
 
-A :class:`~taskrl.tasks.TaskSet` (in Python) or a task file (``--task-file tasks.yaml``) names each
+A [`TaskSet`][taskrl.tasks.TaskSet] (in Python) or a task file (``--task-file tasks.yaml``) names each
 task, describes it in one sentence (what language conditioning embeds) and says where it runs:
 
-- every task a gymnasium env (an id with ``env_kwargs``, or a factory): :class:`TaskSetEnv` runs
+- every task a gymnasium env (an id with ``env_kwargs``, or a factory): `TaskSetEnv` runs
   ``envs_per_task`` copies of each, and adds the task index to the observation under ``task``;
 - no task with an env: the names are Meta-World tasks, run as
-  :class:`~taskrl.envs.metaworld_tasks.MetaWorldMultiTaskEnv` with the user's descriptions.
+  [`MetaWorldMultiTaskEnv`][taskrl.envs.metaworld_tasks.MetaWorldMultiTaskEnv] with the user's descriptions.
 
 The task envs must share observation and action spaces (one network serves all of them).
 """

@@ -54,7 +54,7 @@ class Batch:
 
     @classmethod
     def interleave(cls, batches: Sequence[Batch]) -> Batch:
-        """The one batch whose :meth:`split` into ``len(batches)`` gives ``batches`` back (rows ``i, i + k, ...``
+        """The one batch whose `split` into ``len(batches)`` gives ``batches`` back (rows ``i, i + k, ...``
         are ``batches[i]``'s): how ``k`` batches of equal size go to ``agent.update_many`` together."""
 
         def rows(values: list) -> torch.Tensor | Obs:

@@ -1,11 +1,11 @@
 """Whole episodes laid flat, and the staging where running episodes wait until they end.
 
-:class:`Episodes` is how episodes travel (from a collector to the trainer's replay, from a dataset into
+`Episodes` is how episodes travel (from a collector to the trainer's replay, from a dataset into
 the replay, into a checkpoint): the observations of every episode one after another, ``length + 1``
 each (observation ``t + 1`` is the next observation of step ``t``, so next states are never stored
 twice), and the steps one after another, ``length`` each. No padding, no declared horizon.
 
-:class:`EpisodeStaging` holds the running episode of every env copy. Its rows grow on demand
+`EpisodeStaging` holds the running episode of every env copy. Its rows grow on demand
 (doubling), so an env that ends its own episodes needs no declared ``max_episode_steps``; a bound
 (``max_length``, the replay's capacity) turns an episode that could never be stored into one error
 naming ``buffer_size``.
@@ -87,7 +87,7 @@ class Episodes:
 
     @classmethod
     def cat(cls, parts: list[Episodes]) -> Episodes:
-        """One :class:`Episodes` of ``parts`` in order (at least one part)."""
+        """One `Episodes` of ``parts`` in order (at least one part)."""
         if len(parts) == 1:
             return parts[0]
         return cls(
@@ -251,10 +251,10 @@ class EpisodeStaging:
 
 class EpisodeRecorder:
     """Records the episodes of ``num_envs`` env copies and hands the finished ones out together
-    (:meth:`drain`): what a collector sends to the replay of a trainer, or a dataset is made of.
+    (`drain`): what a collector sends to the replay of a trainer, or a dataset is made of.
 
     Args:
-        observation_space, action_space, num_envs, device: as :class:`EpisodeStaging`'s.
+        observation_space, action_space, num_envs, device: as `EpisodeStaging`'s.
         horizon: the env's longest episode where it declares one (the staging rows' first length).
     """
 
@@ -274,7 +274,7 @@ class EpisodeRecorder:
         self.staging.start(obs)
 
     def add(self, *step) -> None:
-        """One step of every env copy (:meth:`EpisodeStaging.add`'s arguments)."""
+        """One step of every env copy (`EpisodeStaging.add`'s arguments)."""
         self._keep(self.staging.add(*step))
 
     @property

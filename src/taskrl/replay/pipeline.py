@@ -4,13 +4,13 @@
     batch = replay.gather(rows)                the stored transitions
     batch = stage(batch, rows, generator)      for each stage in turn
 
-Draws (one protocol, :class:`Draw`): :class:`UniformDraw` over every stored transition;
-:class:`~taskrl.replay.sampling.TaskBalancedSampler` (the same share for every task);
-:class:`~taskrl.sharing.strategies.TaskSharing` (a sharing strategy picks other tasks' rows for each task
-and marks the task they train); :class:`~taskrl.replay.sampling.RecentMixSampler` (a share of the rows from
-the newest episodes, the rest from any other draw). Stages (:class:`Stage`): ``TaskSharing.to_task`` (rows
+Draws (one protocol, `Draw`): `UniformDraw` over every stored transition;
+[`TaskBalancedSampler`][taskrl.replay.sampling.TaskBalancedSampler] (the same share for every task);
+[`TaskSharing`][taskrl.sharing.strategies.TaskSharing] (a sharing strategy picks other tasks' rows for each task
+and marks the task they train); [`RecentMixSampler`][taskrl.replay.sampling.RecentMixSampler] (a share of the rows from
+the newest episodes, the rest from any other draw). Stages (`Stage`): ``TaskSharing.to_task`` (rows
 drawn for another task get that task's index, reward and termination) and hindsight relabelling
-(:class:`~taskrl.replay.hindsight.HindsightRelabeler` through :func:`hindsight_stage`).
+([`HindsightRelabeler`][taskrl.replay.hindsight.HindsightRelabeler] through `hindsight_stage`).
 """
 
 from __future__ import annotations
@@ -98,8 +98,8 @@ class SamplerPipeline:
 
     Args:
         replay: the episode storage.
-        draw: picks the rows (:class:`Draw`).
-        stages: rewrite the gathered batch, in order (:class:`Stage`).
+        draw: picks the rows (`Draw`).
+        stages: rewrite the gathered batch, in order (`Stage`).
     """
 
     def __init__(self, replay: EpisodeReplay, draw: Draw, stages: Sequence[Stage] = ()) -> None:

@@ -87,7 +87,7 @@ class TaskBalancedSampler:
         return episode.reshape(-1)[flat], step.reshape(-1)[flat]
 
     def rows(self, n: int, generator: torch.Generator | None = None) -> Rows:
-        """:meth:`indices` as a :class:`~taskrl.replay.pipeline.Draw`."""
+        """`indices` as a [`Draw`][taskrl.replay.pipeline.Draw]."""
         return Rows(*self.indices(n, generator))
 
     def __call__(self, batch_size: int, generator: torch.Generator | None = None) -> Batch:
@@ -95,7 +95,7 @@ class TaskBalancedSampler:
 
 
 class RecentMixSampler:
-    """A :class:`~taskrl.replay.pipeline.Draw`: a fixed share of each batch from the most recent
+    """A [`Draw`][taskrl.replay.pipeline.Draw]: a fixed share of each batch from the most recent
     episodes (the "on-policy" window), the rest from another draw over everything stored (the
     "off-policy" store: uniform, task-balanced, or a sharing strategy's).
 

@@ -11,13 +11,13 @@ Layout (three rings, oldest episodes evicted whole, first in first out):
 - **episodes**: ``[episode_slots]`` records of where an episode's steps and observations start and its
   length; an episode's id is its slot here (``Batch.episode``).
 
-Running episodes wait in an :class:`~taskrl.replay.episodes.EpisodeStaging` and are stored only when
+Running episodes wait in an [`EpisodeStaging`][taskrl.replay.episodes.EpisodeStaging] and are stored only when
 they end, so every sampleable transition belongs to a complete episode (hindsight goals need a real
 future) and no horizon is declared. ``episode_slots`` starts from the horizon where the env declares one
 (else a guess) and doubles when more, shorter episodes are stored: the episode and observation rings are
-then laid out anew, oldest first, and ids change (:attr:`EpisodeReplay.layout` counts these). Storing
+then laid out anew, oldest first, and ids change (`EpisodeReplay.layout` counts these). Storing
 never drops a transition while fewer than ``capacity`` are stored; past it, whole oldest episodes go and
-are counted (:attr:`EpisodeReplay.evicted_transitions`).
+are counted (`EpisodeReplay.evicted_transitions`).
 """
 
 from __future__ import annotations
@@ -66,7 +66,7 @@ class EpisodeReplay:
             the space's dtype (bits as int8, images as uint8).
         action_space: the single-env action space.
         capacity: transitions to hold (``--buffer-size``), whatever the episode lengths.
-        num_envs: env copies writing at once through :meth:`add` (their running episodes wait in staging).
+        num_envs: env copies writing at once through `add` (their running episodes wait in staging).
         device: where the storage lives (the device of the learner).
         horizon: the env's longest episode where it declares one, else None: only a first guess of the
             episode slots and staging rows, which grow on demand.
@@ -176,7 +176,7 @@ class EpisodeReplay:
         next_obs: Obs,
         reset_obs: Obs,
     ) -> None:
-        """Append one step of every env copy (as :meth:`EpisodeStaging.add`); the episodes it ended are stored."""
+        """Append one step of every env copy (as `EpisodeStaging.add`); the episodes it ended are stored."""
         episodes = self._staging.add(action, reward, terminated, truncated, next_obs, reset_obs)
         if episodes is not None:
             self.add_episodes(episodes)
@@ -348,7 +348,7 @@ class EpisodeReplay:
 
     # ---------------------------------------------------------------- checkpointing
     def state_dict(self) -> dict[str, torch.Tensor]:
-        """Stored episodes, as the rings are (no copy; a run stores its running ones first, :meth:`cut_running`)."""
+        """Stored episodes, as the rings are (no copy; a run stores its running ones first, `cut_running`)."""
         state = {f"obs/{k}": v for k, v in self.obs.items()}
         state.update({f"steps/{k}": v for k, v in self.steps.items()})
         state["episode_step_start"] = self.episode_step_start

@@ -1,7 +1,7 @@
-"""The run modes, by name: how a run of a config runs (:class:`~taskrl.runmodes.spec.RunMode`).
+"""The run modes, by name: how a run of a config runs ([`RunMode`][taskrl.runmodes.spec.RunMode]).
 
-Each mode is declared in its own file; adding one is that file plus one line in :data:`BUILT_IN`, or
-:func:`register_run_mode` from a user's code. A config runs in the most recently registered mode that
+Each mode is declared in its own file; adding one is that file plus one line in `BUILT_IN`, or
+`register_run_mode` from a user's code. A config runs in the most recently registered mode that
 applies to it, so a more specific mode is registered after a more general one.
 """
 
@@ -34,7 +34,7 @@ def register_run_mode(mode: RunMode, replace: bool = False) -> RunMode:
 
 
 def run_mode(config: TrainConfig) -> RunMode:
-    """The mode ``config`` runs in; a :class:`ConfigError` on ``algo`` when that mode does not run its algorithm."""
+    """The mode ``config`` runs in; a `ConfigError` on ``algo`` when that mode does not run its algorithm."""
     loop = algorithm(config.algo).loop
     for mode in reversed(list(RUN_MODES.values())):
         if mode.applies(config):

@@ -25,7 +25,7 @@ def steps_and_last_of_each_copy(config: TrainConfig, env: BatchedEnv) -> int:
 class RunMode:
     """How a run runs: which loop drives it and what it asks of its envs, replay and process.
 
-    Register one with :func:`taskrl.runmodes.registry.register_run_mode`; a config runs in the most recently
+    Register one with [`taskrl.runmodes.registry.register_run_mode`][taskrl.runmodes.registry.register_run_mode]; a config runs in the most recently
     registered mode whose ``applies`` accepts it.
 
     Attributes:
@@ -34,7 +34,7 @@ class RunMode:
         applies: ``config -> bool``: whether this mode runs the config.
         make_loop: ``(parts, bookkeeping) -> loop``, a loop with ``run(env_seed) -> LoopState``.
         loops: the algorithm kinds the mode runs (``off_policy``, ``on_policy``, ``offline``); another is a
-            :class:`~taskrl.errors.ConfigError` on ``algo``.
+            `ConfigError` on ``algo``.
         axis: what ``total_steps``, evaluation and checkpoint intervals count: ``env_steps`` or ``updates``.
         trainer_env: the env this process builds: ``copies`` (``num_envs`` copies it steps), ``one`` (one
             copy for spaces and rewards; others step elsewhere) or ``spaces`` (the family's spaces only, where

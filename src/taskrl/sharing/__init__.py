@@ -1,11 +1,11 @@
 """Data sharing between tasks: experience collected for one task, relabelled with another task's reward.
 
-- :mod:`settings` — :class:`SharingConfig`, the ``data_sharing`` section of a run (``--sharing``).
-- :mod:`strategies` — :class:`TaskSharing`, the sampler that draws each task's rows from its own and
+- `settings` — `SharingConfig`, the ``data_sharing`` section of a run (``--sharing``).
+- `strategies` — `TaskSharing`, the sampler that draws each task's rows from its own and
   other tasks' data by a strategy and scores them with the task's reward function.
-- :mod:`strategy`, :mod:`registry`, :mod:`builtin` — what a strategy declares, the strategies by name
+- `strategy`, `registry`, `builtin` — what a strategy declares, the strategies by name
   (``none``, ``all``, ``random``, ``success``, ``hipi``, ``conservative``, ``zero-reward``), the built-in ones.
-- :mod:`datasets` — per-task offline datasets of a chosen quality (expert, medium, random).
+- `datasets` — per-task offline datasets of a chosen quality (expert, medium, random).
 
 See ``docs/sharing.md`` for the equations and the results.
 """

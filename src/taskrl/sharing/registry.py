@@ -1,7 +1,7 @@
-"""The data-sharing strategies, by name (``--sharing``): one :class:`~taskrl.sharing.strategy.SharingStrategy` each.
+"""The data-sharing strategies, by name (``--sharing``): one [`SharingStrategy`][taskrl.sharing.strategy.SharingStrategy] each.
 
-A new strategy is a file declaring one (its weights, filter or relabelling) and a line in :data:`BUILT_IN`, or
-:func:`register_sharing_strategy` from a user's code.
+A new strategy is a file declaring one (its weights, filter or relabelling) and a line in `BUILT_IN`, or
+`register_sharing_strategy` from a user's code.
 """
 
 from __future__ import annotations
@@ -24,5 +24,5 @@ def register_sharing_strategy(strategy: SharingStrategy, replace: bool = False) 
 
 
 def sharing_strategy(name: str) -> SharingStrategy:
-    """The strategy called ``name``; a :class:`~taskrl.errors.ConfigError` on ``sharing`` listing them otherwise."""
+    """The strategy called ``name``; a `ConfigError` on ``sharing`` listing them otherwise."""
     return SHARING_STRATEGIES.lookup(name)

@@ -22,7 +22,7 @@ class SharingConfig:
             reaches the ``conservative_percentile``-th percentile of its own rows' Q-values) or
             ``zero-reward`` (UDS: any other task's data with reward 0), ``mtopt`` (MT-Opt: other tasks'
             successes and failures under this task, half and half), or a strategy registered with
-            :func:`~taskrl.sharing.registry.register_sharing_strategy`. Needs an env whose tasks are
+            [`register_sharing_strategy`][taskrl.sharing.registry.register_sharing_strategy]. Needs an env whose tasks are
             reward functions (``gridtasks``, ``pointtasks``, or one with ``task_reward``,
             ``task_terminated`` and ``task_success``).
         share_fraction: the share of each task's rows drawn from other tasks' data (all of them
@@ -40,8 +40,8 @@ class SharingConfig:
     conservative_percentile: float = 50.0
 
     def validate(self) -> None:
-        """Raise :class:`~taskrl.errors.ConfigError` naming the first bad setting (the strategy's name is checked
-        against the registry by :func:`taskrl.config.validate`)."""
+        """Raise `ConfigError` naming the first bad setting (the strategy's name is checked
+        against the registry by [`taskrl.config.validate`][taskrl.config.validate])."""
         require(0.0 <= self.share_fraction <= 1.0, "share_fraction", f"must be in [0, 1] (got {self.share_fraction})")
         require(self.share_tasks >= 1, "share_tasks", f"must be >= 1 (got {self.share_tasks})")
         require(self.hipi_temperature > 0, "hipi_temperature", f"must be > 0 (got {self.hipi_temperature})")

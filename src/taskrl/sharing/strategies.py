@@ -10,10 +10,10 @@ from episodes collected for other tasks i != j, and every row is then scored und
 (a strategy with ``zero_reward``, UDS, instead keeps ``r = 0`` and no termination on the shared rows: it
 labels data of unknown reward with the lowest reward.) A transition is drawn from a set of episodes uniformly
 over its transitions: episode e with weight ``len(e) * w_j(e)``, then a step uniformly. A strategy
-(:class:`~taskrl.sharing.strategy.SharingStrategy`, registered in :mod:`taskrl.sharing.registry`) hooks in at
+([`SharingStrategy`][taskrl.sharing.strategy.SharingStrategy], registered in [`taskrl.sharing.registry`][taskrl.sharing.registry]) hooks in at
 three points: the weight ``w_j(e)`` of another task's episode e, a filter on the shared rows once drawn (a row
 not kept is replaced by one of j's own), and the reward of shared rows. The built-in ones are in
-:mod:`taskrl.sharing.builtin`:
+[`taskrl.sharing.builtin`][taskrl.sharing.builtin]:
 
     all, zero-reward   w_j(e) = 1
     random             w_j(e) = 1 if task(e) is one of k tasks drawn for j in this batch, else 0
@@ -26,7 +26,7 @@ not kept is replaced by one of j's own), and the reward of shared rows. The buil
 A task with no data of its own gets all its rows from others; a strategy that finds nothing to share
 for j (no episode passes success_j yet) gives j its own data only; a task with neither (early in a
 run, or ``none`` and no data yet) lends its rows to data of any task, left as it is. ``none`` is task-balanced sampling
-of own data. How much of each task's rows came from which task is counted (:meth:`TaskSharing.metrics`).
+of own data. How much of each task's rows came from which task is counted (`TaskSharing.metrics`).
 """
 
 from __future__ import annotations
@@ -104,7 +104,7 @@ class TaskSharing:
         env: scores rows under any task: ``task_reward(obs, action, next_obs, task)``,
             ``task_terminated(next_obs, task)``, ``task_success(next_obs, task)``.
         num_tasks: T.
-        settings: the strategy and its knobs (:class:`~taskrl.sharing.settings.SharingConfig`).
+        settings: the strategy and its knobs ([`SharingConfig`][taskrl.sharing.settings.SharingConfig]).
         q_value: for a strategy that ``needs_q_value`` (``conservative``): ``q_value(obs, action) -> [B]``, the
             agent's Q of each row under the row's task (no gradient).
         task_key: the observation key of the task index.
@@ -165,19 +165,19 @@ class TaskSharing:
         )
 
     def __call__(self, batch_size: int, generator: torch.Generator | None = None) -> Batch:
-        """A batch on its own: :meth:`rows`, gathered, then :meth:`to_task` (what the run's pipeline does)."""
+        """A batch on its own: `rows`, gathered, then `to_task` (what the run's pipeline does)."""
         rows = self.rows(batch_size, generator)
         return self.to_task(self.replay.gather(rows.episode, rows.step), rows, generator)
 
     def to_task(self, batch: Batch, rows: Rows, generator: torch.Generator | None = None) -> Batch:
-        """The pipeline stage after :meth:`rows`: each row as data of the task it trains (its own where
+        """The pipeline stage after `rows`: each row as data of the task it trains (its own where
         ``rows.task`` is -1, e.g. rows of a recent window), reward 0 where ``rows.zero_reward``."""
         own = batch.obs[self.task_key].long()
         task = own if rows.task is None else torch.where(rows.task >= 0, rows.task, own)
         return self.relabel(batch, task, rows.zero_reward)
 
     def rows(self, n: int, generator: torch.Generator | None = None) -> Rows:
-        """``n`` rows (a :class:`~taskrl.replay.pipeline.Draw`): ``n / T`` for every task, a strategy's share of
+        """``n`` rows (a [`Draw`][taskrl.replay.pipeline.Draw]): ``n / T`` for every task, a strategy's share of
         them from other tasks' data, each marked with the task it trains."""
         batch_size = n
         r, T, s = self.replay, self.num_tasks, self.settings

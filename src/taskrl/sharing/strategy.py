@@ -16,7 +16,7 @@ __all__ = ["Keep", "Sampler", "SharingStrategy", "Weights"]
 
 class Sampler(Protocol):
     """What a strategy's hooks may read of the task-sharing sampler
-    (:class:`~taskrl.sharing.strategies.TaskSharing`)."""
+    ([`TaskSharing`][taskrl.sharing.strategies.TaskSharing])."""
 
     replay: EpisodeReplay
     settings: SharingConfig
@@ -40,7 +40,7 @@ Keep = Callable[[Sampler, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor
 class SharingStrategy:
     """One way of sharing data between tasks, at up to three hooks of the task-sharing sampler.
 
-    Register one with :func:`taskrl.sharing.registry.register_sharing_strategy`; ``--sharing NAME`` uses it.
+    Register one with [`taskrl.sharing.registry.register_sharing_strategy`][taskrl.sharing.registry.register_sharing_strategy]; ``--sharing NAME`` uses it.
 
     Attributes:
         name: the value of ``--sharing``.

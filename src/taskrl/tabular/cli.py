@@ -1,6 +1,6 @@
 """``taskrl solve ENV``: solve a finite MDP and print V, Q and A tables, the policy and timings.
 
-The top-level ``taskrl`` command passes the arguments after ``solve`` to :func:`main`.
+The top-level ``taskrl`` command passes the arguments after ``solve`` to `main`.
 """
 
 from __future__ import annotations

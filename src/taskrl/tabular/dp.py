@@ -1,7 +1,7 @@
 """Exact dynamic programming: policy evaluation, Q-values, advantages, policy and value iteration.
 
 Notation: ``V[s]``, ``Q[s, a]``, ``A[s, a] = Q[s, a] - V[s]``; ``P`` and ``R`` as in
-:class:`~taskrl.tabular.mdp.FiniteMDP` (terminal states have value 0). Every sweep below is one
+[`FiniteMDP`][taskrl.tabular.mdp.FiniteMDP] (terminal states have value 0). Every sweep below is one
 sparse mat-vec with ``mdp.discounted_transitions`` (``gamma * P``, action-major ``[A * S, S]``).
 """
 
@@ -329,17 +329,17 @@ def policy_iteration(
     Args:
         mdp: the MDP.
         policy: initial policy; deterministic or stochastic. Default: action 0 everywhere, or
-            for ``gamma = 1`` a :func:`~taskrl.tabular.policies.proper_policy` (one that
+            for ``gamma = 1`` a [`proper_policy`][taskrl.tabular.policies.proper_policy] (one that
             terminates), without which the first evaluation could be singular.
         evaluation: ``"exact"`` solves the linear system each round; ``"iterative"`` runs
             Bellman expectation sweeps to ``tol``, warm-started from the previous values
             (modified policy iteration).
-        solver: linear solver for exact evaluation, see :func:`evaluate_policy`.
+        solver: linear solver for exact evaluation, see `evaluate_policy`.
         tol: tolerance of iterative evaluation.
         max_iterations: maximum number of improvement rounds.
 
     Returns:
-        A :class:`Solution`; ``iterations`` counts evaluations, so a policy that is already
+        A `Solution`; ``iterations`` counts evaluations, so a policy that is already
         optimal takes 1.
     """
     if evaluation not in ("exact", "iterative"):
@@ -388,7 +388,7 @@ def value_iteration(
         values: initial values ``V_0`` (default zeros).
 
     Returns:
-        A :class:`Solution` with ``q_values`` the backup of the last iterate ``V_k``, ``values =
+        A `Solution` with ``q_values`` the backup of the last iterate ``V_k``, ``values =
         max_a q_values`` and the greedy policy; ``iterations`` is the number of sweeps.
     """
     t0 = time.perf_counter()

@@ -32,7 +32,7 @@ def drummer(
     """The drummer: a learner has ``days`` days before a drumming test.
 
     State: ``(day, skill)`` with ``day in 0..days-1`` and ``skill in 0..max_skill``, index
-    ``day * (max_skill + 1) + skill`` (see :func:`drummer_state`), plus two terminal states
+    ``day * (max_skill + 1) + skill`` (see `drummer_state`), plus two terminal states
     ``passed`` and ``failed``. The start state ``s0`` is ``(0, initial_skill)``.
 
     Each day the learner picks one action; skill then changes by at most one level:
@@ -155,7 +155,7 @@ def grid_world(
     """A grid world with walls, goal cells and holes, and slippery moves.
 
     Give either a ``layout`` (strings of ``.`` free, ``S`` start, ``#`` wall, ``G`` goal,
-    ``H`` hole) or a ``size`` plus cell lists; with neither, :data:`DEFAULT_GRID` is used. Every
+    ``H`` hole) or a ``size`` plus cell lists; with neither, `DEFAULT_GRID` is used. Every
     non-wall cell is a state (row-major order). Actions are up, right, down, left (0..3). A move
     goes in the intended direction with probability ``1 - slip`` and to each perpendicular
     direction with ``slip / 2``; moving off the grid or into a wall leaves the agent in place.

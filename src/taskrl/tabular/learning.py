@@ -26,7 +26,7 @@ __all__ = [
 
 @dataclass(frozen=True, eq=False)
 class QLearningResult:
-    """The result of :func:`q_learning`.
+    """The result of `q_learning`.
 
     Attributes:
         q_values: learned ``Q[s, a]``, shape ``[S, A]``.
@@ -49,7 +49,7 @@ class QLearningResult:
 
 @dataclass(frozen=True, eq=False)
 class FittedQResult:
-    """The result of :func:`fitted_q_iteration`.
+    """The result of `fitted_q_iteration`.
 
     Attributes:
         q_values: fitted ``Q[s, a]``, shape ``[S, A]`` (pairs absent from the data keep ``q_init``).
@@ -166,7 +166,7 @@ def q_learning(
     a constant step size.
 
     Args:
-        env: a :class:`FiniteMDP` (simulated, episodes start from ``mdp.initial``) or a gymnasium
+        env: a `FiniteMDP` (simulated, episodes start from ``mdp.initial``) or a gymnasium
             environment with ``Discrete`` observation and action spaces.
         episodes: number of episodes.
         gamma: discount; defaults to ``mdp.gamma`` and is required for a gymnasium env.
@@ -294,7 +294,7 @@ def fitted_q_iteration(
     sparse mat-vec; this is value iteration on the empirical MDP.
 
     Args:
-        dataset: :class:`Transitions`, a tuple of five 1-D numpy arrays ``(s, a, r, s', done)``,
+        dataset: `Transitions`, a tuple of five 1-D numpy arrays ``(s, a, r, s', done)``,
             or a sequence of 5-tuples.
         n_states: number of states ``S`` (state indices must be in ``[0, S)``).
         n_actions: number of actions ``A``.

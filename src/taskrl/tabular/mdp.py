@@ -1,6 +1,6 @@
 """Finite MDPs: a validated transition matrix, expected rewards, a discount and terminal states.
 
-Conventions (every algorithm in :mod:`taskrl.tabular` follows them):
+Conventions (every algorithm in [`taskrl.tabular`][taskrl.tabular] follows them):
 
 * ``P`` is given either dense, as a ``[S, A, S]`` array ``P[s, a, s']``, or sparse, as a
   ``scipy.sparse`` matrix of shape ``[S * A, S]`` whose row ``s * A + a`` is ``P(. | s, a)``.
@@ -82,7 +82,7 @@ class FiniteMDP:
         name: a label used in printouts.
         state_names: optional label per state.
         action_names: optional label per action.
-        grid: optional :class:`GridLayout` used to draw policies and values as a map.
+        grid: optional `GridLayout` used to draw policies and values as a map.
         atol: tolerance for the row-sum checks.
 
     Raises:

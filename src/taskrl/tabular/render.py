@@ -16,7 +16,7 @@ def render_grid(mdp: FiniteMDP, policy: np.ndarray | None = None, values: np.nda
     """Draw a policy (arrows) or values (numbers) on the MDP's map, one string per grid row.
 
     Args:
-        mdp: an MDP with a :class:`~taskrl.tabular.mdp.GridLayout` (``mdp.grid``).
+        mdp: an MDP with a [`GridLayout`][taskrl.tabular.mdp.GridLayout] (``mdp.grid``).
         policy: deterministic ``[S]`` or stochastic ``[S, A]`` policy (drawn by its most likely
             action); special cells (goal, hole, cliff) and terminal states show their map letter.
         values: ``[S]`` values, drawn with two decimals instead of arrows.

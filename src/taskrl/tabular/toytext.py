@@ -1,4 +1,4 @@
-"""Read the transition table of a gymnasium toy-text environment into a :class:`FiniteMDP`."""
+"""Read the transition table of a gymnasium toy-text environment into a `FiniteMDP`."""
 
 from __future__ import annotations
 
@@ -46,7 +46,7 @@ def _layout(env: Any, n_states: int) -> tuple[GridLayout | None, tuple[str, ...]
 
 
 def mdp_from_gymnasium(env: Any, gamma: float = 0.99, **make_kwargs: Any) -> FiniteMDP:
-    """See :meth:`FiniteMDP.from_gymnasium`."""
+    """See `FiniteMDP.from_gymnasium`."""
     name = None
     if isinstance(env, str):
         import gymnasium as gym

@@ -1,7 +1,7 @@
 """What every training loop does between its own steps: clock, metric rows, evaluation, checkpoints.
 
 The off-policy and on-policy loops differ in how they collect and learn; they share everything
-else through :class:`Bookkeeping`: the training stopwatch (evaluation and checkpoints do not
+else through `Bookkeeping`: the training stopwatch (evaluation and checkpoints do not
 count), the sums that make a metrics row (the agent's update scalars kept as tensors, so the hot
 loop never waits for the device; finished training episodes and their successes; env steps and
 updates), and the schedule of evaluations, log rows, early stopping and checkpoints.
@@ -41,11 +41,11 @@ class Stopwatch:
 class StopRequest:
     """Ends a run early but cleanly: after a wall-clock limit, or on Ctrl-C / SIGTERM.
 
-    The loops ask :meth:`due` after every step; when it says yes, the run evaluates, logs and
+    The loops ask `due` after every step; when it says yes, the run evaluates, logs and
     checkpoints as at its natural end, so ``--resume`` continues it with nothing lost (stopping
     inside an optimiser step would checkpoint half an update), and ``stopped_by`` keeps the reason.
     The first signal prints what happens next; a second one interrupts at once, except while a
-    checkpoint is being written (:meth:`critical`), where it takes effect right after the write.
+    checkpoint is being written (`critical`), where it takes effect right after the write.
 
     Args:
         max_hours: hours of wall-clock from now (this invocation, not the run's total) after which
@@ -154,7 +154,7 @@ class Bookkeeping:
             offline loop (which never steps an env while it trains).
 
     Before each metrics row and each checkpoint the update scalars since the last row are checked:
-    a NaN or infinite one raises :class:`TrainingDiverged`, so no diverged weights are ever saved.
+    a NaN or infinite one raises `TrainingDiverged`, so no diverged weights are ever saved.
     """
 
     def __init__(
@@ -290,7 +290,7 @@ class Bookkeeping:
         self._next_train_log += missed * self.train_log_interval
 
     def check_finite(self) -> None:
-        """Raise :class:`TrainingDiverged` if an update scalar since the last row is NaN or infinite."""
+        """Raise `TrainingDiverged` if an update scalar since the last row is NaN or infinite."""
         if not self.metric_sums:
             return
         values = torch.stack([v.detach().float().reshape(()) for v in self.metric_sums.values()]).cpu()

@@ -1,7 +1,7 @@
 """The offline loop: learn from a fixed dataset, evaluate in the env, checkpoint; no env step while it trains.
 
 One iteration draws a batch (``sample(batch_size, generator)``, e.g. a
-:class:`~taskrl.demos.sampling.DemoSampler`) and makes one gradient update. ``total_steps``,
+[`DemoSampler`][taskrl.demos.sampling.DemoSampler]) and makes one gradient update. ``total_steps``,
 ``eval_interval`` and ``checkpoint_interval`` count gradient updates (the bookkeeping's ``updates``
 axis); ``env_steps`` stays 0 in ``metrics.csv``, because training never steps an env.
 """

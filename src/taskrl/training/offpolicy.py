@@ -4,7 +4,7 @@ One iteration asks the agent for exploratory actions (``agent.act(obs, explore=T
 algorithm explores its own way), steps all ``num_envs`` environments once, stores the step, then
 performs ``updates_per_step * num_envs`` gradient updates (fractions carry over), each on a freshly
 sampled and relabelled batch. Evaluation, logging and checkpointing run on env-step schedules
-(:class:`~taskrl.training.bookkeeping.Bookkeeping`, given to the loop).
+([`Bookkeeping`][taskrl.training.bookkeeping.Bookkeeping], given to the loop).
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ def batch_sampler(
     sample: Callable[[int, torch.Generator], Batch], batch_size: int, generator: torch.Generator
 ) -> Callable[[], Batch]:
     """``() -> Batch``: a batch of ``batch_size`` from ``sample`` (the run's
-    :class:`~taskrl.replay.pipeline.SamplerPipeline`: drawn, gathered and relabelled)."""
+    [`SamplerPipeline`][taskrl.replay.pipeline.SamplerPipeline]: drawn, gathered and relabelled)."""
 
     def sample_batch() -> Batch:
         return sample(batch_size, generator)
@@ -57,13 +57,13 @@ class LoopSchedule:
         updates_per_step: gradient updates per environment step (fractions accumulate).
         offline_updates: gradient updates on preloaded data before the first env step.
         scripted_exploration: share of training episodes the env's scripted policy acts
-            (:class:`~taskrl.training.scripted.ScriptedExploration`); 0: none.
+            ([`ScriptedExploration`][taskrl.training.scripted.ScriptedExploration]); 0: none.
         scripted_steps: env steps during which episodes may be scripted (0: the whole run).
         updates_per_call: updates handed to the agent at once (``agent.update_many``; one compiled graph
             for all of them under ``--compile``), each on its own batch: the ``k`` batches are drawn and
             relabelled as one of ``k * batch_size`` rows (each row drawn independently, so they are as ``k``
             draws are, for about one batch's small tensor operations) and split by the agent
-            (:meth:`~taskrl.replay.batch.Batch.split`); the update credit waits until it holds that many.
+            ([`split`][taskrl.replay.batch.Batch.split]); the update credit waits until it holds that many.
     """
 
     total_steps: int
@@ -84,7 +84,7 @@ class OffPolicyLoop:
         agent: anything with ``act``, ``exploration`` and ``update``.
         replay: episode storage shared by collection and sampling.
         sample: ``sample(batch_size, generator) -> Batch`` drawing from ``replay`` and relabelling (a
-            :class:`~taskrl.replay.pipeline.SamplerPipeline`; ``replay.sample`` is uniform, unrelabelled).
+            [`SamplerPipeline`][taskrl.replay.pipeline.SamplerPipeline]; ``replay.sample`` is uniform, unrelabelled).
         schedule: step counts for learning.
         books: the run's bookkeeping (metric rows, evaluation, early stop, checkpoints).
         generator: generator for sampling and exploration.

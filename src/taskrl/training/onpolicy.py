@@ -3,10 +3,10 @@
 Each iteration steps all ``num_envs`` environments ``agent.rollout_steps`` times with the current
 policy's samples, recording what the agent needs to compute returns (log-probabilities and
 values at collection time, the value of ``info["final_obs"]`` where a time limit cut an episode,
-and the value of the observation after the last step), and hands the :class:`Rollout` to
+and the value of the observation after the last step), and hands the `Rollout` to
 ``agent.update``. Nothing is kept between rollouts. Evaluation, logging and checkpointing run on
 env-step schedules, checked after each rollout, with the counters and the stopwatch of the
-off-policy loop (:class:`~taskrl.training.bookkeeping.Bookkeeping`).
+off-policy loop ([`Bookkeeping`][taskrl.training.bookkeeping.Bookkeeping]).
 """
 
 from __future__ import annotations
@@ -114,7 +114,7 @@ class OnPolicyLoop:
     Args:
         env: training environments.
         agent: anything with ``rollout_steps``, ``updates``, ``rollout_step``, ``value`` and ``update``
-            (e.g. :class:`~taskrl.agents.ppo.PPOAgent`).
+            (e.g. [`PPOAgent`][taskrl.agents.ppo.PPOAgent]).
         total_steps: environment steps to train for (summed over environments).
         books: the run's bookkeeping (metric rows, evaluation, early stop, checkpoints).
         generator: generator for action sampling and minibatch order.

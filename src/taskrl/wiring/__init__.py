@@ -1,12 +1,12 @@
-"""The layer below :mod:`taskrl.run`: what a run is made of and how its pieces are put together.
+"""The layer below [`taskrl.run`][taskrl.run]: what a run is made of and how its pieces are put together.
 
-- :mod:`~taskrl.wiring.parts`: a run's envs, agent, evaluator and relabeller (:class:`RunParts`);
-- :mod:`~taskrl.wiring.stored_data`: datasets and another run's replay into the replay, and its size;
-- :mod:`~taskrl.wiring.checkpoints`: writing and restoring a run's checkpoints;
-- :mod:`~taskrl.wiring.calls`: the settings and run directory of one call of ``train``.
+- [`parts`][taskrl.wiring.parts]: a run's envs, agent, evaluator and relabeller (`RunParts`);
+- [`stored_data`][taskrl.wiring.stored_data]: datasets and another run's replay into the replay, and its size;
+- [`checkpoints`][taskrl.wiring.checkpoints]: writing and restoring a run's checkpoints;
+- [`calls`][taskrl.wiring.calls]: the settings and run directory of one call of ``train``.
 
 How a run runs (in one process, offline, distributed) is a registered run mode, above this layer:
-:mod:`taskrl.runmodes` (with :func:`~taskrl.runmodes.build.build_parts`, a config's parts for its mode).
+[`taskrl.runmodes`][taskrl.runmodes] (with [`build_parts`][taskrl.runmodes.build.build_parts], a config's parts for its mode).
 Everything env- or algorithm-specific comes from the registries: this package names no environment
 and no algorithm.
 """

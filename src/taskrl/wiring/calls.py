@@ -42,7 +42,7 @@ def default_run_dir(name: str) -> Path:
 
 
 def env_source(overrides: dict[str, Any]) -> Any:
-    """Read ``env=`` of :func:`train`: a family name stays a setting, a gymnasium id becomes
+    """Read ``env=`` of `train`: a family name stays a setting, a gymnasium id becomes
     ``env_id`` of the ``gym`` family, and a Python object (a factory, a TaskSet) is returned as
     the source its family builds envs from."""
     value = overrides.get("env")

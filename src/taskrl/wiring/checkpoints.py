@@ -19,7 +19,7 @@ __all__ = ["checkpointer", "load_agent_state", "restore", "restore_checked"]
 
 def load_agent_state(agent: Any, state: dict[str, Any], where: Path) -> None:
     """``agent.load_state_dict(state)``; a checkpoint whose parts do not fit the run's ``config.json`` (another
-    preset's settings over it, extra or missing keys, other shapes) is one :class:`ConfigError` naming it."""
+    preset's settings over it, extra or missing keys, other shapes) is one `ConfigError` naming it."""
     try:
         agent.load_state_dict(state)
     except (KeyError, RuntimeError, ValueError) as error:
@@ -40,7 +40,7 @@ def restore(parts: RunParts, run_dir: Path) -> LoopState:
 
 
 def restore_checked(parts: RunParts, run_dir: Path, saved: TrainConfig, config: TrainConfig) -> LoopState:
-    """:func:`restore`, with a checkpoint that does not fit the settings given refused in one line
+    """`restore`, with a checkpoint that does not fit the settings given refused in one line
     (before the run's config.json is rewritten, so the run stays resumable as it was)."""
     try:
         return restore(parts, run_dir)

@@ -34,7 +34,7 @@ EVAL_SEED_OFFSET = 1_000_003
 
 
 def resolve_device(name: str) -> torch.device:
-    """``cpu``, ``cuda``, ``cuda:N`` or ``auto``; a :class:`ConfigError` for any other name or absent CUDA."""
+    """``cpu``, ``cuda``, ``cuda:N`` or ``auto``; a `ConfigError` for any other name or absent CUDA."""
     check_device(name)
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
@@ -95,7 +95,7 @@ def make_agent(config: TrainConfig, env: Any, device: torch.device) -> Any:
     """The agent of ``config.algo`` for ``env``'s spaces (an env, or an object with its spaces).
 
     The env is checked against the algorithm with the same rules as before building
-    (:func:`taskrl.config.check_fit`), now with the env's real kind and action space.
+    ([`taskrl.config.check_fit`][taskrl.config.check_fit]), now with the env's real kind and action space.
     """
     check_fit(config, env_kind(env), action_kind(env.single_action_space), "image" in env.single_observation_space.spaces)
     if action_kind(env.single_action_space) is None:
@@ -129,7 +129,7 @@ def make_evaluator(
     """``() -> metrics`` for the loop, and a holder of the last full result (per-task for multi-task envs).
 
     Single-task envs: success at the step an episode ends, one episode per evaluation copy.
-    Multi-task envs: :func:`evaluate_per_task` with ``eval_episodes`` per task and the family's
+    Multi-task envs: `evaluate_per_task` with ``eval_episodes`` per task and the family's
     success criterion (any step on Meta-World, its protocol; the final step on the native
     multi-task PointReach, where touring regions must not count). ``success_rate`` is the mean
     over tasks and every task adds a ``success/<name>`` column.
@@ -171,7 +171,7 @@ def make_relabeler(config: TrainConfig, env: BatchedEnv) -> HindsightRelabeler |
 
 @dataclasses.dataclass
 class RunParts:
-    """Everything a run is made of, built from its config (:func:`build`)."""
+    """Everything a run is made of, built from its config (`build`)."""
 
     config: TrainConfig
     family: EnvFamily
@@ -211,7 +211,7 @@ def available_memory(device: torch.device) -> int | None:
 
 
 def check_network_memory(config: TrainConfig, input_dim: int, device: torch.device) -> None:
-    """A :class:`ConfigError` before allocating networks that cannot fit (a hand-edited ``config.json`` whose env
+    """A `ConfigError` before allocating networks that cannot fit (a hand-edited ``config.json`` whose env
     settings imply millions of inputs): the first layers alone, with their targets and optimiser states."""
     width = max(getattr(config.algo_settings, "hidden_sizes", None) or (256,))
     needed = 8 * 4 * input_dim * width  # ~8 copies of the widest first layer (critics, targets, Adam moments), float32
@@ -225,7 +225,7 @@ def check_network_memory(config: TrainConfig, input_dim: int, device: torch.devi
 
 
 def check_replay_memory(needed: int, capacity: int, device: torch.device) -> None:
-    """A :class:`ConfigError` on ``buffer_size`` when the replay would not fit in memory (checked before
+    """A `ConfigError` on ``buffer_size`` when the replay would not fit in memory (checked before
     allocating, instead of swapping or failing half-way; a checkpoint writes it without copying)."""
     free = available_memory(device)
     if free is not None and needed > 0.9 * free:

@@ -45,7 +45,7 @@ def _dataset_families() -> list[str]:
 
 
 def check_preload_fits(replay: EpisodeReplay, transitions: int, what: str) -> None:
-    """A :class:`ConfigError` on ``buffer_size`` when ``transitions`` more would evict stored data: a
+    """A `ConfigError` on ``buffer_size`` when ``transitions`` more would evict stored data: a
     preload is never cut silently."""
     needed = replay.num_transitions + transitions
     require(
