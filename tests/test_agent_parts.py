@@ -33,3 +33,15 @@ def test_the_linear_schedule():
     assert linear_schedule(0.5, 0.1, 100, 50) == pytest.approx(0.3)
     assert linear_schedule(0.5, 0.1, 100, 10_000) == pytest.approx(0.1)
     assert linear_schedule(0.5, 0.1, 0, 0) == 0.1  # no decay: the end value throughout
+
+
+def test_truncated_exploration_noise_stays_off_the_bounds_and_clipped_noise_piles_on_them():
+    from taskrl.agents.parts import explore_in_box
+
+    near = torch.full((20_000, 2), 0.9)  # CEM actions near the upper bound
+    g = torch.Generator().manual_seed(0)
+    clipped = explore_in_box(near, 0.2, 0.0, g)
+    truncated = explore_in_box(near, 0.2, 0.0, g, truncated=True)
+    assert (clipped == 1.0).float().mean() > 0.25  # P(N(0.9, 0.2) > 1) = 0.31
+    assert (truncated.abs() >= 1.0 - 1e-6).float().mean() < 0.001 and (truncated <= 1.0).all()
+    assert abs(truncated.mean().item() - 0.798) < 0.01  # the mean of N(0.9, 0.2) truncated to [-1, 1]

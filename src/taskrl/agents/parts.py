@@ -225,15 +225,27 @@ def init_adam_state(optimizer: torch.optim.Optimizer) -> None:
 
 
 def explore_in_box(
-    unit: torch.Tensor, noise_std: float, random_prob: float, generator: torch.Generator | None = None
+    unit: torch.Tensor,
+    noise_std: float,
+    random_prob: float,
+    generator: torch.Generator | None = None,
+    truncated: bool = False,
 ) -> torch.Tensor:
     """Exploration around deterministic actions in ``[-1, 1]^A`` (the hindsight paper's, for Fetch):
 
     a = clip(a* + N(0, noise_std^2), -1, 1)     Gaussian noise, in half-widths of the box
     a = U(-1, 1)^A  with probability random_prob per row   (the paper: 0.2 noise, 30% random)
+
+    ``truncated``: the noise is drawn from the normal truncated to the box instead of clipped to it, so no mass
+    piles up on a bound (a clipped draw puts every sample beyond a bound on it).
     """
     n, dim = unit.shape
-    if noise_std > 0:
+    if noise_std > 0 and truncated:
+        from taskrl.agents.cem import sample_in_box
+
+        std = torch.full_like(unit, noise_std)
+        unit = sample_in_box(unit, std, 1, -torch.ones_like(unit[0]), torch.ones_like(unit[0]), "truncated", generator)[:, 0]
+    elif noise_std > 0:
         unit = (unit + noise_std * torch.randn(unit.shape, generator=generator, device=unit.device)).clamp(-1.0, 1.0)
     if random_prob > 0:
         pick = torch.rand(n, 1, generator=generator, device=unit.device) < random_prob

@@ -41,8 +41,9 @@ the richer ``cem``.
 Exploration while collecting: Gaussian noise of std ``noise_std`` around the CEM action and, with
 probability ``random_action_prob`` (decayed linearly to ``random_action_prob_end`` over
 ``random_action_decay_steps``), a uniformly random action instead. The default is the hindsight paper's Fetch
-exploration, ``noise_std=0.2`` with a constant 0.3, and CEM samples from the normal truncated to the box
-(``cem.truncate``): with clipped samples and no noise a third of the stored action components sat on a bound.
+exploration, ``noise_std=0.2`` with a constant 0.3, and CEM samples and the noise from the normal truncated to
+the box (``cem.truncate``): with clipped samples and no noise a third of the stored action components sat on a
+bound, and with clipped noise a sixth.
 
 Diagnostics (every update, averaged per metrics row): ``action_on_bound`` (share of the batch's stored action
 components on a bound of the box), ``q_spread`` (standard deviation of Q_target1(s', .) over the target CEM's first
@@ -98,7 +99,8 @@ class QTOptConfig:
             on in the QT-Opt presets on goal envs; ``cross_entropy`` bounds Q to [0, 1] for rewards in [0, 1]).
         max_grad_norm: gradient-norm clip (0 disables).
         normalize_inputs: standardise observation inputs with running mean/std (clipped to +-5).
-        noise_std: while collecting, std of Gaussian noise added to the CEM action (half-widths of the box).
+        noise_std: while collecting, std of Gaussian noise added to the CEM action (half-widths of the box); drawn from
+            the normal truncated to the box when ``cem.truncate``, else clipped to it.
         random_action_prob: while collecting, probability of a uniformly random action instead, when collecting starts.
         random_action_prob_end: that probability after ``random_action_decay_steps``.
         random_action_decay_steps: environment steps over which it decays linearly (0: ``random_action_prob_end`` throughout).
@@ -276,7 +278,8 @@ class QTOptAgent(Agent):
         uniformly random action in the box instead (epsilon-greedy over a continuous box)."""
         unit, _ = self.argmax(self.q, self.inputs(obs), generator)
         if explore:
-            unit = explore_in_box(unit, self.config.noise_std, self.random_action_prob(env_steps), generator)
+            c = self.config
+            unit = explore_in_box(unit, c.noise_std, self.random_action_prob(env_steps), generator, truncated=c.cem.truncate)
         return self.box.from_unit(unit)
 
     # ---------------------------------------------------------------- learning
