@@ -126,7 +126,7 @@ def test_temperature_moves_toward_the_target_entropy(target_per_dim, direction):
     for _ in range(30):
         metrics = agent.update(random_batch(g), generator=g)
     assert (agent.alpha.item() - 1.0) * direction > 0.2
-    assert set(metrics) == {"critic_loss", "actor_loss", "alpha", "entropy", "q_mean"}
+    assert set(metrics) == {"critic_loss", "actor_loss", "alpha", "entropy", "q_mean", "action_on_bound"}
     assert all(isinstance(v, torch.Tensor) and v.dim() == 0 and not v.requires_grad for v in metrics.values())
 
 

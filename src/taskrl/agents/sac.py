@@ -327,7 +327,8 @@ class SACAgent(Agent):
 
     def update(self, batch: Batch, generator: torch.Generator | None = None) -> dict[str, torch.Tensor]:
         """One critic, actor and temperature step; returns detached scalars
-        (``critic_loss``, ``actor_loss``, ``alpha``, ``entropy``, ``q_mean``)."""
+        (``critic_loss``, ``actor_loss``, ``alpha``, ``entropy``, ``q_mean``, ``action_on_bound``: the share of the
+        batch's stored action components on a bound of the box)."""
         return self.counted_step(batch, generator)
 
     def learn(self, batch: Batch, generator: torch.Generator | None = None) -> dict[str, torch.Tensor]:
@@ -376,6 +377,7 @@ class SACAgent(Agent):
             "alpha": self.alpha.mean(),
             "entropy": -log_prob.mean(),
             "q_mean": q1.detach().mean(),
+            "action_on_bound": (action.abs() >= 1.0 - 1e-6).float().mean(),  # stored components on a bound (as QT-Opt's)
             **extra,
         }
 
