@@ -49,17 +49,26 @@ def test_a_bar_is_held_across_the_fingers_only_and_on_its_spine():
     _, reward, terminated, _, _ = attempt(one_object("bar", bar), (0.5, 0.5), 0.0)  # along the bar: too long
     assert reward.item() == 0.0 and terminated.item()
     assert attempt(one_object("bar", bar), (0.56, 0.5), math.pi / 2)[1].item() == 1.0  # elsewhere on the spine
-    assert attempt(one_object("bar", bar), (0.5, 0.54), math.pi / 2)[1].item() == 0.0  # off the spine
+    assert attempt(one_object("bar", bar), (0.5, 0.55), math.pi / 2)[1].item() == 1.0  # within the 0.06 tolerance
+    assert attempt(one_object("bar", bar), (0.5, 0.57), math.pi / 2)[1].item() == 0.0  # off the spine
 
 
 def test_a_disc_is_held_at_any_yaw_and_a_wide_square_only_turned_to_fit():
-    """The rule, shown on a square of half-side 0.066, wider than the env samples (0.035-0.05): as sampled, only
-    squares of half-side above 0.0495 must turn."""
+    """At the sizes the env samples: the smallest and largest squares (half-side 0.052 and 0.065) fit face on and not
+    corner to corner; a disc at any yaw."""
+    from taskrl.envs.grasp import SIZES
+
     for yaw in (0.0, 0.7, 1.9):
         assert attempt(one_object("disc", (0.05, 0.05)), (0.5, 0.5), yaw)[1].item() == 1.0
-    square = (0.066, 0.066)  # fits face on (0.132), not corner to corner (0.187)
-    assert attempt(one_object("square", square), (0.5, 0.5), 0.0)[1].item() == 1.0
-    assert attempt(one_object("square", square), (0.5, 0.5), math.pi / 4)[1].item() == 0.0
+    for side in SIZES["square"][0]:
+        square = (side, side)
+        assert attempt(one_object("square", square), (0.5, 0.5), 0.0)[1].item() == 1.0
+        assert attempt(one_object("square", square), (0.5, 0.5), math.pi / 4)[1].item() == 0.0
+    for name in ("bar", "ellipse"):  # the shortest of each is longer than the opening: held only across
+        (shortest, _), widths = SIZES[name]
+        shape = (shortest, widths[0])
+        assert attempt(one_object(name, shape), (0.5, 0.5), math.pi / 2)[1].item() == 1.0
+        assert attempt(one_object(name, shape), (0.5, 0.5), 0.0)[1].item() == 0.0
 
 
 def test_an_attempt_ends_at_the_close_or_unsolved_at_the_horizon():
@@ -128,7 +137,7 @@ def _scripted_success(env: Grasp, **kwargs) -> float:
 
 def test_the_scripted_grasp_holds_what_it_aims_at_and_its_aim_noise_makes_it_an_explorer():
     assert _scripted_success(Grasp(GraspSettings(), num_envs=500, seed=0), aim_noise=0.0) >= 0.95
-    assert 0.15 <= _scripted_success(Grasp(GraspSettings(), num_envs=500, seed=0)) <= 0.45  # QT-Opt's: 15-30%
+    assert 0.15 <= _scripted_success(Grasp(GraspSettings(), num_envs=500, seed=0)) <= 0.35  # QT-Opt's: 15-30%
     env = Grasp(GraspSettings(), num_envs=8, seed=0)
     obs = env.reset(seed=0)
     state = env.generator.get_state()
@@ -155,8 +164,8 @@ def test_scripted_exploration_acts_its_share_of_episodes_until_its_last_step(tmp
         return run.metrics["train_success"]
 
     assert train_success("all", scripted_exploration=1.0) > 0.15  # the scripted grasp's rate, not random actions'
-    assert train_success("none") < 0.08
-    assert train_success("stopped", scripted_exploration=1.0, scripted_steps=16) < 0.08  # none after the first step
+    assert train_success("none") < 0.11  # random actions hold in 5-6% of attempts
+    assert train_success("stopped", scripted_exploration=1.0, scripted_steps=16) < 0.11  # none after the first step
 
 
 def test_scripted_exploration_is_refused_where_the_env_has_no_scripted_policy(tmp_path):

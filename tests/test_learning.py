@@ -87,3 +87,21 @@ def test_qtopt_her_solves_pointreach(tmp_path):
         save_replay=False,
     )
     assert run.metrics["success_rate"] >= 0.9
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(900)
+def test_qtopt_her_learns_to_push_a_block_from_positions(tmp_path):
+    """The five-minute check that QT-Opt learns to push (``pixelpush-state-qtopt-her``): random actions solve under 5%
+    of episodes (tests/test_pixel_push.py). Mutation: the Bellman target taking a random action instead of the CEM's
+    argmax stays near 0 and fails."""
+    run = small_run(
+        "pixelpush-state-qtopt-her",
+        tmp_path / "push",
+        stop_at_success=0.9,
+        seed=0,
+        threads=1,
+        save_replay=False,
+        checkpoint_interval=10**9,
+    )
+    assert run.metrics["success_rate"] >= 0.9, run.metrics["env_steps"]
