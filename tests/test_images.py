@@ -438,3 +438,39 @@ def test_the_keypoint_encoder_hands_coordinates_on_and_follows_an_object_across_
 
     with pytest.raises(ConfigError, match="encoder"):  # behaviour cloning's FiLM encoder has no keypoint form
         BCConfig(encoder="keypoints").validate()
+
+
+def test_the_fused_q_adds_the_action_to_the_conv_map_and_scores_candidates_on_one_encoding():
+    """QT-Opt's network (``--fusion conv``): CEM's scores match the plain forward pass, the early convolutions run
+    once per state, and the action changes Q through the feature map (the state's own columns held fixed)."""
+    from taskrl.fused_q import PictureActionQ
+
+    torch.manual_seed(0)
+    q = PictureActionQ(5, (16, 16, 3), 4, (32,))
+    calls = []
+    q.state_input.register_forward_hook(lambda module, args, out: calls.append(args[0].shape[0]))
+    x = torch.cat([torch.randn(3, 5), torch.randint(0, 256, (3, 768)).float()], 1)
+    actions = torch.rand(3, 6, 4) * 2 - 1
+    with torch.no_grad():
+        scores = q.score_actions(x, actions)
+        assert calls == [3] and scores.shape == (3, 6)
+        plain = q(x.repeat_interleave(6, 0), actions.reshape(18, 4)).view(3, 6)
+    torch.testing.assert_close(scores, plain, rtol=1e-4, atol=1e-5)
+    assert scores.std(dim=1).min() > 0  # candidates differ
+
+
+def test_qtopt_with_the_fused_network_trains_it_and_its_targets_keep_their_own():
+    env = Grasp(GraspSettings(image_size=16), num_envs=8, seed=0)
+    obs = env.reset(seed=0)
+    config = QTOptConfig(
+        hidden_sizes=(32,), fusion="conv", target_samples=8, cem=__import__("taskrl").agents.cem.CEMConfig(samples=8, elites=2)
+    )
+    agent = QTOptAgent(("observation", "image"), 5 + 768, env.single_action_space, config, image_shape=(16, 16, 3))
+    g = torch.Generator().manual_seed(0)
+    batch = one_step(env, obs, agent.act(obs, explore=True, generator=g))
+    before = [p.clone() for p in agent.q.parameters()]
+    agent.update(batch, generator=g)
+    assert all(not torch.equal(a, b) for a, b in zip(agent.q.parameters(), before))
+    assert agent.q_target1.state_input is not agent.q.state_input
+    with pytest.raises(ConfigError, match="fusion"):
+        QTOptConfig(fusion="late").validate()

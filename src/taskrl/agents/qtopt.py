@@ -76,6 +76,7 @@ from taskrl.agents.parts import (
 from taskrl.agents.spec import AlgorithmSpec
 from taskrl.encoders import ENCODERS, ImageStateInput, image_size, shift_pictures
 from taskrl.errors import one_of, require
+from taskrl.fused_q import FUSIONS, PictureActionQ
 from taskrl.nets import StateActionQ
 from taskrl.replay.batch import Batch, Obs
 
@@ -113,6 +114,10 @@ class QTOptConfig:
             spatial softmax: 64 coordinates read to a fraction of a pixel); the action joins after it, so CEM encodes a
             picture once per state however many actions it scores.
         image_features: the encoded picture's size (a linear layer, LayerNorm and tanh after the encoder).
+        fusion: on envs with a camera, where the action meets the picture: ``flat`` (after the encoder's
+            ``image_features``) or ``conv`` (QT-Opt's network: the action and the state vector embedded and added to
+            an intermediate conv feature map, then one more convolution; `taskrl.fused_q.PictureActionQ`; ``encoder``
+            does not apply).
         augment_pad: on envs with a camera, DrQ's random shift in every update: pictures padded by this many
             pixels and cropped back at a random offset (0: none).
     """
@@ -137,6 +142,7 @@ class QTOptConfig:
     target_elites: int = 4
     encoder: Literal["conv", "resnet", "keypoints"] = "conv"
     image_features: int = 50
+    fusion: Literal["flat", "conv"] = "flat"
     augment_pad: int = 4
 
     def validate(self) -> None:
@@ -145,6 +151,7 @@ class QTOptConfig:
         one_of(self.loss, ("huber", "mse", "cross_entropy"), "loss", "loss")
         one_of(self.twin, ("lagged", "independent"), "twin", "twin")
         one_of(self.encoder, ENCODERS, "encoder", "encoder")
+        one_of(self.fusion, FUSIONS, "fusion", "fusion")
         require(self.image_features >= 1, "image_features", f"must be >= 1 (got {self.image_features})")
         check_non_negative(self, "augment_pad")
         require(
@@ -205,6 +212,8 @@ class QTOptAgent(Agent):
 
         def q_net() -> StateActionQ:
             state_input = None
+            if self.image_shape is not None and config.fusion == "conv":  # QT-Opt's network: the action in the convs
+                return PictureActionQ(input_dim - raw, self.image_shape, self.action_dim, config.hidden_sizes).to(self.device)
             if self.image_shape is not None:  # every network, targets included, has its own encoder
                 state_input = ImageStateInput(input_dim - raw, self.image_shape, config.encoder, config.image_features)
             return StateActionQ(input_dim, self.action_dim, config.hidden_sizes, state_input).to(self.device)
