@@ -1,10 +1,10 @@
 """QT-Opt's Q-network: the action meets the picture inside the conv stack, not after it.
 
-:class:`~taskrl.nets.StateActionQ` with an [`ImageStateInput`][taskrl.encoders.ImageStateInput] flattens the picture
+[`StateActionQ`][taskrl.nets.StateActionQ] with an [`ImageStateInput`][taskrl.encoders.ImageStateInput] flattens the picture
 to ``image_features`` numbers before the action joins, so the network cannot compare where the gripper will be with
 where an object is until both are a handful of numbers. QT-Opt's network (Kalashnikov et al. 2018, Fig. 3) embeds
 the action and the gripper's state with a small MLP, tiles the embedding over an intermediate conv feature map, adds
-it there, and applies more convolutions. :class:`PictureActionQ` does that at CPU scale:
+it there, and applies more convolutions. `PictureActionQ` does that at CPU scale:
 
     h = early(picture)                                   [B, 32, H/8, W/8], three stride-2 3x3 convolutions
     e = MLP([vector, action])                            [B, 32], the action and the state vector embedded
