@@ -42,6 +42,8 @@ BEFORE = {
 }
 ARMS = {
     "defaults": ("QT-Opt's defaults", {}),
+    # reported, not re-runnable: the noise has followed `cem.truncate` since
+    "clipped-noise": ("the defaults with exploration noise clipped to the box (commit d15eae3)", {}),
     "before": ("QT-Opt as it was (2 x 64 target search, clipped samples, no noise, 0.3 -> 0.1 random, lagged)", BEFORE),
     "lagged": ("the defaults with lagged twins", {"twin": "lagged"}),
     "paper-maximum": (
@@ -169,6 +171,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--task", choices=list(TASKS), default="pixelpush")
     parser.add_argument("--arms", nargs="+", default=["defaults", "before", "lagged", "paper-maximum", "sac"], choices=list(ARMS))
+    parser.add_argument("--note", default="", help="a note for the written section (where runs came from)")
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1])
     parser.add_argument("--budget", type=int, default=0, help="env steps per run (0: the task's default)")
     parser.add_argument("--hours", type=float, default=0.0, help="stop each run after this long in this sitting (0: none)")
@@ -202,7 +205,7 @@ def main() -> None:
             title,
             f"`{qtopt}` with each arm's settings (the `sac` arm: the task's SAC preset with QT-Opt's network and update "
             f"ratio), seeds {args.seeds}, up to {budget:,} env steps (or the hours given), one torch thread per run, "
-            f"{args.workers} runs at a time. Raw data: `benchmarks/results/{name}.json`.\n\n"
+            f"{args.workers} runs at a time. Raw data: `benchmarks/results/{name}.json`.{' ' + args.note if args.note else ''}\n\n"
             f"![curves](figures/{name}.png)\n\n{text}",
         )
 
