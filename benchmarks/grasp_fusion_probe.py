@@ -101,16 +101,21 @@ def main() -> None:
     parser.add_argument("--train-states", type=int, default=40_000)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--write", action="store_true", help="replace the RESULTS section")
+    parser.add_argument("--report", action="store_true", help="train nothing: the section from the raw data")
     args = parser.parse_args()
     torch.set_num_threads(1)
-    train, test = labelled_closes(args.train_states, 1), labelled_closes(4_000, 2)
-    results = []
-    for arm in args.arms:
-        fusion, pad = arm.split(":")
-        results.append(probe(fusion, int(pad), args.updates, train, test, args.seed))
-    share = float(test[2].mean())
     raw = Path(__file__).parent / "results" / "grasp_fusion_probe.json"
-    raw.write_text(json.dumps({"holding_share": share, "arms": results}, indent=2) + "\n")
+    if args.report:
+        saved = json.loads(raw.read_text())
+        share, results = saved["holding_share"], saved["arms"]
+    else:
+        train, test = labelled_closes(args.train_states, 1), labelled_closes(4_000, 2)
+        results = []
+        for arm in args.arms:
+            fusion, pad = arm.split(":")
+            results.append(probe(fusion, int(pad), args.updates, train, test, args.seed))
+        share = float(test[2].mean())
+        raw.write_text(json.dumps({"holding_share": share, "arms": results}, indent=2) + "\n")
     steps = [row["updates"] for row in results[0]["curve"]]
     lines = [
         f"{args.train_states:,} training closes, 4,000 held-out ones ({share:.0%} of them hold); batch 64, Adam 3e-4, "
@@ -128,7 +133,12 @@ def main() -> None:
     if args.write:
         from common import append_results
 
-        append_results("Grasp critic probe: where the action meets the picture (label depends on the action)", text)
+        append_results(
+            "Grasp critic probe: where the action meets the picture (label depends on the action)",
+            f"Trained with `.venv/bin/python benchmarks/grasp_fusion_probe.py --arms {' '.join(args.arms)} --updates "
+            f"{args.updates}` (raw data: `benchmarks/results/grasp_fusion_probe.json`); the machine ran two learning "
+            "runs beside it, so the milliseconds compare the arms with each other, not with an idle machine.\n\n" + text,
+        )
 
 
 if __name__ == "__main__":
