@@ -26,9 +26,8 @@ import torch
 from torch import nn
 
 sys.path.insert(0, str(Path(__file__).parent))
-from grasp_probe import STATE, auc  # noqa: E402
+from grasp_probe import STATE, auc, placed_bins  # noqa: E402
 from taskrl.encoders import ImageStateInput, random_shift  # noqa: E402
-from taskrl.envs.grasp import Grasp, GraspSettings  # noqa: E402
 from taskrl.fused_q import PictureActionQ  # noqa: E402
 from taskrl.nets import StateActionQ  # noqa: E402
 
@@ -37,16 +36,7 @@ HIDDEN = (256, 256)
 
 def labelled_closes(n: int, seed: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """``(flat inputs [n, 5 + 64*64*3], actions [n, 4], holds [n])``: a closing action from a placed gripper."""
-    env = Grasp(GraspSettings(), num_envs=n, seed=seed)
-    env.reset()
-    g = torch.Generator().manual_seed(seed)
-    pick = torch.randint(env.settings.num_objects, (n,), generator=g)
-    near = env.centre[torch.arange(n), pick] + (torch.rand(n, 2, generator=g) - 0.5) * 0.2
-    anywhere = torch.rand(n, 2, generator=g)
-    env.gripper = torch.where((torch.rand(n, generator=g) < 0.7)[:, None], near, anywhere).clamp(0, 1)
-    env.yaw = math.pi * torch.rand(n, generator=g)
-    obs = env._obs()
-    x = torch.cat([obs["observation"], obs["image"].reshape(n, -1).float()], 1)
+    env, x, g = placed_bins(n, seed, 0.2)
     action = torch.rand(n, 4, generator=g) * 2 - 1
     action[:, 3] = 1.0  # close
     _, _, _, _, info = env.step(action)

@@ -33,18 +33,25 @@ from taskrl.envs.grasp import Grasp, GraspSettings  # noqa: E402
 STATE = 5  # the grasp env's state vector
 
 
-def labelled_states(n: int, seed: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """``(flat inputs [n, 5 + 64*64*3], holds [n])``: bins with the gripper near an object (70%) or anywhere."""
+def placed_bins(n: int, seed: int, spread: float) -> tuple[Grasp, torch.Tensor, torch.Generator]:
+    """``(env, flat inputs [n, 5 + 64*64*3], generator)``: ``n`` bins with the gripper within ``spread`` of an object
+    (70%) or anywhere, at a random yaw."""
     env = Grasp(GraspSettings(), num_envs=n, seed=seed)
     env.reset()
     g = torch.Generator().manual_seed(seed)
     pick = torch.randint(env.settings.num_objects, (n,), generator=g)
-    near = env.centre[torch.arange(n), pick] + (torch.rand(n, 2, generator=g) - 0.5) * 0.1
+    near = env.centre[torch.arange(n), pick] + (torch.rand(n, 2, generator=g) - 0.5) * spread
     anywhere = torch.rand(n, 2, generator=g)
     env.gripper = torch.where((torch.rand(n, generator=g) < 0.7)[:, None], near, anywhere).clamp(0, 1)
     env.yaw = math.pi * torch.rand(n, generator=g)
     obs = env._obs()
-    return torch.cat([obs["observation"], obs["image"].reshape(n, -1).float()], 1), env.holdable().any(1).float()
+    return env, torch.cat([obs["observation"], obs["image"].reshape(n, -1).float()], 1), g
+
+
+def labelled_states(n: int, seed: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(flat inputs [n, 5 + 64*64*3], holds [n])``: would closing where the gripper is hold an object?"""
+    env, x, _ = placed_bins(n, seed, 0.1)
+    return x, env.holdable().any(1).float()
 
 
 def auc(score: torch.Tensor, label: torch.Tensor) -> float:
