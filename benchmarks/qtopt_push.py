@@ -108,6 +108,29 @@ def summarise(run_dir: Path, marks: tuple[int, ...]) -> dict:
     }
 
 
+def earlier(spec: str, marks: tuple[int, ...]) -> dict:
+    """``FILE:RUN``: a run kept only as a raw curve of another benchmark (``qtopt_ablation.py``'s format: ``curve`` of
+    ``(env steps, hours, success)``), summarised as :func:`summarise` does; its name gets ``(earlier)``."""
+    path, _, name = spec.rpartition(":")
+    entry = next(r for r in json.loads(Path(path).read_text()) if r["run"] == name)
+    curve = [(int(steps), success) for steps, _, success in entry["curve"]]
+
+    def at(mark: int) -> dict | None:
+        return next(({"success_rate": v} for s, v in curve if s >= mark), None)
+
+    return {
+        "run": f"sac-s{entry['seed']} (earlier)",
+        "env_steps": entry["env_steps"],
+        "hours": entry["hours"],
+        "steps_to_target": next((s for s, v in curve if v >= TARGET), None),
+        "best_success": max(v for _, v in curve),
+        "updates_per_s": entry["updates_per_s"],
+        "env_steps_per_s": entry["env_steps_per_s"],
+        "marks": {m: at(m) for m in marks},
+        "curve": curve,
+    }
+
+
 def figure(results: list[dict], path: Path, title: str) -> None:
     import matplotlib
 
@@ -144,10 +167,11 @@ def table(results: list[dict], marks: tuple[int, ...]) -> str:
     ]
     for r in results:
         arm = r["run"].rsplit("-s", 1)[0]
+        what = ARMS[arm][0] + (" (an earlier run: see the note)" if "earlier" in r["run"] else "")
         success = " / ".join(_cell(r["marks"][m]["success_rate"]) if r["marks"][m] else "-" for m in marks)
         reached = f"{r['steps_to_target']:,}" if r["steps_to_target"] else "not reached"
         lines.append(
-            f"| {r['run']} | {ARMS[arm][0]} | {r['env_steps']:,} | {r['hours']:.2f} | {r['updates_per_s']:.0f} | "
+            f"| {r['run']} | {what} | {r['env_steps']:,} | {r['hours']:.2f} | {r['updates_per_s']:.0f} | "
             f"{r['env_steps_per_s']:.0f} | {success} | {r['best_success']:.2f} | {reached} |"
         )
     lines += [
@@ -172,6 +196,9 @@ def main() -> None:
     parser.add_argument("--task", choices=list(TASKS), default="pixelpush")
     parser.add_argument("--arms", nargs="+", default=["defaults", "before", "lagged", "paper-maximum", "sac"], choices=list(ARMS))
     parser.add_argument("--note", default="", help="a note for the written section (where runs came from)")
+    parser.add_argument(
+        "--earlier", nargs="*", default=[], metavar="FILE:RUN", help="also report runs kept only as another benchmark's curve"
+    )
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1])
     parser.add_argument("--budget", type=int, default=0, help="env steps per run (0: the task's default)")
     parser.add_argument("--hours", type=float, default=0.0, help="stop each run after this long in this sitting (0: none)")
@@ -191,7 +218,7 @@ def main() -> None:
             for job in jobs:
                 job.result()
     present = [out / f"{a}-s{s}" for a, s in runs if (out / f"{a}-s{s}" / "metrics.csv").exists()]
-    results = [summarise(p, marks) for p in present]
+    results = [summarise(p, marks) for p in present] + [earlier(spec, marks) for spec in args.earlier]
     text = table(results, marks)
     print(text)
     if args.write:
