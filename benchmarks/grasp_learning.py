@@ -1,9 +1,9 @@
 """QT-Opt grasping from the camera: the preset against changes to it, per-evaluation curves.
 
 Arms: the preset; scripted exploration (a share of training episodes acted by the env's scripted grasp); a looser
-hold (``--env.tolerance 0.06``: the gripper's centre may be 0.06 off an object's spine, about 4 pixels, against the
-preset's 0.025), a positive control that asks whether the stack learns to grasp at all when the grasp needs less
-precision. Each arm is reported beside the success of uniformly random actions at its own tolerance.
+hold (``--env.tolerance 0.06``: the gripper's centre may be 0.06 off an object's spine, about 4 pixels), the positive
+control of the bin as it was (tolerance 0.025, squares of half-side 0.035-0.05); 0.06 is the fair bin's default since,
+so on today's bin this arm is the preset. Each arm is reported beside the success of uniformly random actions at its own tolerance.
 
 Each arm is ``taskrl train grasp-qtopt-pixels --seed S --threads 1 --max-hours H`` plus its flags, its own
 process; a run directory that already holds a finished run (its ``learning_curve.png``) is read instead of trained again, so
