@@ -21,7 +21,7 @@ from typing import Any
 import torch
 from torch import nn
 
-from taskrl.agents.cem import action_bounds
+from taskrl.agents.cem import action_bounds, sample_in_box
 from taskrl.errors import require
 from taskrl.nets import ObsConcat
 from taskrl.normalization import RunningNorm
@@ -241,8 +241,6 @@ def explore_in_box(
     """
     n, dim = unit.shape
     if noise_std > 0 and truncated:
-        from taskrl.agents.cem import sample_in_box
-
         std = torch.full_like(unit, noise_std)
         unit = sample_in_box(unit, std, 1, -torch.ones_like(unit[0]), torch.ones_like(unit[0]), "truncated", generator)[:, 0]
     elif noise_std > 0:
@@ -252,6 +250,12 @@ def explore_in_box(
         uniform = torch.rand(n, dim, generator=generator, device=unit.device) * 2 - 1
         unit = torch.where(pick, uniform, unit)
     return unit
+
+
+def share_on_bound(unit: torch.Tensor) -> torch.Tensor:
+    """The share of ``unit`` action components (in ``[-1, 1]``) that sit on a bound of the box: the metric
+    ``action_on_bound`` of the algorithms that log it."""
+    return (unit.abs() >= 1.0 - 1e-6).float().mean()
 
 
 def linear_schedule(start: float, end: float, decay_steps: int, env_steps: int) -> float:

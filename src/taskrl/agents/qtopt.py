@@ -71,6 +71,7 @@ from taskrl.agents.parts import (
     linear_schedule,
     negative_return_bounds,
     polyak_update,
+    share_on_bound,
     td_target,
 )
 from taskrl.agents.spec import AlgorithmSpec
@@ -358,7 +359,7 @@ class QTOptAgent(Agent):
             target = self.bellman_target(batch, generator, diagnostics=diagnostics)
         self.inputs.update_statistics(batch.obs)
         x, action = self.inputs(batch.obs), self.box.to_unit(batch.action)
-        diagnostics["action_on_bound"] = (action.abs() >= 1.0 - 1e-6).float().mean()
+        diagnostics["action_on_bound"] = share_on_bound(action)
         out = self.q(x, action)
         loss = self.loss(out, target)
         if self.independent:  # both twins regress onto the same target

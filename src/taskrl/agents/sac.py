@@ -62,6 +62,7 @@ from taskrl.agents.parts import (
     negative_return_bounds,
     polyak_update,
     set_requires_grad,
+    share_on_bound,
     td_target,
 )
 from taskrl.agents.spec import AlgorithmSpec
@@ -377,7 +378,7 @@ class SACAgent(Agent):
             "alpha": self.alpha.mean(),
             "entropy": -log_prob.mean(),
             "q_mean": q1.detach().mean(),
-            "action_on_bound": (action.abs() >= 1.0 - 1e-6).float().mean(),  # stored components on a bound (as QT-Opt's)
+            "action_on_bound": share_on_bound(action),  # stored components on a bound (as QT-Opt's)
             **extra,
         }
 
