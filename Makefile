@@ -13,7 +13,7 @@ $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q torch==2.13.0
-	$(PY) -m pip install -q -e '.[test,bench,robotics,language,metaworld,video,imitation,distributed,docs,wandb]'
+	$(PY) -m pip install -q -e '.[test,bench,robotics,language,metaworld,video,imitation,distributed,docs,wandb,grasp]'
 	touch $(STAMP)
 
 install: $(STAMP)

@@ -39,6 +39,15 @@ _PIXELPUSH = {
     "total_steps": 300_000,
     "eval_interval": 10_000,
 }
+# the pybullet grasping benchmark: one copy per core, one attempt per episode (at most 15 steps)
+_KUKAGRASP = {
+    "env": "kukagrasp",
+    "her": "none",
+    "num_envs": 2,
+    "buffer_size": 200_000,
+    "eval_episodes": 50,  # the benchmark's num_eval
+    "checkpoint_minutes": 5.0,
+}
 _FETCH = {
     **_CONTINUOUS_HER,
     "num_envs": 2,
@@ -292,6 +301,38 @@ PRESETS: dict[str, Preset] = {
             "total_steps": 200_000,
             "eval_interval": 5_000,
             "eval_episodes": 100,
+        },
+    ),
+    "kukagrasp-qtopt": Preset(
+        "QT-Opt on the pybullet grasping benchmark (Quillen et al. 2018): Kuka arm, 5 random objects, 64x64 camera; "
+        "its config's gamma 0.9, Adam 1e-3, 16 samples for the Bellman maximum; sigmoid Q with a log loss",
+        {
+            **_KUKAGRASP,
+            "algo": "qtopt",
+            "loss": "cross_entropy",
+            "clip_target": False,  # the sigmoid bounds Q to [0, 1] for the 0/1 grasp reward
+            "gamma": 0.9,
+            "lr": 1e-3,
+            "hidden_sizes": (256, 256),
+            "target_samples": 16,
+            "batch_size": 64,
+            "learning_starts": 0,
+            "updates_per_step": 1.0,
+            "total_steps": 15_000,
+            "eval_interval": 5_000,
+        },
+    ),
+    "kukagrasp-random": Preset(
+        "the benchmark's random grasps (uniform actions, moving down 9 times in 10) stored as pictures, for "
+        "--offline-data: about 3 env steps per grasp, so 31,000 steps are about 10,000 grasps; no learning",
+        {
+            **_KUKAGRASP,
+            "algo": "qtopt",
+            "scripted_exploration": 1.0,
+            "learning_starts": 10**9,  # collection only: no update
+            "total_steps": 31_000,
+            "eval_interval": 10**9,
+            "eval_episodes": 1,
         },
     ),
     "pointreach-mt-sac-onehot": Preset(

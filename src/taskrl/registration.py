@@ -18,6 +18,7 @@ NATIVE_IDS: dict[str, tuple[str, int | None]] = {
     "taskrl/GridTasks-v0": ("taskrl.envs.grid_tasks:GridTasksGymEnv", 30),
     "taskrl/PointTasks-v0": ("taskrl.envs.point_tasks:PointTasksGymEnv", 40),
     "taskrl/Grasp-v0": ("taskrl.envs.grasp:GraspGymEnv", None),
+    "taskrl/KukaGrasp-v0": ("taskrl.envs.kuka_grasp:KukaGraspEnv", None),
     "taskrl/PixelReach-v0": ("taskrl.envs.pixel_reach:PixelReachGymEnv", 50),
     "taskrl/PixelPush-v0": ("taskrl.envs.pixel_push:PixelPushGymEnv", 50),
     "taskrl/Tabletop-v0": ("taskrl.envs.tabletop:TabletopGymEnv", 50),
