@@ -49,7 +49,7 @@ QUESTIONS: list[tuple[str, str, tuple[str, ...]]] = [
     ("sharing", "Data sharing between tasks", ("Data sharing",)),
     ("imitation", "Multi-task imitation (BC-Z)", ("Multi-task behaviour cloning", "Demonstration collection")),
     ("distributed", "Distributed training", ("Distributed",)),
-    ("camera", "Learning from the camera", ("Grasp", "Goal pictures")),
+    ("camera", "Learning from the camera", ("Grasp", "KukaGrasp", "Goal pictures")),
     (
         "learner-speed",
         "Learner speed: compiled updates, the FLOP bound, equal work against Stable-Baselines3",

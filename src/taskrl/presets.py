@@ -39,11 +39,12 @@ _PIXELPUSH = {
     "total_steps": 300_000,
     "eval_interval": 10_000,
 }
-# the pybullet grasping benchmark: one copy per core, one attempt per episode (at most 15 steps)
+# the pybullet grasping benchmark: 6 copies in their own processes (stepped in lockstep, two copies leave a core
+# idle while the other settles or lifts), one attempt per episode (at most 15 steps)
 _KUKAGRASP = {
     "env": "kukagrasp",
     "her": "none",
-    "num_envs": 2,
+    "num_envs": 6,
     "buffer_size": 200_000,
     "eval_episodes": 50,  # the benchmark's num_eval
     "checkpoint_minutes": 5.0,

@@ -286,6 +286,10 @@ class KukaGraspEnv(gym.Env):
     # ------------------------------------------------------------------ gymnasium
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
+        if seed is not None:  # a seeded episode starts from a fresh simulation (no contact state carried over)
+            self._sim.resetSimulation()
+            self._build_scene()
+            self._objects, self._episodes = [], 0
         if not self._objects or self._episodes % self.settings.redraw_every == 0:
             self._draw_objects()
         self._episodes += 1
@@ -374,6 +378,8 @@ class KukaGraspVectorEnv(GymnasiumVectorEnv):
 
 
 def _make(settings: KukaGraspSettings, request: EnvRequest) -> KukaGraspVectorEnv:
+    if request.evaluation:  # one copy per evaluation episode: in one process, not one process each
+        settings = dataclasses.replace(settings, vector_strategy="sync")
     return KukaGraspVectorEnv(settings, request.copies, seed=request.seed, device=request.device)
 
 

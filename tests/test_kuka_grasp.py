@@ -1,0 +1,163 @@
+"""KukaGrasp-v0, the pybullet grasping benchmark: its object split, episodes, settling, random policy and runs."""
+
+from __future__ import annotations
+
+import glob
+import os
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+from gymnasium.utils.env_checker import check_env
+
+import taskrl  # noqa: F401  (registers taskrl/KukaGrasp-v0)
+from taskrl.envs.kuka_grasp import STEPS, KukaGraspEnv, KukaGraspSettings, KukaGraspVectorEnv, object_files, random_grasp_action
+from taskrl.errors import ConfigError
+
+pybullet_data = pytest.importorskip("pybullet_data", reason="the grasp extra (pybullet) is installed by `make test`")
+UP = np.array([0.0, 0.0, 1.0, 0.0], dtype=np.float32)
+DOWN = np.array([0.0, 0.0, -1.0, 0.0], dtype=np.float32)
+
+
+def test_the_test_objects_are_held_out_for_real_where_the_benchmarks_pattern_drew_them_for_training():
+    train, test = object_files("train"), object_files("test")
+    assert len(train) == 900 and len(test) == 100 and not set(train) & set(test)
+    assert all(os.path.basename(os.path.dirname(f)).endswith("0") for f in test)
+    # the benchmark's training pattern: glob reads [^0] as "^ or 0", so it matched the test objects
+    upstream = sorted(glob.glob(os.path.join(pybullet_data.getDataPath(), "random_urdfs", "*[^0]", "*.urdf")))
+    assert upstream == test
+
+
+def test_objects_are_drawn_from_the_split_and_redrawn_every_few_episodes():
+    env = KukaGraspEnv(objects="test", redraw_every=2)
+    try:
+        drawn = [tuple(env.reset(seed=None if k else 0)[1]["objects"]) for k in range(4)]
+    finally:
+        env.close()
+    assert all(name.endswith("0") for names in drawn for name in names)
+    assert drawn[0] == drawn[1] and drawn[2] == drawn[3] and drawn[1] != drawn[2]
+
+
+def test_the_same_seed_gives_the_same_episode():
+    first, second = KukaGraspEnv(), KukaGraspEnv()
+    try:
+        a, info_a = first.reset(seed=5)
+        b, info_b = second.reset(seed=5)
+        assert info_a["objects"] == info_b["objects"]
+        assert np.array_equal(a["image"], b["image"]) and np.allclose(a["observation"], b["observation"])
+        c, _ = second.reset(seed=6)
+        assert not np.array_equal(a["image"], c["image"])
+    finally:
+        first.close()
+        second.close()
+
+
+def test_an_episode_ends_at_a_grasp_or_unsolved_after_fifteen_steps():
+    env = KukaGraspEnv()
+    try:
+        env.reset(seed=0)
+        for step in range(1, STEPS + 1):  # moving up never reaches the grasp height
+            obs, reward, terminated, truncated, info = env.step(UP)
+            assert obs["observation"][4] == pytest.approx(1 - step / STEPS)
+            if terminated:
+                break
+        assert step == STEPS and reward == 0.0 and not info["attempted"] and not truncated
+        env.reset(seed=0)
+        for step in range(1, STEPS + 1):  # moving down grasps within a few steps
+            obs, reward, terminated, _, info = env.step(DOWN)
+            if terminated:
+                break
+        assert info["attempted"] and step <= 6
+    finally:
+        env.close()
+
+
+def test_settling_until_at_rest_lands_the_objects_where_the_definitions_settling_does():
+    """The same drops settled both ways end within 2 cm of each other on average (the full check, with the
+    success rates, is ``benchmarks/kuka_grasp.py settle``)."""
+    ends, steps = {}, {}
+    for settle in ("rest", "definition"):
+        env = KukaGraspEnv(settle=settle)
+        try:
+            env.reset(seed=11)
+            env.np_random = np.random.default_rng(3)  # the same drop poses for both
+            steps[settle] = env.settle_objects(env.drop_poses(), settle)
+            ends[settle] = env.object_positions()
+        finally:
+            env.close()
+    assert steps["definition"] == 2500 and steps["rest"] < 2000
+    assert np.linalg.norm(ends["rest"] - ends["definition"], axis=1).mean() < 0.02
+
+
+def test_the_random_policy_moves_down_nine_times_in_ten():
+    action = random_grasp_action(torch.Generator().manual_seed(0), 20_000)
+    down = (action[:, 2] == -1).float().mean()
+    assert 0.88 < down < 0.92 and action.abs().max() <= 1
+    assert random_grasp_action(torch.Generator().manual_seed(0), 5, height_hack=True).shape == (5, 3)
+
+
+def test_bad_settings_name_the_setting():
+    for bad, name in ((dict(objects="unseen"), "objects"), (dict(redraw_every=0), "redraw_every"), (dict(settle="x"), "settle")):
+        with pytest.raises(ConfigError, match=name):
+            KukaGraspSettings(**bad).validate()
+
+
+@pytest.mark.slow
+def test_the_gymnasium_env_passes_the_checker_and_the_height_hack_has_three_actions():
+    env = gym.make("taskrl/KukaGrasp-v0")
+    try:
+        check_env(env.unwrapped, skip_render_check=True)
+        obs, _ = env.reset(seed=0)
+        assert obs["image"].shape == (64, 64, 3) and obs["image"].dtype == np.uint8
+    finally:
+        env.close()
+    hack = KukaGraspEnv(height_hack=True)
+    try:
+        assert hack.action_space.shape == (3,)
+        hack.reset(seed=0)
+        for step in range(1, STEPS + 1):  # always down: the grasp fires within a few steps whatever dz would say
+            *_, terminated, _, info = hack.step(np.zeros(3, dtype=np.float32))
+            if terminated:
+                break
+        assert info["attempted"] and step <= 4
+    finally:
+        hack.close()
+
+
+@pytest.mark.slow
+def test_the_random_policy_grasps_an_object_in_a_good_share_of_episodes():
+    env = KukaGraspVectorEnv(KukaGraspSettings(vector_strategy="sync"), num_envs=2, seed=0)
+    try:
+        obs, ends, wins = env.reset(seed=0), 0, 0.0
+        while ends < 16:
+            obs, reward, terminated, truncated, info = env.step(env.scripted_action(obs))
+            ends += int((terminated | truncated).sum())
+            wins += float(reward.sum())
+    finally:
+        env.close()
+    assert 0.15 <= wins / ends <= 0.7  # the benchmark's random policy: about 0.4
+
+
+@pytest.mark.slow
+def test_a_collection_run_stores_pictures_and_a_run_is_evaluated_on_the_test_objects(tmp_path, monkeypatch):
+    from helpers import small_run
+    from taskrl import loading
+
+    run = small_run(
+        "kukagrasp-random",
+        tmp_path / "random",
+        total_steps=12,
+        eval_episodes=1,
+        image_size=32,
+        vector_strategy="sync",
+        hidden_sizes=(16,),
+    )
+    assert run.metrics["replay_transitions"] >= 6 and run.metrics["updates"] == 0
+    built = []
+    make = loading.make_env
+    monkeypatch.setattr(
+        loading, "make_env", lambda config, *a, **k: built.append(config.env_settings.objects) or make(config, *a, **k)
+    )
+    assert loading.evaluate_run(tmp_path / "random", episodes=1, held_out=True)["episodes"] == 1
+    assert built == ["test"]
