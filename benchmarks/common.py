@@ -140,6 +140,7 @@ def taskrl_learn_until(preset: str, seed: int, budget: int, eval_interval: int, 
         "env_steps_per_s": m["env_steps"] / max(m["wall_seconds"], 1e-9),
         "updates_per_s": m["updates"] / max(m["wall_seconds"], 1e-9),
         "final_success": m["success_rate"],
+        "path": f"compile {run.config.compile}, {run.config.updates_per_call} per call",  # as settled (auto included)
         # every compiled step's (one update, and K per call)
         "compile_seconds": sum(getattr(getattr(run.agent, name, None), "compile_seconds", 0.0) for name in ("step", "step_many")),
     }

@@ -5,8 +5,8 @@ the random policy achieves and how fast grasps are collected, and QT-Opt's runs 
     .venv/bin/python benchmarks/kuka_grasp.py settle --drops 40 --episodes 100 --write
     # the authors' random policy on training and test objects with one process per core: success, grasps/s
     .venv/bin/python benchmarks/kuka_grasp.py random --episodes 200 --write
-    # QT-Opt's runs (trained with the commands the section lists), evaluated on training and test objects
-    .venv/bin/python benchmarks/kuka_grasp.py protocol --random RUN --runs RUN [RUN ...] --write
+    # the supervised control's data: the grasps of a collection run, every step labelled with its grasp's outcome
+    .venv/bin/python benchmarks/kuka_grasp.py outcomes runs/kuka-random runs/kuka-outcomes
 """
 
 from __future__ import annotations
@@ -87,6 +87,30 @@ def random_policy(objects: str, episodes: int, copies: int = 2, seed: int = 0) -
     return {"objects": objects, "episodes": ended, "success": wins / ended, "grasps_per_s": ended / seconds, "steps": steps}
 
 
+def outcome_labelled(source: Path, out: Path) -> dict:
+    """A copy of a run's stored grasps in which every step's reward is its episode's outcome (1 if the grasp at its
+    end lifted an object): trained with ``--gamma 0`` on it, QT-Opt's network regresses Q(s, a) on the grasp
+    outcome, the benchmark's supervised control (same network, same data, same CEM acting)."""
+    import shutil
+
+    from taskrl.checkpoint import checkpoint_step, latest_checkpoint, load_checkpoint, save_checkpoint
+    from taskrl.replay.storage import ring_rows
+
+    saved = load_checkpoint(source / "checkpoints", ("replay",))["replay"]
+    capacity, tail, count, *_ = (int(x) for x in saved["rings"])
+    slots = saved["length"].shape[0]
+    ids = (torch.arange(count) + tail) % slots
+    lengths = saved["length"][ids]
+    rows = ring_rows(saved["episode_step_start"][ids], lengths, capacity)  # every step, episode after episode
+    reward = saved["steps/reward"]
+    outcome = reward[rows[torch.cumsum(lengths, 0) - 1]]
+    reward[rows] = outcome.repeat_interleave(lengths)
+    out.mkdir(parents=True, exist_ok=False)
+    shutil.copy(source / "config.json", out / "config.json")
+    save_checkpoint(out / "checkpoints", {"replay": saved}, checkpoint_step(latest_checkpoint(source / "checkpoints")))
+    return {"episodes": count, "steps": int(lengths.sum()), "success": float(outcome.float().mean())}
+
+
 def _interval(p: float, n: int) -> str:
     half = 1.96 * (p * (1 - p) / max(n, 1)) ** 0.5
     return f"{p:.2f} ± {half:.2f}"
@@ -103,11 +127,16 @@ def main() -> None:
     rand.add_argument("--copies", type=int, default=2)
     for p in (settle, rand):
         p.add_argument("--write", action="store_true")
+    outcomes = sub.add_parser("outcomes", help="the supervised control's data: a run's grasps labelled by their outcome")
+    outcomes.add_argument("source", type=Path)
+    outcomes.add_argument("out", type=Path)
     args = parser.parse_args()
     torch.set_num_threads(1)
     from common import append_results
 
-    if args.what == "settle":
+    if args.what == "outcomes":
+        print(outcome_labelled(args.source, args.out))
+    elif args.what == "settle":
         row = settle_check(args.drops, args.episodes)
         print(json.dumps(row, indent=1))
         if args.write:

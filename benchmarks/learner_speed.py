@@ -215,7 +215,10 @@ def equal(args) -> tuple[str, dict]:
             "taskrl": functools.partial(_with_compile, ours, "off", 1),
             "taskrl compiled": functools.partial(_with_compile, ours, "default", 1),
             "taskrl compiled, 4 per call": functools.partial(_with_compile, ours, "default", 4),
+            # what a user gets with no flag: --compile auto --updates-per-call auto chose from the budget
+            "taskrl, no flag": functools.partial(_with_compile, ours, "auto", 0),
         }
+        runners = {lib: run for lib, run in runners.items() if not args.libs or lib in args.libs or lib == "sb3"}
         runs: dict[str, dict[str, list]] = {lib: {"target": [], "throughput": []} for lib in runners}
         # seed by seed, every library in turn: the machine's drift over the minutes of a case falls on all alike
         for seed in args.seeds:
@@ -742,6 +745,12 @@ def main() -> None:
     parser.add_argument("--only", nargs="*", default=[], help="bound: only the cases whose names hold one of these words")
     parser.add_argument("--per-call", type=int, default=4, help="bound: updates per call in the K-updates column")
     parser.add_argument("--target", type=float, default=0.9)
+    parser.add_argument(
+        "--libs",
+        nargs="+",
+        default=[],
+        help="equal: only these arms beside sb3 (taskrl, 'taskrl compiled', 'taskrl, no flag', ...)",
+    )
     parser.add_argument("--throughput-only", action="store_true", help="equal: skip the time-to-90%% runs")
     parser.add_argument("--throughput-steps", type=int, default=0, help="equal: env steps of each throughput run (0: the case's)")
     parser.add_argument("--reuse-log", type=Path, default=None, help="equal: an earlier run's output, whose results to keep")

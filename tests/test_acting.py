@@ -122,6 +122,7 @@ def test_import_taskrl_alone_registers_every_native_id_and_gymnasiums_checker_pa
         "GridTasks",
         "PointTasks",
         "Grasp",
+        "KukaGrasp",
         "PixelReach",
         "PixelPush",
         "Tabletop",

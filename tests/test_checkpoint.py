@@ -14,7 +14,8 @@ from taskrl.agents.dqn import DQNAgent, DQNConfig
 from taskrl.checkpoint import flatten_state, load_checkpoint, save_checkpoint, unflatten_state
 from taskrl.logger import read_metrics
 
-TINY = dict(n_bits=5, num_envs=4, eval_episodes=20, tensorboard=False, learning_starts=100, batch_size=32)
+# eager (compile off): these runs time their steps, and --compile auto would compile the long-budget ones
+TINY = dict(n_bits=5, num_envs=4, eval_episodes=20, tensorboard=False, learning_starts=100, batch_size=32, compile="off")
 
 
 def test_state_round_trip_keeps_optimizer_state_and_int_keys(tmp_path):
@@ -101,6 +102,8 @@ def test_a_killed_run_resumes_from_its_last_checkpoint(tmp_path):
         "10",
         "--learning-starts",
         "100",
+        "--compile",
+        "off",  # eager, as the steps it times before the kill assume (auto would compile a 10M-step run)
     ]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     deadline = time.time() + 120
@@ -192,6 +195,8 @@ def test_sigterm_stops_a_cli_run_with_a_checkpoint_at_the_current_step(tmp_path)
         "10",
         "--learning-starts",
         "100",
+        "--compile",
+        "off",  # eager: the steps it waits for assume it (auto would compile a 10M-step run)
     ]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.time() + 120

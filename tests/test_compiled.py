@@ -1,6 +1,8 @@
 """Compiled updates (``--compile``): the same step as eager, the fused helpers against their formulas."""
 
 import copy
+import dataclasses
+import json
 
 import pytest
 import torch
@@ -262,7 +264,7 @@ def test_updates_per_call_is_refused_where_no_loop_takes_it():
     with pytest.raises(ConfigError, match="updates_per_call"):
         taskrl.train("pointreach-mt-ppo-onehot", updates_per_call=2)
     with pytest.raises(ConfigError, match="updates_per_call"):
-        taskrl.train("bitflip-her", updates_per_call=0)
+        taskrl.train("bitflip-her", updates_per_call=-1)
     with pytest.raises(ConfigError, match="compile"):
         taskrl.train("pointreach-mt-ppo-onehot", compile="default")
 
@@ -290,3 +292,74 @@ def test_k_batches_drawn_together_are_k_task_balanced_batches():
         assert torch.equal(b.next_obs["task"], b.obs["task"])
     rows = torch.cat([b.episode * 10 + b.step for b in batches])
     assert rows.unique().numel() > 100  # distinct draws, not one batch four times
+
+
+# ---------------------------------------------------------------------- --compile auto (the default)
+
+
+def _settled(preset: str, **settings):
+    from taskrl.config import with_overrides
+    from taskrl.presets import preset_config
+    from taskrl.wiring.calls import settle_compile
+
+    notes: list[str] = []
+    config = settle_compile(with_overrides(preset_config(preset), settings), notes)
+    return config, notes
+
+
+def test_auto_keeps_a_short_run_eager_and_compiles_a_long_one_four_updates_per_call():
+    short, notes = _settled("bitflip-her")  # make demo's run: 5,900 updates, less than compiling would save
+    assert (short.compile, short.updates_per_call) == ("off", 1)
+    assert len(notes) == 1 and notes[0].startswith("compile: eager (5,900 planned updates")
+    long, notes = _settled("bitflip-her", total_steps=2_000_000, updates_per_step=1.0, batch_size=32, hidden_sizes=(64, 64))
+    assert (long.compile, long.updates_per_call) == ("default", 4)
+    assert "compiled (default), 4 updates per call" in notes[0] and "DQN (64, 64) / 32" in notes[0]
+
+
+def test_auto_follows_what_is_set_and_stays_eager_where_nothing_was_measured():
+    assert _settled("bitflip-her", total_steps=2_000_000, compile="off")[0].updates_per_call == 1
+    explicit, notes = _settled("bitflip-her", compile="default", updates_per_call=2)
+    assert (explicit.compile, explicit.updates_per_call, notes) == ("default", 2, [])
+    chosen, _ = _settled("bitflip-her", total_steps=2_000_000, updates_per_call=1)  # the mode chosen for 1 per call
+    assert (chosen.compile, chosen.updates_per_call) == ("default", 1)
+    distributed, _ = _settled("fetchpush-sac-her", offline=True, offline_data="x", total_steps=1_000_000)
+    assert distributed.updates_per_call == 1  # an offline loop takes one update per call
+    assert _settled("grasp-qtopt-pixels", total_steps=10**7)[0].compile == "off"  # conv encoders: not measured
+    ppo, notes = _settled("pointreach-mt-ppo-onehot")
+    assert ppo.compile == "off" and "no compiled update" in notes[0]
+
+
+def test_the_estimate_compiles_where_the_planned_updates_pass_the_break_even():
+    from taskrl.agents.compile_rule import MEASURED, choose_compile, planned_updates
+
+    dqn = MEASURED[0]  # DQN (64, 64) / 32
+    break_even = dqn.compile_seconds / ((dqn.eager_ms - dqn.compiled_ms) / 1e3)
+    for factor, expected in ((0.8, "off"), (1.2, "default")):
+        config, _ = _settled(
+            "bitflip-her", batch_size=32, hidden_sizes=(64, 64), updates_per_step=1.0, learning_starts=0, updates_per_call=1
+        )
+        config = dataclasses.replace(config, compile="auto", total_steps=int(factor * break_even))
+        assert planned_updates(config) == int(factor * break_even)
+        assert choose_compile(config, compiles=True, many_allowed=False).mode == expected
+
+
+def test_the_command_line_takes_auto_and_a_run_says_its_choice_first(tmp_path):
+    from helpers import cli_train
+
+    done = cli_train("bitflip-her", "--n-bits", "4", "--total-steps", "300", "--eval-interval", "300", "--eval-episodes", "4", "--learning-starts", "100",
+                     "--updates-per-call", "auto", "--out", str(tmp_path / "run"))  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    first = done.stderr.strip().splitlines()[0]
+    assert first.startswith("note: compile: eager (")
+    saved = json.loads((tmp_path / "run" / "config.json").read_text())
+    assert (saved["compile"], saved["updates_per_call"]) == ("off", 1)  # what the run did, for --resume
+
+
+def test_compiled_graphs_are_kept_in_the_users_cache_directory(monkeypatch, tmp_path):
+    from taskrl.agents.compiled import compile_cache_dir
+
+    monkeypatch.delenv("TORCHINDUCTOR_CACHE_DIR", raising=False)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    assert compile_cache_dir() == str(tmp_path / "taskrl" / "torch-compile")
+    monkeypatch.setenv("TORCHINDUCTOR_CACHE_DIR", "/elsewhere")
+    assert compile_cache_dir() == "/elsewhere"  # the user's own setting wins

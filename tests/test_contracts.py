@@ -47,6 +47,7 @@ SMALLEST: dict[str, dict[str, Any]] = {
     "gridtasks": {"num_envs": 4},
     "pointtasks": {"num_envs": 4},
     "grasp": {"image_size": 16},
+    "kukagrasp": {"image_size": 16, "num_objects": 1, "vector_strategy": "sync"},
     "mt1": {},
     "mt10": {"num_envs": 10},
     "mt50": {"num_envs": 50},

@@ -20,6 +20,16 @@ UP = np.array([0.0, 0.0, 1.0, 0.0], dtype=np.float32)
 DOWN = np.array([0.0, 0.0, -1.0, 0.0], dtype=np.float32)
 
 
+def until_the_end(env: KukaGraspEnv, action: np.ndarray) -> tuple[int, float, dict]:
+    """Steps of one episode acting ``action`` throughout: (steps, last reward, last info)."""
+    for step in range(1, STEPS + 1):
+        _, reward, terminated, truncated, info = env.step(action)
+        assert not truncated
+        if terminated:
+            return step, reward, info
+    raise AssertionError("the episode did not end after 15 steps")
+
+
 def test_the_test_objects_are_held_out_for_real_where_the_benchmarks_pattern_drew_them_for_training():
     train, test = object_files("train"), object_files("test")
     assert len(train) == 900 and len(test) == 100 and not set(train) & set(test)
@@ -57,18 +67,13 @@ def test_an_episode_ends_at_a_grasp_or_unsolved_after_fifteen_steps():
     env = KukaGraspEnv()
     try:
         env.reset(seed=0)
-        for step in range(1, STEPS + 1):  # moving up never reaches the grasp height
-            obs, reward, terminated, truncated, info = env.step(UP)
-            assert obs["observation"][4] == pytest.approx(1 - step / STEPS)
-            if terminated:
-                break
-        assert step == STEPS and reward == 0.0 and not info["attempted"] and not truncated
+        obs, *_ = env.step(UP)
+        assert obs["observation"][4] == pytest.approx(1 - 1 / STEPS)  # the share of steps left
+        steps, reward, info = until_the_end(env, UP)  # moving up never reaches the grasp height
+        assert steps == STEPS - 1 and reward == 0.0 and not info["attempted"]
         env.reset(seed=0)
-        for step in range(1, STEPS + 1):  # moving down grasps within a few steps
-            obs, reward, terminated, _, info = env.step(DOWN)
-            if terminated:
-                break
-        assert info["attempted"] and step <= 6
+        steps, _, info = until_the_end(env, DOWN)  # moving down grasps within a few steps
+        assert info["attempted"] and steps <= 6
     finally:
         env.close()
 
@@ -116,11 +121,8 @@ def test_the_gymnasium_env_passes_the_checker_and_the_height_hack_has_three_acti
     try:
         assert hack.action_space.shape == (3,)
         hack.reset(seed=0)
-        for step in range(1, STEPS + 1):  # always down: the grasp fires within a few steps whatever dz would say
-            *_, terminated, _, info = hack.step(np.zeros(3, dtype=np.float32))
-            if terminated:
-                break
-        assert info["attempted"] and step <= 4
+        steps, _, info = until_the_end(hack, np.zeros(3, dtype=np.float32))  # always down, whatever dz would say
+        assert info["attempted"] and steps <= 4
     finally:
         hack.close()
 
@@ -147,7 +149,8 @@ def test_a_collection_run_stores_pictures_and_a_run_is_evaluated_on_the_test_obj
     run = small_run(
         "kukagrasp-random",
         tmp_path / "random",
-        total_steps=12,
+        total_steps=30,
+        num_envs=2,
         eval_episodes=1,
         image_size=32,
         vector_strategy="sync",

@@ -56,6 +56,19 @@ class _Parser(argparse.ArgumentParser):
         raise UsageError(message)
 
 
+#: whole-number settings whose 0 means "the library chooses", given as ``auto`` on the command line
+_AUTO_COUNTS = {"updates_per_call"}
+
+
+def _count_or_auto(text: str) -> int:
+    if text == "auto":
+        return 0
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number or auto, got {text!r}") from None
+
+
 def _flag(name: str) -> str:
     return "--" + name.replace("_", "-")
 
@@ -114,6 +127,8 @@ def _add_config_flags(parser: argparse.ArgumentParser, env: str, algo: str, base
             kwargs["choices"] = typing.get_args(tp)
         elif origin is tuple:
             kwargs.update(type=int, nargs="+", metavar="N")
+        elif name in _AUTO_COUNTS:
+            kwargs.update(type=_count_or_auto, metavar="{N,auto}")
         else:
             kwargs["type"] = tp
         if "choices" not in kwargs and "action" not in kwargs and "metavar" not in kwargs:

@@ -22,7 +22,7 @@ import typing
 from pathlib import Path
 from typing import Any, Literal
 
-from taskrl.agents.compiled import COMPILE_MODES
+from taskrl.agents.compiled import RUN_COMPILE_MODES
 from taskrl.agents.registry import ALGORITHMS, algorithm
 from taskrl.conditioning.networks import ConditioningConfig
 from taskrl.distributed.settings import DistributedConfig
@@ -79,8 +79,9 @@ class TrainConfig:
         learning_starts: environment steps collected before the first update.
         updates_per_step: gradient updates per environment step (fractions accumulate).
         updates_per_call: gradient updates made in one call of the agent, each on its own batch
-            (with ``--compile``, one graph for all of them: less overhead per update at high update
-            ratios); updates wait until that many are due. 1 = one at a time.
+            (compiled, one graph for all of them: less overhead per update at high update
+            ratios); updates wait until that many are due. 1 = one at a time; 0 (``auto`` on the command
+            line) = 4 where that is estimated faster with ``compile``, else 1.
         sampling: ``uniform`` over stored transitions, or ``task_balanced`` (multi-task envs: the
             same number of transitions of every task in each batch).
         eval_interval: environment steps between evaluations.
@@ -111,8 +112,11 @@ class TrainConfig:
             this invocation, to continue later with ``--resume``; 0 = no limit. Ctrl-C and
             SIGTERM stop the same way.
         compile: run each gradient update as one ``torch.compile`` graph: ``default``,
-            ``reduce-overhead`` (CUDA graphs on GPU) or ``max-autotune``; ``off`` = eager. Costs seconds
-            of compilation before the first update; falls back to eager, saying so, where it cannot compile.
+            ``reduce-overhead`` (CUDA graphs on GPU) or ``max-autotune``; ``off`` = eager; ``auto`` = compiled
+            (``default``) where the run plans enough updates to pay for the compilation, else eager
+            (`taskrl.agents.compile_rule`; the run's first note says which and why). Compiling costs seconds
+            before the first update (less in a later run: the cache is kept in the user's cache directory); where
+            it cannot compile, the run says so on one line and updates eagerly.
         threads: torch CPU threads. 1 by default: the networks here are small, one thread is as
             fast, and torch's multi-threaded kernels stall when another process holds a core
             (measured 100x slower on a busy 2-core machine). 0 = torch's default.
@@ -137,7 +141,7 @@ class TrainConfig:
     batch_size: int = 256
     learning_starts: int = 1_000
     updates_per_step: float = 0.1
-    updates_per_call: int = 1
+    updates_per_call: int = 0
     sampling: Literal["uniform", "task_balanced"] = "uniform"
     eval_interval: int = 5_000
     eval_episodes: int = 100
@@ -154,7 +158,7 @@ class TrainConfig:
     scripted_steps: int = 0
     offline: bool = False
     max_hours: float = 0.0
-    compile: Literal["off", "default", "reduce-overhead", "max-autotune"] = "off"
+    compile: Literal["auto", "off", "default", "reduce-overhead", "max-autotune"] = "auto"
     threads: int = 1
     env_module: str = ""
     conditioning: ConditioningConfig = dataclasses.field(default_factory=ConditioningConfig)
@@ -349,11 +353,13 @@ def validate(config: TrainConfig) -> TrainConfig:
     require(c.max_hours >= 0, "max_hours", f"must be >= 0 hours (0 = no limit; got {c.max_hours})")
     require(0.0 <= c.stop_at_success <= 1.0, "stop_at_success", f"must be in [0, 1] (got {c.stop_at_success})")
     check_device(c.device)
-    one_of(c.compile, COMPILE_MODES, "compile", "mode")
+    one_of(c.compile, RUN_COMPILE_MODES, "compile", "mode")
     compiling = ", ".join(a.name for a in ALGORITHMS.values() if a.compiles)
-    if c.compile != "off":
-        require(algorithm(c.algo).compiles, "compile", f"compiles the updates of {compiling}, not {c.algo}; use --compile off")
-    require(c.updates_per_call >= 1, "updates_per_call", f"must be >= 1 (got {c.updates_per_call})")
+    if c.compile not in ("off", "auto"):
+        require(
+            algorithm(c.algo).compiles, "compile", f"compiles the updates of {compiling}, not {c.algo}; use --compile off or auto"
+        )
+    require(c.updates_per_call >= 0, "updates_per_call", f"must be >= 1, or auto (0; got {c.updates_per_call})")
     if c.updates_per_call > 1:
         require(
             algorithm(c.algo).compiles and algorithm(c.algo).loop == "off_policy",

@@ -39,7 +39,15 @@ from taskrl.rundir import RunLock, check_new_run_dir
 from taskrl.runmodes.build import build_parts
 from taskrl.runmodes.registry import progress_axis, run_mode
 from taskrl.training.bookkeeping import Bookkeeping, LoopState, StopRequest
-from taskrl.wiring.calls import default_run_dir, env_source, import_env_module, print_notes, resolve_config, run_title
+from taskrl.wiring.calls import (
+    default_run_dir,
+    env_source,
+    import_env_module,
+    print_notes,
+    resolve_config,
+    run_title,
+    settle_compile,
+)
 from taskrl.wiring.checkpoints import checkpointer, restore_checked
 from taskrl.wiring.parts import EVAL_SEED_OFFSET, RunParts, make_agent, make_env, make_evaluator
 from taskrl.wiring.stored_data import dataset_steps, preload_datasets, preload_replay
@@ -128,6 +136,7 @@ def train(
         if source is not None and resume is None and family.persist is not None:  # record the object in the run
             config = with_overrides(config, family.persist(source, run_dir))
         validate(config)
+        config = settle_compile(config, notes)
         mode = run_mode(config)
         parts = build_parts(config, mode, source)
         # A new run checkpoints after its first step (a kill before checkpoint_interval still resumes);

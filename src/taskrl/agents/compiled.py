@@ -20,6 +20,7 @@ torch), the first update says so on one line and the run continues eagerly.
 
 from __future__ import annotations
 
+import os
 import sys
 import time
 from collections.abc import Callable
@@ -32,6 +33,8 @@ from taskrl.errors import one_of
 
 #: ``--compile`` values: off, or a ``torch.compile`` mode
 COMPILE_MODES = ("off", "default", "reduce-overhead", "max-autotune")
+#: what a run may be given: those, or ``auto`` (`taskrl.agents.compile_rule`)
+RUN_COMPILE_MODES = ("auto", *COMPILE_MODES)
 
 
 def _say(line: str) -> None:
@@ -71,6 +74,17 @@ def compile_options(mode: str, device: torch.device | str = "cpu") -> dict[str, 
     }
 
 
+def compile_cache_dir() -> str:
+    """Where compiled graphs are kept across runs: ``TORCHINDUCTOR_CACHE_DIR`` when set, else the user's cache
+    directory (``$XDG_CACHE_HOME`` or ``~/.cache``) under ``taskrl/torch-compile``, set for this process
+    (torch's own default is under ``/tmp``, which does not survive a restart)."""
+    chosen = os.environ.get("TORCHINDUCTOR_CACHE_DIR")
+    if not chosen:
+        base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+        chosen = os.environ["TORCHINDUCTOR_CACHE_DIR"] = os.path.join(base, "taskrl", "torch-compile")
+    return chosen
+
+
 def _graphs_compiled() -> int:
     """Graphs ``torch.compile`` has made in this process so far (its own statistics counter)."""
     return torch._dynamo.utils.counters["stats"]["unique_graphs"]
@@ -99,6 +113,7 @@ class CompiledStep:
         device: torch.device | str = "cpu",
     ) -> None:
         one_of(mode, COMPILE_MODES[1:], "compile", "mode")
+        compile_cache_dir()
         self.fn, self.mode, self.say, self.optimizers, self.what = fn, mode, say, optimizers, what
         # a mode is a set of compiler options; given as options, so the guard filter can join them. Static
         # shapes: the batch size is fixed for a run, and another agent's shapes must not turn this one's dynamic

@@ -44,9 +44,11 @@ probability 0.9 when there is no height hack).
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import os
+import sys
 from typing import Any, Literal
 
 import gymnasium as gym
@@ -84,6 +86,25 @@ X_RANGE, Y_RANGE = (0.45, 0.75), (-0.22, 0.22)
 MAX_FORCE = 200.0
 FINGER_FORCES = {8: 6.0, 11: 5.5, 10: 6.0, 13: 6.0}  # finger A, finger B, the two tips
 CAMERA = {"look": (0.23, 0.2, 0.54), "distance": 1.0, "yaw": 245.0, "pitch": -56.0, "fov": 20.0}
+
+
+@contextlib.contextmanager
+def _c_stdout_silenced():
+    """File descriptor 1 pointed at /dev/null for the block (what C code prints does not pass through sys.stdout)."""
+    try:
+        sys.stdout.flush()
+        saved = os.dup(1)
+    except (OSError, ValueError):  # no real descriptor 1 (a captured stream): nothing to silence
+        yield
+        return
+    null = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(null, 1)
+        yield
+    finally:
+        os.dup2(saved, 1)
+        os.close(saved)
+        os.close(null)
 
 
 def object_files(split: str, root: str | None = None) -> list[str]:
@@ -165,7 +186,8 @@ class KukaGraspEnv(gym.Env):
         self.settings.validate()
         self.render_mode = render_mode
         self._pb = pybullet
-        self._sim = bullet_client.BulletClient(connection_mode=pybullet.DIRECT)
+        with _c_stdout_silenced():  # pybullet's C code prints "argv[0]=" on connecting
+            self._sim = bullet_client.BulletClient(connection_mode=pybullet.DIRECT)
         self._root = pybullet_data.getDataPath()
         self._files = object_files(self.settings.objects, self._root)
         size = self.settings.image_size

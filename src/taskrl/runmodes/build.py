@@ -49,7 +49,7 @@ def build_parts(config: TrainConfig, mode: RunMode, source: Any = None) -> RunPa
     try:
         eval_env = make_env(config, device, evaluation=True, source=source)
         agent = make_agent(config, env, device)
-        if config.compile != "off":
+        if config.compile not in ("off", "auto"):  # auto is settled before building (`resolve_compile`)
             agent.compile(config.compile)
         generator = torch.Generator(device=device)
         generator.manual_seed(config.seed + 1)

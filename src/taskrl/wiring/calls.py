@@ -3,6 +3,7 @@ names, the module that registers a user's gymnasium ids, its run directory's nam
 
 from __future__ import annotations
 
+import dataclasses
 import datetime
 import importlib
 import json
@@ -12,6 +13,7 @@ from typing import Any
 from rich.console import Console
 
 from taskrl import config as config_io
+from taskrl.agents.compile_rule import choose_compile
 from taskrl.agents.registry import algorithm
 from taskrl.config import TrainConfig, with_overrides
 from taskrl.envs.registry import ENV_FAMILIES, family_for_source
@@ -19,7 +21,16 @@ from taskrl.errors import ConfigError
 from taskrl.presets import preset_config
 from taskrl.rundir import atomic_write_text
 
-__all__ = ["budget_warnings", "default_run_dir", "env_source", "import_env_module", "print_notes", "resolve_config", "run_title"]
+__all__ = [
+    "budget_warnings",
+    "default_run_dir",
+    "env_source",
+    "import_env_module",
+    "print_notes",
+    "resolve_config",
+    "run_title",
+    "settle_compile",
+]
 
 RUN_INFO = "run.json"
 
@@ -94,6 +105,17 @@ def resolve_config(
     config = with_overrides(start, overrides, notes)
     notes += [f"warning: {w}" for w in budget_warnings(config)]
     return config
+
+
+def settle_compile(config: TrainConfig, notes: list[str]) -> TrainConfig:
+    """``config`` with ``compile`` and ``updates_per_call`` settled where they are ``auto``; why goes first in ``notes``."""
+    spec = algorithm(config.algo)
+    many = spec.loop == "off_policy" and not config.cluster.distributed and not config.offline
+    pictures = config.env in ENV_FAMILIES and ENV_FAMILIES.lookup(config.env).images
+    choice = choose_compile(config, spec.compiles, many, pictures)
+    if choice.reason:  # the run's first line
+        notes.insert(0, choice.reason)
+    return dataclasses.replace(config, compile=choice.mode, updates_per_call=choice.updates_per_call)
 
 
 def budget_warnings(config: TrainConfig) -> list[str]:

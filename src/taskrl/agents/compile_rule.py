@@ -1,0 +1,141 @@
+"""``--compile auto`` and ``--updates-per-call auto`` (the defaults): the library chooses the faster path.
+
+Compiling an update costs tens of seconds before the first update and saves a share of every later one, so
+it pays only after enough updates. For each path (eager; compiled, one update per call; compiled, four per
+call) the run's time is estimated as ``compile seconds + planned updates x ms per update`` from `MEASURED`,
+and the fastest path is taken. A run's planned updates are its ``offline_updates`` plus
+``updates_per_step x (total_steps - learning_starts)`` (an offline run's ``total_steps`` are updates).
+
+Networks that read pictures (conv encoders) have no measured case: ``auto`` keeps them eager. Other cases not
+measured take the times of the measured case of the same algorithm nearest in work (batch x the
+network's weights, on a log scale); an algorithm with no case of its own takes SAC's (TD3 and QT-Opt: one
+actor or CEM and twin critics, SAC's shape). The table was measured on CPU with one torch thread; on a GPU the
+same rule is used, unmeasured there.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+__all__ = ["MEASURED", "CompileChoice", "MeasuredUpdate", "choose_compile", "planned_updates"]
+
+#: compiling four updates per call took 2.24x the seconds of one (49.2 against 22.0 s, DQN (256, 256) / 256:
+#: benchmarks/RESULTS.md, "Compile seconds of a first and a later run")
+MANY_COMPILE_FACTOR = 2.24
+MANY = 4  # updates per call of the compiled-many path
+
+
+@dataclasses.dataclass(frozen=True)
+class MeasuredUpdate:
+    """One measured update: its shape and the milliseconds of each path, and the seconds of a first compile.
+
+    Attributes:
+        algo: the algorithm.
+        hidden_sizes: the networks' hidden widths.
+        batch_size: transitions per update.
+        eager_ms: one eager update.
+        compiled_ms: one compiled update, one per call.
+        compiled_many_ms: one compiled update, four per call.
+        compile_seconds: compiling the one-per-call graph in a first run (no cache).
+    """
+
+    algo: str
+    hidden_sizes: tuple[int, ...]
+    batch_size: int
+    eager_ms: float
+    compiled_ms: float
+    compiled_many_ms: float
+    compile_seconds: float
+
+    @property
+    def work(self) -> float:
+        return update_work(self.hidden_sizes, self.batch_size)
+
+
+#: Intel Xeon, 2 cores, one torch thread, torch 2.13.0 (benchmarks/results/learner_bound_dqn_xeon.json,
+#: learner_bound_sac_split.json, learner_bound_mt10_xeon.json; `benchmarks/learner_speed.py bound`)
+MEASURED: tuple[MeasuredUpdate, ...] = (
+    MeasuredUpdate("dqn", (64, 64), 32, 1.72, 0.39, 0.27, 39.93),
+    MeasuredUpdate("dqn", (256, 256), 256, 5.29, 3.10, 2.74, 23.68),
+    MeasuredUpdate("sac", (256, 256), 256, 22.07, 12.97, 12.11, 37.98),
+    MeasuredUpdate("sac", (400, 400, 400), 1280, 199.20, 176.50, 174.44, 70.56),
+)
+
+
+def update_work(hidden_sizes: tuple[int, ...], batch_size: int) -> float:
+    """batch x weights of an MLP with these hidden widths (inputs and outputs counted as 32 wide): what an update's
+    matrix products scale with, for finding the nearest measured case."""
+    widths = (32, *hidden_sizes, 32)
+    return float(batch_size) * sum(a * b for a, b in zip(widths, widths[1:]))
+
+
+@dataclasses.dataclass(frozen=True)
+class CompileChoice:
+    """What a run compiles, and why (the run's first note).
+
+    Attributes:
+        mode: ``off`` or a ``torch.compile`` mode.
+        updates_per_call: updates per call of the agent.
+        reason: one line saying which path and why.
+    """
+
+    mode: str
+    updates_per_call: int
+    reason: str
+
+
+def planned_updates(config: Any) -> int:
+    """The gradient updates a run's settings plan."""
+    if config.offline:
+        return int(config.total_steps)
+    collected = max(0, config.total_steps - config.learning_starts)
+    return int(config.offline_updates + config.updates_per_step * collected)
+
+
+def nearest_measured(algo: str, hidden_sizes: tuple[int, ...], batch_size: int) -> MeasuredUpdate:
+    """The measured case of ``algo`` (SAC's where it has none) nearest in work."""
+    own = [m for m in MEASURED if m.algo == algo] or [m for m in MEASURED if m.algo == "sac"]
+    work = update_work(hidden_sizes, batch_size)
+    return min(own, key=lambda m: abs(math.log(m.work / work)))
+
+
+def choose_compile(config: Any, compiles: bool, many_allowed: bool, pictures: bool = False) -> CompileChoice:
+    """The path of a run whose ``compile`` and ``updates_per_call`` may be ``auto`` (``updates_per_call`` 0).
+
+    Args:
+        config: the run's settings.
+        compiles: whether the algorithm has a compiled update.
+        many_allowed: whether the run's loop takes several updates per call (off-policy, one process, online).
+        pictures: whether its networks read camera pictures (conv encoders: no case measured, so ``auto`` stays eager).
+    """
+    mode_auto, calls_auto = config.compile == "auto", config.updates_per_call == 0
+    if config.compile == "off" or not (mode_auto or calls_auto):  # set by the user: nothing to choose or say
+        return CompileChoice(config.compile, max(config.updates_per_call, 1), "")
+    if not compiles:
+        return CompileChoice("off", 1, f"compile: eager ({config.algo} has no compiled update)")
+    if pictures and mode_auto:
+        return CompileChoice("off", 1 if calls_auto else config.updates_per_call, "compile: eager (networks reading "
+                             "pictures have no measured compiled update; --compile default tries one)")  # fmt: skip
+    n = planned_updates(config)
+    case = nearest_measured(config.algo, tuple(config.algo_settings.hidden_sizes), config.batch_size)
+    eager = n * case.eager_ms / 1e3
+    one = case.compile_seconds + n * case.compiled_ms / 1e3
+    many = MANY_COMPILE_FACTOR * case.compile_seconds + n * case.compiled_many_ms / 1e3
+    seconds = {("off", 1): eager, ("off", MANY): eager, ("default", 1): one, ("default", MANY): many}
+    if not calls_auto:  # the number of updates per call as set (eager updates cost the same either way)
+        k = config.updates_per_call
+        seconds = {("off", k): eager, ("default", k): many if k > 1 else one}
+    elif not many_allowed:
+        seconds = {p: t for p, t in seconds.items() if p[1] == 1}
+    if not mode_auto:  # the mode as set
+        seconds = {p: t for p, t in seconds.items() if (p[0] == "off") == (config.compile == "off")}
+    mode, k = min(seconds, key=seconds.__getitem__)
+    mode = mode if mode_auto else config.compile
+    path = "eager" if mode == "off" else f"compiled ({mode}), {k} update{'s' if k > 1 else ''} per call"
+    basis = (
+        f"{n:,} planned updates, estimated {eager:.0f} s eager, {one:.0f} s compiled and {many:.0f} s compiled four per "
+        f"call, from the measured {case.algo.upper()} {case.hidden_sizes} / {case.batch_size}"
+    )
+    return CompileChoice(mode, k, f"compile: {path} ({basis})")
