@@ -111,6 +111,35 @@ def outcome_labelled(source: Path, out: Path) -> dict:
     return {"episodes": count, "steps": int(lengths.sum()), "success": float(outcome.float().mean())}
 
 
+def _last_row(run_dir: Path) -> dict:
+    """The last row of a run's ``metrics.csv`` (numbers as floats)."""
+    import csv
+
+    with open(run_dir / "metrics.csv") as f:
+        rows = list(csv.DictReader(f))
+    return {k: float(v) for k, v in rows[-1].items() if v not in ("", None)} if rows else {}
+
+
+def protocol(random_run: Path, runs: list[Path], supervised: list[Path], episodes: int) -> dict:
+    """Each run evaluated greedily on training and test objects (``taskrl eval RUN`` and ``--held-out``), beside the
+    random policy's success while collecting (training objects)."""
+    from taskrl.loading import evaluate_run
+
+    rows = []
+    for kind, group in (("QT-Opt", runs), ("supervised on outcomes (gamma 0)", supervised)):
+        for run_dir in group:
+            config = json.loads((run_dir / "config.json").read_text())
+            row = {"run": str(run_dir), "kind": kind, "seed": config["seed"], "updates": config["total_steps"]}
+            row["train_wall_seconds"] = _last_row(run_dir).get("wall_seconds")
+            for split, held_out in (("train", False), ("test", True)):
+                start = time.perf_counter()
+                row[split] = evaluate_run(run_dir, episodes=episodes, held_out=held_out)["success_rate"]
+                row[f"{split}_eval_seconds"] = time.perf_counter() - start
+            rows.append(row)
+            print(row, flush=True)
+    return {"collected": _last_row(random_run), "rows": rows, "episodes": episodes}
+
+
 def _interval(p: float, n: int) -> str:
     half = 1.96 * (p * (1 - p) / max(n, 1)) ** 0.5
     return f"{p:.2f} ± {half:.2f}"
@@ -127,6 +156,14 @@ def main() -> None:
     rand.add_argument("--copies", type=int, default=2)
     for p in (settle, rand):
         p.add_argument("--write", action="store_true")
+    proto = sub.add_parser("protocol", help="QT-Opt's runs and the controls on training and test objects")
+    proto.add_argument("--random", type=Path, required=True, help="the collection run (kukagrasp-random)")
+    proto.add_argument("--runs", type=Path, nargs="+", required=True, help="QT-Opt runs trained on its data")
+    proto.add_argument("--supervised", type=Path, nargs="*", default=[], help="the supervised control's runs")
+    proto.add_argument("--episodes", type=int, default=50)
+    proto.add_argument("--random-test", type=Path, default=RESULTS / "kuka_grasp_random.json")
+    proto.add_argument("--note", default="", help="a line on how the runs were made (commands, commit, times)")
+    proto.add_argument("--write", action="store_true")
     outcomes = sub.add_parser("outcomes", help="the supervised control's data: a run's grasps labelled by their outcome")
     outcomes.add_argument("source", type=Path)
     outcomes.add_argument("out", type=Path)
@@ -136,6 +173,34 @@ def main() -> None:
 
     if args.what == "outcomes":
         print(outcome_labelled(args.source, args.out))
+    elif args.what == "protocol":
+        found = protocol(args.random, args.runs, args.supervised, args.episodes)
+        random_rows = {r["objects"]: r for r in json.loads(args.random_test.read_text())} if args.random_test.exists() else {}
+        grasps = int(found["collected"].get("replay_episodes", 0))
+        lines = [
+            "| policy | seed | updates | training objects | test objects |",
+            "|---|---|---|---|---|",
+            f"| random (the data: its own grasps while collecting) | 0 | 0 | "
+            f"{_interval(found['collected'].get('train_success', float('nan')), grasps)} ({grasps:,} grasps) | "
+            + (
+                f"{_interval(random_rows['test']['success'], random_rows['test']['episodes'])} ({random_rows['test']['episodes']} grasps) |"
+                if "test" in random_rows
+                else "not measured |"
+            ),
+        ]
+        for r in found["rows"]:
+            lines.append(
+                f"| {r['kind']} | {r['seed']} | {r['updates']:,} | {_interval(r['train'], args.episodes)} | {_interval(r['test'], args.episodes)} |"
+            )
+        text = "\n".join(lines)
+        print(text)
+        if args.write:
+            (RESULTS / "kuka_grasp_protocol.json").write_text(json.dumps(found, indent=1) + "\n")
+            append_results(
+                "KukaGrasp: QT-Opt offline on random grasps, on training and test objects",
+                f"Greedy evaluation (CEM), {args.episodes} episodes per row and split, objects redrawn every episode; "
+                f"95% normal intervals. {args.note} Raw data: `benchmarks/results/kuka_grasp_protocol.json`.\n\n" + text,
+            )
     elif args.what == "settle":
         row = settle_check(args.drops, args.episodes)
         print(json.dumps(row, indent=1))
