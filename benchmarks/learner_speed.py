@@ -200,11 +200,21 @@ def _with_compile(ours, compile_mode: str, per_call: int, *args):
     return ours(*args, compile_mode, per_call)
 
 
+#: SB3's updates per second on its own env, one update per env step (benchmarks/sb3_env_probe.py, Intel Xeon, RESULTS
+#: "Learner speed at equal work against Stable-Baselines3"): what ``--slice-seconds`` sizes the equal work by
+SB3_UPDATES_PER_S = {"dqn32": 462, "dqn256": 176}
+
+
 def equal(args) -> tuple[str, dict]:
     cases = {"dqn32": lambda: dqn_case(32, (64, 64)), "dqn256": lambda: dqn_case(256, (256, 256)), "sac": sac_case}
     budgets = {"dqn32": (100_000, 20_000), "dqn256": (100_000, 20_000), "sac": (20_000, 6_000)}
     if args.throughput_steps:
         budgets = {key: (to_target, args.throughput_steps) for key, (to_target, _) in budgets.items()}
+    if args.slice_seconds:  # equal work sized to last about that long for SB3 (its updates/s measured on this machine class)
+        budgets = {
+            key: (to_target, int(args.slice_seconds * SB3_UPDATES_PER_S[key]) if key in SB3_UPDATES_PER_S else steps)
+            for key, (to_target, steps) in budgets.items()
+        }
     out, lines = {}, []
     reused = _earlier_runs(args.reuse_log, args.seeds)
     for key in args.cases:
@@ -257,6 +267,15 @@ def equal(args) -> tuple[str, dict]:
                 f"| {lib} | {reached} | "
                 f"{_median(p, 'env_steps_per_s'):,.0f} | {_median(p, 'updates_per_s'):,.0f} | {after:,.0f} | "
                 f"{_median(p, 'updates_per_s') / sb3_rate:.2f}x ({after / sb3_rate:.2f}x after compiling) |"
+            )
+        if "taskrl, no flag" in runs and runs["taskrl, no flag"]["throughput"]:
+            chosen = sorted({r.get("path", "?") for r in runs["taskrl, no flag"]["throughput"]})
+            seconds = {lib: _median(r["throughput"], "seconds") for lib, r in runs.items() if r["throughput"]}
+            lines.append(
+                f"\nWith no flag the run chose: {'; '.join(chosen)}. Seconds for the same work (compile included): "
+                + ", ".join(f"{lib} {s:.1f}" for lib, s in seconds.items())
+                + f"; SB3 / no flag: {seconds['sb3'] / seconds['taskrl, no flag']:.2f}x"
+                + (f", eager / no flag: {seconds['taskrl'] / seconds['taskrl, no flag']:.2f}x" if "taskrl" in seconds else "")
             )
         if runs["sb3"]["target"]:
             sb3_seconds = _median(runs["sb3"]["target"], "seconds")
@@ -752,6 +771,10 @@ def main() -> None:
         help="equal: only these arms beside sb3 (taskrl, 'taskrl compiled', 'taskrl, no flag', ...)",
     )
     parser.add_argument("--throughput-only", action="store_true", help="equal: skip the time-to-90%% runs")
+    parser.add_argument(
+        "--slice-seconds", type=float, default=0, help="equal: throughput runs of the env steps SB3 makes in about this long"
+    )
+    parser.add_argument("--title", default="", help="the RESULTS section's title (default: the mode's)")
     parser.add_argument("--throughput-steps", type=int, default=0, help="equal: env steps of each throughput run (0: the case's)")
     parser.add_argument("--reuse-log", type=Path, default=None, help="equal: an earlier run's output, whose results to keep")
     parser.add_argument(
@@ -781,7 +804,7 @@ def main() -> None:
             "kernels": "Where the time of a compiled DQN update goes: kernels against the bound",
         }
         append_results(
-            titles[args.mode],
+            args.title or titles[args.mode],
             f"torch threads = {args.threads}; raw data: `{path.relative_to(RESULTS_DIR.parent.parent) if path.is_absolute() else path}`.\n\n{table}",
         )
 
