@@ -275,3 +275,35 @@ def test_what_a_sharing_strategy_needs_is_refused_from_the_declarations_before_a
             validate(config)
     else:
         validate(config)
+
+
+def test_two_settings_that_switch_on_two_run_modes_are_one_line_naming_both():
+    """A user's collect-only mode switched on by its own setting, beside --offline: refused, never one of the
+    two picked by registration order."""
+    import dataclasses
+
+    from taskrl.config import with_overrides
+    from taskrl.presets import preset_config
+    from taskrl.runmodes.registry import register_run_mode
+    from taskrl.runmodes.spec import RunMode
+
+    collect = RunMode(
+        name="collect_only",
+        summary="a test's mode: collects, never updates",
+        applies=lambda config: config.scripted_exploration == 1.0,
+        make_loop=lambda parts, books: None,
+        loops=("off_policy",),
+        selected_by="scripted_exploration",
+    )
+    register_run_mode(collect)
+    try:
+        config = with_overrides(preset_config("grasp-qtopt-pixels"), {"scripted_exploration": 1.0})
+        assert run_mode(config) is collect  # alone it is chosen
+        both = dataclasses.replace(config, offline=True)
+        with pytest.raises(
+            ConfigError,
+            match=r"^scripted_exploration: --scripted-exploration selects the collect_only run mode and --offline the stored_data one",
+        ):
+            run_mode(both)
+    finally:
+        RUN_MODES.pop("collect_only")

@@ -127,6 +127,7 @@ DISTRIBUTED = RunMode(
     name="distributed",
     summary="--distributed: collectors and Bellman updaters as Ray actors around the trainer",
     applies=lambda config: config.cluster.distributed,
+    selected_by="distributed",
     make_loop=distributed_loop,
     loops=("off_policy",),
     trainer_env="one",

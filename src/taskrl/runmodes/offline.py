@@ -65,6 +65,7 @@ STORED_DATA = RunMode(
     name="stored_data",
     summary="--offline: an off-policy algorithm on stored data only (datasets, another run's replay)",
     applies=lambda config: config.offline,
+    selected_by="offline",
     make_loop=stored_data_loop,
     loops=("off_policy",),
     axis="updates",

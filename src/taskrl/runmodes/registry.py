@@ -2,7 +2,8 @@
 
 Each mode is declared in its own file; adding one is that file plus one line in `BUILT_IN`, or
 `register_run_mode` from a user's code. A config runs in the most recently registered mode that
-applies to it, so a more specific mode is registered after a more general one.
+applies to it, so a more specific mode is registered after a more general one; two modes switched on by
+settings (``selected_by``) that both apply are refused in one line naming both settings.
 """
 
 from __future__ import annotations
@@ -34,16 +35,26 @@ def register_run_mode(mode: RunMode, replace: bool = False) -> RunMode:
 
 
 def run_mode(config: TrainConfig) -> RunMode:
-    """The mode ``config`` runs in; a `ConfigError` on ``algo`` when that mode does not run its algorithm."""
+    """The mode ``config`` runs in; a `ConfigError` on ``algo`` when that mode does not run its algorithm, and on the
+    first setting when two settings switch on two modes."""
     loop = algorithm(config.algo).loop
-    for mode in reversed(list(RUN_MODES.values())):
-        if mode.applies(config):
-            if loop not in mode.loops:
-                raise ConfigError(
-                    "algo",
-                    f"{config.algo} learns {loop.replace('_', '-')}; the {mode.name} run mode runs {', '.join(mode.loops)} algorithms",
-                )
-            return mode
+    applying = [mode for mode in reversed(list(RUN_MODES.values())) if mode.applies(config)]
+    switched = [mode for mode in applying if mode.selected_by]
+    if len(switched) > 1:  # two switches asking for two modes: never one of them silently
+        first, second = switched[:2]
+        raise ConfigError(
+            first.selected_by,
+            f"--{first.selected_by.replace('_', '-')} selects the {first.name} run mode and "
+            f"--{second.selected_by.replace('_', '-')} the {second.name} one; a run has one mode: drop one of them",
+        )
+    if applying:
+        mode = applying[0]
+        if loop not in mode.loops:
+            raise ConfigError(
+                "algo",
+                f"{config.algo} learns {loop.replace('_', '-')}; the {mode.name} run mode runs {', '.join(mode.loops)} algorithms",
+            )
+        return mode
     raise ConfigError("algo", f"no run mode runs {config.algo} ({loop}); registered: {', '.join(RUN_MODES)}")
 
 

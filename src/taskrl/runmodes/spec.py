@@ -44,6 +44,8 @@ class RunMode:
             a dataset to read); it may add to ``parts.on_close``.
         evaluate_first: whether a new run evaluates before its first step (offline, the untrained policy
             says nothing the dataset does not, and a multi-task evaluation costs minutes).
+        selected_by: the run-level setting that switches this mode on (``distributed``, ``offline``); empty for a
+            mode chosen by the algorithm alone. Two switched modes that both apply are one error naming both.
     """
 
     name: str
@@ -56,3 +58,4 @@ class RunMode:
     own_steps: Callable[[TrainConfig, BatchedEnv], int] = steps_and_last_of_each_copy
     prepare: Callable[[RunParts], None] | None = None
     evaluate_first: bool = True
+    selected_by: str = ""
