@@ -54,12 +54,13 @@ class MeasuredUpdate:
         return update_work(self.hidden_sizes, self.batch_size)
 
 
-#: Intel Xeon, 2 cores, one torch thread, torch 2.13.0 (benchmarks/results/learner_bound_dqn_xeon.json,
-#: learner_bound_sac_split.json, learner_bound_mt10_xeon.json; `benchmarks/learner_speed.py bound`)
+#: Intel Xeon, 2 cores, one torch thread, torch 2.13.0, a fresh compile cache: the first three rows measured
+#: 2026-12-05 (`benchmarks/learner_speed.py bound --only "DQN (64, 64) / 32" "DQN (256, 256) / 256, as" "SAC (256, 256)"`,
+#: benchmarks/results/learner_bound_auto_table.json), MT10's 2026-12-03 (learner_bound_mt10_xeon.json)
 MEASURED: tuple[MeasuredUpdate, ...] = (
-    MeasuredUpdate("dqn", (64, 64), 32, 1.72, 0.39, 0.27, 39.93),
-    MeasuredUpdate("dqn", (256, 256), 256, 5.29, 3.10, 2.74, 23.68),
-    MeasuredUpdate("sac", (256, 256), 256, 22.07, 12.97, 12.11, 37.98),
+    MeasuredUpdate("dqn", (64, 64), 32, 0.74, 0.18, 0.13, 20.8),
+    MeasuredUpdate("dqn", (256, 256), 256, 2.64, 1.63, 1.51, 10.1),
+    MeasuredUpdate("sac", (256, 256), 256, 8.61, 5.85, 5.80, 30.2),
     MeasuredUpdate("sac", (400, 400, 400), 1280, 199.20, 176.50, 174.44, 70.56),
 )
 
