@@ -129,8 +129,9 @@ def protocol(random_run: Path, runs: list[Path], supervised: list[Path], episode
     for kind, group in (("QT-Opt", runs), ("supervised on outcomes (gamma 0)", supervised)):
         for run_dir in group:
             config = json.loads((run_dir / "config.json").read_text())
-            row = {"run": str(run_dir), "kind": kind, "seed": config["seed"], "updates": config["total_steps"]}
-            row["train_wall_seconds"] = _last_row(run_dir).get("wall_seconds")
+            last = _last_row(run_dir)  # what the run did (a time limit may stop it before total_steps)
+            row = {"run": str(run_dir), "kind": kind, "seed": config["seed"], "updates": int(last.get("updates", 0))}
+            row["train_wall_seconds"] = last.get("wall_seconds")
             for split, held_out in (("train", False), ("test", True)):
                 start = time.perf_counter()
                 row[split] = evaluate_run(run_dir, episodes=episodes, held_out=held_out)["success_rate"]
