@@ -130,8 +130,8 @@ def choose_compile(config: Any, compiles: bool, many_allowed: bool, pictures: bo
         seconds = {("off", k): eager, ("default", k): many if k > 1 else one}
     elif not many_allowed:
         seconds = {p: t for p, t in seconds.items() if p[1] == 1}
-    if not mode_auto:  # the mode as set
-        seconds = {p: t for p, t in seconds.items() if (p[0] == "off") == (config.compile == "off")}
+    if not mode_auto:  # a compile mode as set (``off`` returned above): only its compiled paths
+        seconds = {p: t for p, t in seconds.items() if p[0] != "off"}
     mode, k = min(seconds, key=seconds.__getitem__)
     mode = mode if mode_auto else config.compile
     path = "eager" if mode == "off" else f"compiled ({mode}), {k} update{'s' if k > 1 else ''} per call"

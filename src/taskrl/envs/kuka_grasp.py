@@ -219,6 +219,7 @@ class KukaGraspEnv(gym.Env):
         )
         self._projection = sim.computeProjectionMatrixFOV(CAMERA["fov"], 1.0, 0.1, 10.0)
         self._arm_joints = list(range(GRIPPER_LINK + 1))
+        self._down = sim.getQuaternionFromEuler([0, -math.pi, 0])  # the gripper's orientation, pointing down
 
     def _draw_objects(self) -> None:
         for uid in self._objects:
@@ -287,9 +288,8 @@ class KukaGraspEnv(gym.Env):
         if height < GRASP_HEIGHT:  # the authors' arm creeps up when below the grasp height
             self._target[2] += 0.0001
         self._yaw += dyaw
-        down = sim.getQuaternionFromEuler([0, -math.pi, 0])
         joints = sim.calculateInverseKinematics(
-            self._arm, GRIPPER_LINK, self._target, down, jointDamping=[0.1] * 12, maxNumIterations=1
+            self._arm, GRIPPER_LINK, self._target, self._down, jointDamping=[0.1] * 12, maxNumIterations=1
         )
         n = len(self._arm_joints)
         sim.setJointMotorControlArray(
@@ -355,7 +355,7 @@ class KukaGraspEnv(gym.Env):
         width, height, rgba, _, _ = self._sim.getCameraImage(2 * size, 2 * size, self._view, self._projection)
         rgb = np.asarray(rgba, dtype=np.uint8).reshape(height, width, 4)[..., :3]
         self._picture = rgb
-        from PIL import Image
+        from PIL import Image  # here, not at import: `import taskrl` stays light
 
         image = np.asarray(Image.fromarray(rgb).resize((size, size), Image.LANCZOS))
         x, y, z = self.gripper_position()
