@@ -11,7 +11,7 @@ import torch
 
 from taskrl.agents.registry import ALGORITHMS
 from taskrl.config import TrainConfig, with_overrides
-from taskrl.envs.metaworld_tasks import metaworld_spec
+from taskrl.envs.meta_world import metaworld_spec
 from taskrl.envs.registry import env_family
 from taskrl.envs.spec import EnvRequest
 from taskrl.presets import preset_config

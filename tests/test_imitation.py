@@ -158,7 +158,7 @@ def test_a_hidden_goal_run_trains_and_is_prompted_on_demonstrations_with_the_goa
     """A demo-prompted run with the goal hidden sees prompt demonstrations with the goal hidden too. Mutation:
     deleting the line of ``prompting.py`` that shows prompt demonstrations as the run sees them fails."""
     from taskrl.agents.bc import BCAgent
-    from taskrl.envs.metaworld_tasks import MetaWorldSettings
+    from taskrl.envs.meta_world import MetaWorldSettings
     from taskrl.prompting import evaluate_prompted
 
     collect_demos("mt10", 1, tmp_path / "mw", seed=1, after_success=0)
@@ -340,7 +340,7 @@ def test_zero_shot_controls_fail_where_the_prompt_carries_the_task(point_demos, 
 
 
 def test_a_sentence_names_the_meta_world_task_it_describes():
-    from taskrl.envs.metaworld_tasks import METAWORLD_DESCRIPTIONS, METAWORLD_PARAPHRASES
+    from taskrl.envs.meta_world import METAWORLD_DESCRIPTIONS, METAWORLD_PARAPHRASES
     from taskrl.prompting import nearest_task
 
     known = {n: [d, *METAWORLD_PARAPHRASES.get(n, ())] for n, d in METAWORLD_DESCRIPTIONS.items()}
@@ -385,7 +385,7 @@ def test_cli_demos_and_bad_input_are_one_line(point_demos, tmp_path):
 @pytest.mark.timeout(300)
 def test_ending_evaluation_episodes_at_success_keeps_every_outcome():
     """Meta-World counts success at any step: stopping at it changes how long evaluation takes, not what it finds."""
-    from taskrl.envs.metaworld_tasks import MetaWorldSettings, metaworld_expert
+    from taskrl.envs.meta_world import MetaWorldSettings, metaworld_expert
     from taskrl.envs.registry import env_family
     from taskrl.envs.spec import EnvRequest
     from taskrl.training.per_task import evaluate_per_task

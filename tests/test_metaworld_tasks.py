@@ -6,7 +6,7 @@ import torch
 from rich.console import Console
 
 from taskrl.console import per_task_table
-from taskrl.envs.metaworld_tasks import (
+from taskrl.envs.meta_world import (
     METAWORLD_DESCRIPTIONS,
     MT10_TASKS,
     MT50_TASKS,
@@ -70,7 +70,7 @@ def test_table_of_a_result():
 
 # ------------------------------------------------------------------ with Meta-World
 metaworld = pytest.importorskip("metaworld")
-from taskrl.envs.metaworld_tasks import MetaWorldMultiTaskEnv  # noqa: E402
+from taskrl.envs.meta_world import MetaWorldMultiTaskEnv  # noqa: E402
 
 
 def test_names_and_order_match_the_installed_metaworld():
@@ -127,7 +127,7 @@ def test_success_comes_from_metaworld_info_success():
 
 
 def test_a_hidden_goal_is_zeroed_as_metaworlds_ml_benchmarks_zero_it_and_the_expert_is_still_told_it():
-    from taskrl.envs.metaworld_tasks import hide_goal, metaworld_expert
+    from taskrl.envs.meta_world import hide_goal, metaworld_expert
 
     kwargs = dict(use_one_hot=True, max_episode_steps=150, seed=0, num_goals=5, terminate_on_success=True)
     with (

@@ -16,7 +16,7 @@ from taskrl.envs import (
     grid_tasks,
     gymnasium_family,
     kuka_grasp,
-    metaworld_tasks,
+    meta_world,
     multitask_point,
     pixel_push,
     pixel_reach,
@@ -43,7 +43,7 @@ BUILT_IN: tuple[EnvFamily, ...] = (
     point_tasks.FAMILY,
     grasp.FAMILY,
     kuka_grasp.FAMILY,
-    *metaworld_tasks.FAMILIES,
+    *meta_world.FAMILIES,
     gymnasium_family.FAMILY,
     task_sets.FAMILY,
 )

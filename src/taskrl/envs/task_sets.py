@@ -6,7 +6,7 @@ task, describes it in one sentence (what language conditioning embeds) and says 
 - every task a gymnasium env (an id with ``env_kwargs``, or a factory): `TaskSetEnv` runs
   ``envs_per_task`` copies of each, and adds the task index to the observation under ``task``;
 - no task with an env: the names are Meta-World tasks, run as
-  [`MetaWorldMultiTaskEnv`][taskrl.envs.metaworld_tasks.MetaWorldMultiTaskEnv] with the user's descriptions.
+  [`MetaWorldMultiTaskEnv`][taskrl.envs.meta_world.MetaWorldMultiTaskEnv] with the user's descriptions.
 
 The task envs must share observation and action spaces (one network serves all of them).
 """
@@ -164,7 +164,7 @@ def _make(settings: TaskSetSettings, request: EnvRequest) -> GymnasiumVectorEnv:
     steps = settings.max_episode_steps or None
     per_task = 1 if request.evaluation else max(1, request.num_envs // len(task_set))
     if _is_metaworld(task_set):
-        from taskrl.envs.metaworld_tasks import METAWORLD_HORIZON, MetaWorldMultiTaskEnv
+        from taskrl.envs.meta_world import METAWORLD_HORIZON, MetaWorldMultiTaskEnv
 
         try:
             env = MetaWorldMultiTaskEnv(

@@ -45,7 +45,7 @@ def evaluate_per_task(
     """Per-task success following Meta-World's protocol; the headline is the mean over tasks.
 
     For each task, ``episodes_per_task`` episodes are run (over distinct goal positions where
-    the env can pin them, as [`MetaWorldMultiTaskEnv`][taskrl.envs.metaworld_tasks.MetaWorldMultiTaskEnv] does: episode ``j`` of a task uses
+    the env can pin them, as [`MetaWorldMultiTaskEnv`][taskrl.envs.meta_world.MetaWorldMultiTaskEnv] does: episode ``j`` of a task uses
     goal ``j``, so ``episodes_per_task <= 50`` visits 50 distinct goals); an episode succeeds if
     ``info["is_success"]`` is true at ANY of its steps. Works on any batched env whose
     observations carry ``task``: with fixed tasks per slot (``slot_tasks``), each slot runs its
