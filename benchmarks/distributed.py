@@ -270,7 +270,7 @@ def costs(args: argparse.Namespace, folder: Path) -> str:
     the env steps/s that C collector cores and U updater cores would give a trainer on one core."""
     import torch
 
-    from taskrl.config import with_overrides
+    from taskrl.overrides import with_overrides
     from taskrl.presets import preset_config
     from taskrl.run import build
 

@@ -101,7 +101,7 @@ def updates_per_second(batch_size: int, hidden: tuple[int, ...], n_bits: int = 1
     sb3 = n_updates / (time.perf_counter() - start)
 
     # taskrl: the loop's sample -> relabel -> update path, same batch and hidden sizes.
-    from taskrl.config import with_overrides
+    from taskrl.overrides import with_overrides
     from taskrl.presets import preset_config
     from taskrl.replay import EpisodeReplay
     from taskrl.wiring.parts import make_agent, make_env, make_relabeler

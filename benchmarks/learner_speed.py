@@ -336,7 +336,7 @@ def schedule_period(agent) -> int:
 def bitflip_replay(settings: dict, steps: int = 4_000):
     """``(config, env, replay)``: the bit-flipping preset with ``settings``, 16 envs, and a replay of ``steps``
     random-action env steps."""
-    from taskrl.config import with_overrides
+    from taskrl.overrides import with_overrides
     from taskrl.presets import preset_config
     from taskrl.replay import EpisodeReplay
     from taskrl.run import make_env
@@ -377,7 +377,7 @@ def sac_agent_and_batch(batch_size: int, hidden: tuple[int, ...], in_dim: int, a
     conditioning = None
     if tasks:
         from taskrl.conditioning.networks import make_conditioning
-        from taskrl.config import with_overrides
+        from taskrl.overrides import with_overrides
         from taskrl.presets import preset_config
 
         cfg = with_overrides(preset_config(preset), {})

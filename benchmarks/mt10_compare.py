@@ -85,7 +85,7 @@ def profile(seconds: float = 20.0) -> str:
     """Simulation vs learning per env step, at the mt10-sac-onehot preset's own scale."""
     import torch
 
-    from taskrl.config import validate
+    from taskrl.plan import validate
     from taskrl.presets import preset_config
     from taskrl.replay.batch import Batch
     from taskrl.run import make_agent, make_env

@@ -10,12 +10,12 @@ from pathlib import Path
 
 import torch
 
-from taskrl.config import with_overrides
 from taskrl.distributed.actors import RayPool, start_ray
 from taskrl.distributed.limiter import UpdateToDataLimiter
 from taskrl.distributed.loop import IDLE_WAIT, DistributedLoop
 from taskrl.distributed.pools import LocalPool
 from taskrl.distributed.roles import BellmanUpdater, Labelled, pull_weights
+from taskrl.overrides import with_overrides
 from taskrl.presets import preset_config
 from taskrl.run import build
 from taskrl.runmodes.distributed import role_agent

@@ -10,10 +10,11 @@ import pytest
 import torch
 
 from taskrl.agents.registry import ALGORITHMS
-from taskrl.config import TrainConfig, with_overrides
+from taskrl.config import TrainConfig
 from taskrl.envs.meta_world import metaworld_spec
 from taskrl.envs.registry import env_family
 from taskrl.envs.spec import EnvRequest
+from taskrl.overrides import with_overrides
 from taskrl.presets import preset_config
 from taskrl.run import make_agent
 

@@ -298,7 +298,7 @@ def test_k_batches_drawn_together_are_k_task_balanced_batches():
 
 
 def _settled(preset: str, **settings):
-    from taskrl.config import with_overrides
+    from taskrl.overrides import with_overrides
     from taskrl.presets import preset_config
     from taskrl.wiring.calls import settle_compile
 

@@ -6,19 +6,13 @@ import pytest
 
 from taskrl.agents.registry import ALGORITHMS
 from taskrl.conditioning.networks import ConditioningConfig
-from taskrl.config import (
-    TrainConfig,
-    field_help,
-    from_dict,
-    leaf_fields,
-    load,
-    to_dict,
-    validate,
-    with_overrides,
-)
+from taskrl.config import TrainConfig, from_dict, load, to_dict
 from taskrl.envs.registry import ENV_FAMILIES
 from taskrl.errors import ConfigError
+from taskrl.overrides import with_overrides
+from taskrl.plan import validate
 from taskrl.presets import PRESETS, preset_config
+from taskrl.setting_names import field_help, leaf_fields
 
 
 def test_round_trip_keeps_both_sections_under_their_names():

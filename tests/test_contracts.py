@@ -15,12 +15,15 @@ import pytest
 import torch
 
 import taskrl
+from taskrl.agents.fit import check_fit
 from taskrl.agents.registry import ALGORITHMS
-from taskrl.config import TrainConfig, check_fit, leaf_fields, with_overrides
+from taskrl.config import TrainConfig
 from taskrl.envs.registry import ENV_FAMILIES
 from taskrl.errors import ConfigError
+from taskrl.overrides import with_overrides
 from taskrl.runmodes import distributed as distributed_mode
 from taskrl.runmodes.registry import RUN_MODES, run_mode
+from taskrl.setting_names import leaf_fields
 from taskrl.sharing.registry import SHARING_STRATEGIES
 from taskrl.tasks import TaskSet, TaskSpec
 
@@ -189,7 +192,7 @@ def test_every_setting_of_every_section_pair_has_its_own_flag_and_reaches_its_ow
     """Every family's section beside every algorithm's and the run's: each setting's dotted flag sets that
     setting and nothing else, whatever the other sections are called."""
     from taskrl.cli import _add_config_flags, _Parser
-    from taskrl.config import dotted_name, setting_names
+    from taskrl.setting_names import dotted_name, setting_names
 
     unreached = {}
     for env, algo in itertools.product(ENV_FAMILIES, ALGORITHMS):
@@ -253,7 +256,7 @@ def test_every_fitting_algorithm_builds_and_acts_on_the_mujoco_families(family, 
 
 @pytest.mark.parametrize("strategy", [name for name, spec in SHARING_STRATEGIES.items() if spec.shares])
 def test_what_a_sharing_strategy_needs_is_refused_from_the_declarations_before_anything_is_built(strategy, monkeypatch):
-    from taskrl.config import validate
+    from taskrl.plan import validate
 
     refused = 0
     for family in ENV_FAMILIES.values():
@@ -282,7 +285,7 @@ def test_two_settings_that_switch_on_two_run_modes_are_one_line_naming_both():
     two picked by registration order."""
     import dataclasses
 
-    from taskrl.config import with_overrides
+    from taskrl.overrides import with_overrides
     from taskrl.presets import preset_config
     from taskrl.runmodes.registry import register_run_mode
     from taskrl.runmodes.spec import RunMode

@@ -18,12 +18,13 @@ import torch
 
 import taskrl
 from helpers import small_run
-from taskrl.config import ConfigError, with_overrides
+from taskrl.config import ConfigError
 from taskrl.distributed.limiter import UpdateToDataLimiter
 from taskrl.distributed.loop import DistributedLoop, RoleLives, RolesLost
 from taskrl.distributed.pools import LatePool, LocalPool, RoleCannotStart, RoleDied, RoleRestarting
 from taskrl.distributed.roles import BellmanUpdater, Collector
 from taskrl.logger import read_metrics
+from taskrl.overrides import with_overrides
 from taskrl.presets import preset_config
 from taskrl.replay import EpisodeRecorder, EpisodeReplay, RecentMixSampler
 from taskrl.run import build

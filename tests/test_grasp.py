@@ -169,7 +169,8 @@ def test_scripted_exploration_acts_its_share_of_episodes_until_its_last_step(tmp
 
 
 def test_scripted_exploration_is_refused_where_the_env_has_no_scripted_policy(tmp_path):
-    from taskrl.config import validate, with_overrides
+    from taskrl.overrides import with_overrides
+    from taskrl.plan import validate
     from taskrl.presets import preset_config
 
     with pytest.raises(ConfigError, match="scripted_exploration.*no scripted policy.*grasp"):

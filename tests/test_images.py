@@ -320,7 +320,7 @@ def test_pixelreach_passes_gymnasiums_env_checker_and_records_what_the_policy_se
 
 
 def test_hindsight_gives_the_goal_picture_of_the_state_whose_position_became_the_goal(tmp_path):
-    from taskrl.config import with_overrides
+    from taskrl.overrides import with_overrides
     from taskrl.presets import preset_config
     from taskrl.run import build
     from taskrl.training.offpolicy import batch_sampler

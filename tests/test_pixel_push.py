@@ -105,7 +105,7 @@ def _shows_the_pusher(pictures: torch.Tensor) -> torch.Tensor:
 def test_hindsight_gives_the_picture_of_the_state_where_the_block_was():
     """Relabelled goal pictures show the block where it was, alone, as the env's own goal pictures do (one
     distribution). Mutation: relabelling with the reached moment's picture (the pusher beside the block) fails."""
-    from taskrl.config import with_overrides
+    from taskrl.overrides import with_overrides
     from taskrl.presets import preset_config
     from taskrl.run import build
     from taskrl.training.offpolicy import batch_sampler

@@ -12,10 +12,12 @@ import taskrl
 from helpers import small_run
 from taskrl.agents.dqn import DQNAgent, DQNConfig
 from taskrl.agents.sac import SACAgent, SACConfig
-from taskrl.config import TrainConfig, validate, with_overrides
+from taskrl.config import TrainConfig
 from taskrl.envs.grid_tasks import GRID_TASKS, GridTasks
 from taskrl.envs.point_tasks import POINT_TASKS, PointTasks
 from taskrl.errors import ConfigError
+from taskrl.overrides import with_overrides
+from taskrl.plan import validate
 from taskrl.replay import EpisodeReplay, Episodes, HindsightRelabeler
 from taskrl.replay.batch import Batch
 from taskrl.sharing import SHARING_STRATEGIES, SharingConfig, TaskSharing, collect_task_datasets

@@ -83,11 +83,12 @@ def terminal_text(markup: str) -> str:
 def _add_config_flags(parser: argparse.ArgumentParser, env: str, algo: str, base: Any = None) -> dict[str, list[str]]:
     """One flag per setting, in sections (``--algo.lr``, ``--env.n-bits``, ``--algo.cem.samples``,
     ``--data-sharing.share-fraction``), each also under its short name (``--lr``) where no other setting
-    has it; the ``dest`` is the dotted name [`taskrl.config.with_overrides`][taskrl.config.with_overrides] reads. Returns the
+    has it; the ``dest`` is the dotted name [`taskrl.overrides.with_overrides`][taskrl.overrides.with_overrides] reads. Returns the
     ambiguous short names (``{short flag: [its dotted flags]}``) for the error that names them."""
     from taskrl.agents.registry import ALGORITHMS
-    from taskrl.config import dotted_name, leaf_fields, setting_help, setting_names, to_dict
+    from taskrl.config import to_dict
     from taskrl.envs.registry import ENV_FAMILIES
+    from taskrl.setting_names import dotted_name, leaf_fields, setting_help, setting_names
     from taskrl.sharing.registry import SHARING_STRATEGIES
 
     docs = setting_help(env, algo)
@@ -305,7 +306,8 @@ def cmd_train(argv: Sequence[str]) -> int:
     from taskrl.wiring.calls import resolve_config
 
     if print_config:
-        from taskrl.config import to_dict, validate
+        from taskrl.config import to_dict
+        from taskrl.plan import validate
 
         notes: list[str] = []
         resolved = validate(resolve_config(preset, resume, args, notes, base=file_base))

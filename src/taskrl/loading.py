@@ -17,9 +17,10 @@ import torch
 
 from taskrl import config as config_io
 from taskrl.checkpoint import checkpoint_at, checkpoint_step, read_checkpoint
-from taskrl.config import TrainConfig, validate
+from taskrl.config import TrainConfig
 from taskrl.envs.registry import env_family
 from taskrl.errors import ConfigError
+from taskrl.plan import validate
 from taskrl.runmodes.registry import progress_axis
 from taskrl.wiring.calls import import_env_module
 from taskrl.wiring.checkpoints import load_agent_state

@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import dataclasses
 
-from taskrl.config import TrainConfig, with_overrides
+from taskrl.config import TrainConfig
 from taskrl.envs.tabletop import HELD_OUT as TABLETOP_HELD_OUT
 from taskrl.errors import ConfigError
+from taskrl.overrides import with_overrides
 
 # Goal reaching with continuous actions: the hindsight paper's Fetch settings where they apply
 # (gamma 0.98, lr 1e-3, batch 256, relabelling future with k = 4; episodes never end on success,

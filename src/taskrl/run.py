@@ -29,15 +29,17 @@ from typing import Any
 from rich.console import Console
 
 from taskrl import config as config_io
-from taskrl.config import TrainConfig, validate, with_overrides
+from taskrl.assembly import build_parts
+from taskrl.config import TrainConfig
 from taskrl.console import ConsoleReporter, final_table, per_task_table
 from taskrl.envs.registry import env_family
 from taskrl.loading import evaluate_run, load, load_run
 from taskrl.logger import RunLogger, require_wandb
+from taskrl.overrides import with_overrides
+from taskrl.plan import resolve
 from taskrl.plots import plot_learning_curve
 from taskrl.rundir import RunLock, check_new_run_dir
-from taskrl.runmodes.build import build_parts
-from taskrl.runmodes.registry import progress_axis, run_mode
+from taskrl.runmodes.registry import progress_axis
 from taskrl.training.bookkeeping import Bookkeeping, LoopState, StopRequest
 from taskrl.wiring.calls import (
     default_run_dir,
@@ -74,7 +76,7 @@ class Run:
 def build(config: TrainConfig, source: Any = None) -> RunParts:
     """Envs, agent, replay, relabeller and sampler of a validated config, for the run mode it runs in
     (``source``: a Python object the env family builds its envs from, e.g. a factory or a TaskSet)."""
-    return build_parts(config, run_mode(config), source)
+    return build_parts(resolve(config), source)
 
 
 def train(
@@ -135,10 +137,10 @@ def train(
         family = env_family(config.env)
         if source is not None and resume is None and family.persist is not None:  # record the object in the run
             config = with_overrides(config, family.persist(source, run_dir))
-        validate(config)
-        config = settle_compile(config, notes)
-        mode = run_mode(config)
-        parts = build_parts(config, mode, source)
+        plan = resolve(config)
+        plan = dataclasses.replace(plan, config=settle_compile(plan.config, notes))
+        config, mode = plan.config, plan.mode
+        parts = build_parts(plan, source)
         # A new run checkpoints after its first step (a kill before checkpoint_interval still resumes);
         # a resumed run loads its checkpoint before anything of it is rewritten.
         try:

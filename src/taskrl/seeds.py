@@ -14,9 +14,10 @@ from typing import Any
 
 from rich.console import Console
 
-from taskrl.config import TrainConfig, validate
+from taskrl.config import TrainConfig
 from taskrl.console import summary_table
 from taskrl.errors import reason, require
+from taskrl.plan import validate
 from taskrl.plots import compare_runs
 from taskrl.run import Run, train
 from taskrl.rundir import check_new_run_dir

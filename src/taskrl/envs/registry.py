@@ -70,3 +70,10 @@ def family_for_source(obj: Any) -> EnvFamily:
     raise ConfigError(
         "env", f"cannot train on {obj!r}: pass an env family name, a gymnasium id, a factory of a gymnasium.Env, or a TaskSet"
     )
+
+
+def env_label(name: str, settings: Any) -> str:
+    """What to call a run's env in a message: the gymnasium id or task file that selected its family
+    (``my/Slider-v0``, read from ``settings``), else the family's ``name``."""
+    selector = env_family(name).selected_by
+    return (getattr(settings, selector, "") if selector else "") or name

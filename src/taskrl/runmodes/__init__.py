@@ -2,6 +2,6 @@
 
 - [`spec`][taskrl.runmodes.spec]: what a mode declares ([`RunMode`][taskrl.runmodes.spec.RunMode]);
 - [`registry`][taskrl.runmodes.registry]: the modes by name, and the one a config runs in;
-- [`build`][taskrl.runmodes.build]: a config's parts, as its mode needs them;
-- one file per family of modes: ``in_process``, ``offline``, ``distributed``.
+- one file per family of modes: ``in_process``, ``offline``, ``distributed``; each mode's ``check`` says what it asks of a
+  run's settings. A run's parts are built for its mode by [`build_parts`][taskrl.assembly.build_parts].
 """

@@ -13,6 +13,7 @@ from typing import Any
 
 import torch
 
+from taskrl.agents.registry import ALGORITHMS, algorithm
 from taskrl.config import TrainConfig
 from taskrl.distributed.limiter import UpdateToDataLimiter
 from taskrl.distributed.loop import CALLS_PER_COLLECTOR, DistributedLoop
@@ -21,6 +22,7 @@ from taskrl.distributed.roles import BellmanUpdater, Collector
 from taskrl.distributed.settings import DistributedConfig
 from taskrl.envs.base import BatchedEnv
 from taskrl.envs.registry import env_family
+from taskrl.errors import require
 from taskrl.runmodes.spec import RunMode
 from taskrl.training.bookkeeping import Bookkeeping
 from taskrl.training.offpolicy import batch_sampler
@@ -123,6 +125,22 @@ def start_cluster(parts: RunParts) -> None:
         parts.on_close.append(ray.shutdown)
 
 
+def fits_a_cluster(config: TrainConfig) -> None:
+    """What acts in the one-process loop only, and Bellman updaters only for algorithms that split their update."""
+    require(
+        config.scripted_exploration == 0,
+        "scripted_exploration",
+        "acts in the one-process loop only (not with --distributed)",
+    )
+    if config.cluster.bellman_updaters > 0:
+        splitting = [a.name for a in ALGORITHMS.values() if a.bellman_updaters]
+        require(
+            algorithm(config.algo).bellman_updaters,
+            "bellman_updaters",
+            f"{config.algo} computes its targets in the trainer (the Ape-X layout): use 0; updaters serve {', '.join(splitting)}",
+        )
+
+
 DISTRIBUTED = RunMode(
     name="distributed",
     summary="--distributed: collectors and Bellman updaters as Ray actors around the trainer",
@@ -133,4 +151,5 @@ DISTRIBUTED = RunMode(
     trainer_env="one",
     own_steps=steps_in_flight,
     prepare=start_cluster,
+    check=fits_a_cluster,
 )

@@ -6,7 +6,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from taskrl.agents.registry import algorithm
-from taskrl.errors import ConfigError
+from taskrl.config import TrainConfig
+from taskrl.errors import ConfigError, require
 from taskrl.runmodes.spec import RunMode
 from taskrl.training.bookkeeping import Bookkeeping
 from taskrl.training.offline import OfflineLoop
@@ -61,6 +62,17 @@ DATASET = RunMode(
     evaluate_first=False,
 )
 
+
+def needs_stored_data(config: TrainConfig) -> None:
+    """An ``--offline`` run learns from data only: another run's replay or the env's datasets."""
+    datasets = bool(getattr(config.env_settings, "dataset_quality", ""))
+    require(
+        bool(config.offline_data) or datasets,
+        "offline",
+        "learning from stored data only needs data: --offline-data RUN_DIR, or --dataset-quality TASK=QUALITY,...",
+    )
+
+
 STORED_DATA = RunMode(
     name="stored_data",
     summary="--offline: an off-policy algorithm on stored data only (datasets, another run's replay)",
@@ -70,4 +82,5 @@ STORED_DATA = RunMode(
     loops=("off_policy",),
     axis="updates",
     own_steps=lambda config, env: 0,
+    check=needs_stored_data,
 )

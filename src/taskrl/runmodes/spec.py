@@ -46,6 +46,8 @@ class RunMode:
             says nothing the dataset does not, and a multi-task evaluation costs minutes).
         selected_by: the run-level setting that switches this mode on (``distributed``, ``offline``); empty for a
             mode chosen by the algorithm alone. Two switched modes that both apply are one error naming both.
+        check: ``config -> None``: what the mode asks of the run's settings, a `ConfigError` naming the setting
+            otherwise (data to learn from, settings that act in one process only); None: nothing to ask.
     """
 
     name: str
@@ -59,3 +61,4 @@ class RunMode:
     prepare: Callable[[RunParts], None] | None = None
     evaluate_first: bool = True
     selected_by: str = ""
+    check: Callable[[TrainConfig], None] | None = None

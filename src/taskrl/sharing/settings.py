@@ -41,7 +41,7 @@ class SharingConfig:
 
     def validate(self) -> None:
         """Raise `ConfigError` naming the first bad setting (the strategy's name is checked
-        against the registry by [`taskrl.config.validate`][taskrl.config.validate])."""
+        against the registry by [`taskrl.plan.resolve`][taskrl.plan.resolve])."""
         require(0.0 <= self.share_fraction <= 1.0, "share_fraction", f"must be in [0, 1] (got {self.share_fraction})")
         require(self.share_tasks >= 1, "share_tasks", f"must be >= 1 (got {self.share_tasks})")
         require(self.hipi_temperature > 0, "hipi_temperature", f"must be > 0 (got {self.hipi_temperature})")

@@ -8,6 +8,7 @@ from typing import Any, Protocol
 
 import torch
 
+from taskrl.errors import require
 from taskrl.replay.storage import EpisodeReplay
 from taskrl.sharing.settings import SharingConfig
 
@@ -61,3 +62,27 @@ class SharingStrategy:
     zero_reward: bool = False
     needs_scores: bool = False
     needs_q_value: bool = False
+
+    def check(self, sampling: str, family: Any, algorithm: Any, env_label: str, rewarded_envs: str, ranked_algos: str) -> None:
+        """What this strategy needs of the run, as the env ``family`` (an ``EnvFamily``: its ``task_rewards``) and the
+        ``algorithm`` (an ``AlgorithmSpec``: its ``q_values``) declare it: tasks that are reward functions, an agent
+        with Q-values where it ranks rows by them, task-balanced batches (``sampling``). ``env_label`` names the env;
+        ``rewarded_envs`` and ``ranked_algos`` list what would fit, for the message."""
+        if not self.shares:
+            return
+        require(
+            family.task_rewards is not False,
+            "sharing",
+            f"needs an env whose tasks are reward functions (task_reward, task_terminated, task_success); "
+            f"{env_label!r} has none; allowed envs: {rewarded_envs}",
+        )
+        require(
+            not self.needs_q_value or algorithm.q_values,
+            "sharing",
+            f"{self.name} ranks shared data by Q-values; {algorithm.name} has no q_value; use {ranked_algos}",
+        )
+        require(
+            sampling == "task_balanced",
+            "sampling",
+            "data sharing draws every task's rows of a batch (task-balanced): use --sampling task_balanced",
+        )

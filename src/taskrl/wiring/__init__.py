@@ -6,7 +6,7 @@
 - [`calls`][taskrl.wiring.calls]: the settings and run directory of one call of ``train``.
 
 How a run runs (in one process, offline, distributed) is a registered run mode, above this layer:
-[`taskrl.runmodes`][taskrl.runmodes] (with [`build_parts`][taskrl.runmodes.build.build_parts], a config's parts for its mode).
+[`taskrl.runmodes`][taskrl.runmodes] (with [`build_parts`][taskrl.assembly.build_parts], a config's parts for its mode).
 Everything env- or algorithm-specific comes from the registries: this package names no environment
 and no algorithm.
 """

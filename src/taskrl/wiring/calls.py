@@ -15,9 +15,10 @@ from rich.console import Console
 from taskrl import config as config_io
 from taskrl.agents.compile_rule import choose_compile
 from taskrl.agents.registry import algorithm
-from taskrl.config import TrainConfig, with_overrides
+from taskrl.config import TrainConfig
 from taskrl.envs.registry import ENV_FAMILIES, family_for_source
 from taskrl.errors import ConfigError
+from taskrl.overrides import with_overrides
 from taskrl.presets import preset_config
 from taskrl.rundir import atomic_write_text
 

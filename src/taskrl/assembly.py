@@ -6,16 +6,12 @@ from typing import Any
 
 import torch
 
-from taskrl.agents.registry import algorithm
-from taskrl.config import TrainConfig
 from taskrl.envs.base import BatchedEnv
-from taskrl.envs.registry import env_family
 from taskrl.errors import require
+from taskrl.plan import RunPlan
 from taskrl.replay import EpisodeReplay, RecentMixSampler, TaskBalancedSampler
 from taskrl.replay.pipeline import Draw, SamplerPipeline, Stage, UniformDraw, hindsight_stage
-from taskrl.runmodes.spec import RunMode
 from taskrl.sharing import TaskSharing
-from taskrl.sharing.registry import sharing_strategy
 from taskrl.sharing.strategies import task_functions
 from taskrl.wiring.parts import (
     RunParts,
@@ -31,14 +27,14 @@ from taskrl.wiring.stored_data import replay_needs
 __all__ = ["build_parts"]
 
 
-def build_parts(config: TrainConfig, mode: RunMode, source: Any = None) -> RunParts:
-    """Envs, agent, replay, relabeller and sampler of a validated config, as ``mode`` needs them (``source``: a
+def build_parts(plan: RunPlan, source: Any = None) -> RunParts:
+    """Envs, agent, replay, relabeller and sampler of a resolved run, as its mode needs them (``source``: a
     Python object the env family builds its envs from, e.g. a factory or a TaskSet)."""
+    config, mode, family = plan.config, plan.mode, plan.family
     if config.threads:
         torch.set_num_threads(config.threads)
     device = resolve_device(config.device)
     torch.manual_seed(config.seed)
-    family = env_family(config.env)
     if mode.trainer_env == "spaces" and family.spec is not None and source is None:
         env = family.spec(config.env_settings, env_request(config, device))
     elif mode.trainer_env == "one":
@@ -54,8 +50,8 @@ def build_parts(config: TrainConfig, mode: RunMode, source: Any = None) -> RunPa
         generator = torch.Generator(device=device)
         generator.manual_seed(config.seed + 1)
         parts = RunParts(config, family, device, env, eval_env, agent, generator, source=source)
-        if algorithm(config.algo).loop == "off_policy":
-            _add_replay(parts, replay_needs(config, env, mode.own_steps))
+        if plan.algorithm.loop == "off_policy":
+            _add_replay(parts, plan, replay_needs(config, env, mode.own_steps))
         if mode.prepare is not None:
             mode.prepare(parts)
         return parts
@@ -66,7 +62,7 @@ def build_parts(config: TrainConfig, mode: RunMode, source: Any = None) -> RunPa
         raise
 
 
-def _add_replay(parts: RunParts, needs: int) -> None:
+def _add_replay(parts: RunParts, plan: RunPlan, needs: int) -> None:
     """The replay (``buffer_size`` transitions, or fewer where the run can store no more), its relabeller and
     the sampler the sampling settings ask for."""
     config, env, device = parts.config, parts.env, parts.device
@@ -83,17 +79,17 @@ def _add_replay(parts: RunParts, needs: int) -> None:
         env.single_observation_space, env.single_action_space, capacity, num_envs=env.num_envs, device=device, horizon=horizon
     )
     parts.relabel = make_relabeler(config, env)
-    parts.sampler = sampler_pipeline(config, env, parts)
+    parts.sampler = sampler_pipeline(plan, env, parts)
 
 
-def sampler_pipeline(config: TrainConfig, env: BatchedEnv, parts: RunParts) -> SamplerPipeline:
+def sampler_pipeline(plan: RunPlan, env: BatchedEnv, parts: RunParts) -> SamplerPipeline:
     """The run's batches: a draw (uniform, task-balanced, or a sharing strategy's), optionally mixed with a
     window of recent episodes, then the stages (the sharing strategy's task relabel, hindsight relabelling)."""
-    replay = parts.replay
+    config, replay = plan.config, parts.replay
     draw: Draw = UniformDraw(replay)
     stages: list[Stage] = []
     if config.sampling == "task_balanced":
-        parts.sharing = _task_sharing(config, env, parts.agent, replay)
+        parts.sharing = _task_sharing(plan, env, parts.agent, replay)
         if parts.sharing is not None:
             draw = parts.sharing
             stages.append(parts.sharing.to_task)
@@ -106,11 +102,11 @@ def sampler_pipeline(config: TrainConfig, env: BatchedEnv, parts: RunParts) -> S
     return SamplerPipeline(replay, draw, stages)
 
 
-def _task_sharing(config: TrainConfig, env: BatchedEnv, agent: Any, replay: EpisodeReplay) -> TaskSharing | None:
+def _task_sharing(plan: RunPlan, env: BatchedEnv, agent: Any, replay: EpisodeReplay) -> TaskSharing | None:
     """Task-balanced batches with the run's sharing strategy, on an env that scores any task; None
     (plain task-balanced sampling) on one that cannot. What a strategy needs was checked by ``validate``
     from the family's and the algorithm's declarations; the built env is held to its family's."""
-    chosen = sharing_strategy(config.data_sharing.sharing)
+    config, chosen = plan.config, plan.sharing
     if not task_functions(env):
         require(
             not chosen.shares,
@@ -119,5 +115,5 @@ def _task_sharing(config: TrainConfig, env: BatchedEnv, agent: Any, replay: Epis
             f"the env {config.env!r} built has none",
         )
         return None
-    q_value = agent.q_value if algorithm(config.algo).q_values else None
+    q_value = agent.q_value if plan.algorithm.q_values else None
     return TaskSharing(replay, env, len(env.task_set), config.data_sharing, q_value, strategy=chosen)

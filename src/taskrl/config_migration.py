@@ -1,0 +1,45 @@
+"""``config.json`` files written before the registries, read in today's shape."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+from taskrl.envs.registry import env_family
+
+__all__ = ["migrate"]
+
+# Settings that sat flat on TrainConfig before the registries (and the section each now lives in).
+_LEGACY_ENV_KEYS = ("n_bits", "terminate_on_success", "reward", "vector_strategy", "mt1_task", "max_episode_steps")
+_LEGACY_EXPLORATION = ("epsilon_start", "epsilon_end", "epsilon_decay_steps")
+
+
+def migrate(data: dict[str, Any]) -> dict[str, Any]:
+    """A ``config.json`` written before the registries, in today's shape (flat env settings and a
+    loop-level exploration schedule become the sections' own settings; other algorithms' sections go)."""
+    if not any(k in data for k in _LEGACY_ENV_KEYS + _LEGACY_EXPLORATION):
+        return data
+    data = dict(data)
+    env, algo = data.get("env", "bitflip"), data.get("algo", "dqn")
+    flat = {k: data.pop(k) for k in _LEGACY_ENV_KEYS + _LEGACY_EXPLORATION if k in data}
+    family = env_family(env)
+    if "mt1_task" in flat:
+        flat["task"] = flat.pop("mt1_task")
+    fields = {f.name for f in dataclasses.fields(family.settings)}
+    data[family.section] = {k: v for k, v in flat.items() if k in fields}
+    section = dict(data.get(algo, {}))
+    start, end, steps = (flat.get(k) for k in _LEGACY_EXPLORATION)
+    if start is not None:
+        if algo == "dqn":
+            section.update(epsilon_start=start, epsilon_end=end, epsilon_decay_steps=steps)
+        elif algo == "qtopt":
+            section.update(random_action_prob=start, random_action_prob_end=end, random_action_decay_steps=steps)
+        elif algo == "td3":
+            section.update(noise_std=end)  # the loop's level was TD3's noise std
+    for name in [
+        k for k in data if isinstance(data[k], dict) and k not in ("conditioning", "cluster", "data_sharing", family.section)
+    ]:
+        if name != algo:
+            data.pop(name)  # every algorithm's section was saved; only the run's own is kept
+    data[algo] = section
+    return data
