@@ -32,7 +32,7 @@ from common import append_results  # noqa: E402
 from taskrl.demos.collect import collect_demos  # noqa: E402
 from taskrl.demos.dagger import InterventionRule, collect_interventions, merge_datasets  # noqa: E402
 from taskrl.demos.dataset import read_episodes  # noqa: E402
-from taskrl.loading import wilson_interval  # noqa: E402
+from taskrl.loading import load_run, wilson_interval  # noqa: E402
 
 RAW = HERE / "results" / "hg_dagger.json"
 
@@ -73,7 +73,11 @@ def one_seed(args: argparse.Namespace, seed: int, folder: Path) -> dict:
     for r in range(1, args.rounds + 1):
         corrections = folder / f"corrections{r}"
         card = collect_interventions(
-            folder / f"run{r - 1}", corrections, episodes=args.dagger_episodes, rule=InterventionRule(), seed=300 + 10 * r + seed
+            load_run(folder / f"run{r - 1}"),
+            corrections,
+            episodes=args.dagger_episodes,
+            rule=InterventionRule(),
+            seed=300 + 10 * r + seed,
         )
         if (corrections / "data").exists():
             parts.append(corrections)

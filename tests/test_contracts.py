@@ -15,11 +15,11 @@ import pytest
 import torch
 
 import taskrl
-from taskrl.agents.fit import check_fit
 from taskrl.agents.registry import ALGORITHMS
 from taskrl.config import TrainConfig
 from taskrl.envs.registry import ENV_FAMILIES
 from taskrl.errors import ConfigError
+from taskrl.fit import check_fit
 from taskrl.overrides import with_overrides
 from taskrl.runmodes import distributed as distributed_mode
 from taskrl.runmodes.registry import RUN_MODES, run_mode
@@ -191,13 +191,13 @@ def test_every_sharing_strategy_runs(strategy, tmp_path):
 def test_every_setting_of_every_section_pair_has_its_own_flag_and_reaches_its_own_field():
     """Every family's section beside every algorithm's and the run's: each setting's dotted flag sets that
     setting and nothing else, whatever the other sections are called."""
-    from taskrl.cli import _add_config_flags, _Parser
+    from taskrl.commands.parsing import Parser, add_config_flags
     from taskrl.setting_names import dotted_name, setting_names
 
     unreached = {}
     for env, algo in itertools.product(ENV_FAMILIES, ALGORITHMS):
-        parser = _Parser()
-        _add_config_flags(parser, env, algo)
+        parser = Parser()
+        add_config_flags(parser, env, algo)
         dests = {f: a.dest for a in parser._actions for f in a.option_strings}
         names = setting_names(env, algo)
         for path, _, _ in leaf_fields(env, algo):

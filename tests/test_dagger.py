@@ -11,6 +11,7 @@ from taskrl.demos.collect import collect_demos
 from taskrl.demos.dagger import InterventionRule, _Gate, collect_interventions, merge_datasets
 from taskrl.demos.dataset import dataset_card, read_demonstrations, read_episodes
 from taskrl.errors import ConfigError
+from taskrl.loading import load_run
 
 
 def test_the_expert_takes_over_after_patience_drifting_steps_and_hands_back_after_patience_agreeing_ones():
@@ -36,7 +37,7 @@ def weak_run(tmp_path_factory):
 
 
 def test_corrections_are_the_experts_labels_on_the_states_it_drove(weak_run, tmp_path):
-    card = collect_interventions(weak_run / "run", tmp_path / "c", episodes=4, seed=5)
+    card = collect_interventions(load_run(weak_run / "run"), tmp_path / "c", episodes=4, seed=5)
     episodes = read_episodes(tmp_path / "c")
     steps = sum(len(e) for e in episodes)
     assert 0 < card["expert_steps_total"] == steps < card["expert_steps_total"] + card["policy_steps_total"]
@@ -52,14 +53,18 @@ def test_corrections_are_the_experts_labels_on_the_states_it_drove(weak_run, tmp
 
 
 def test_an_expert_that_never_agrees_drives_everything_and_one_that_always_does_nothing(weak_run, tmp_path):
-    always = collect_interventions(weak_run / "run", tmp_path / "all", episodes=2, rule=InterventionRule(1e-9, 1), seed=5)
+    always = collect_interventions(
+        load_run(weak_run / "run"), tmp_path / "all", episodes=2, rule=InterventionRule(1e-9, 1), seed=5
+    )
     assert always["policy_steps_total"] == 0 and min(always["success_rate_with_interventions"].values()) == 1.0
-    never = collect_interventions(weak_run / "run", tmp_path / "none", episodes=2, rule=InterventionRule(10.0, 1), seed=5)
+    never = collect_interventions(
+        load_run(weak_run / "run"), tmp_path / "none", episodes=2, rule=InterventionRule(10.0, 1), seed=5
+    )
     assert never["expert_steps_total"] == 0 and not (tmp_path / "none" / "data").exists()
 
 
 def test_merging_keeps_the_order_and_cuts_at_max_steps(weak_run, tmp_path):
-    collect_interventions(weak_run / "run", tmp_path / "c", episodes=2, seed=5)
+    collect_interventions(load_run(weak_run / "run"), tmp_path / "c", episodes=2, seed=5)
     first = read_episodes(weak_run / "demos")
     merged = merge_datasets([weak_run / "demos", tmp_path / "c"], tmp_path / "m")
     assert merged["card"]["steps"] == sum(len(e) for e in first) + sum(len(e) for e in read_episodes(tmp_path / "c"))
@@ -97,7 +102,7 @@ def test_corrections_of_a_pixel_run_keep_their_pictures_and_merge_with_its_demon
         eval_interval=20,
         eval_episodes=1,
     )
-    card = collect_interventions(tmp_path / "run", tmp_path / "c", episodes=1, rule=InterventionRule(1e-9, 1), seed=5)
+    card = collect_interventions(load_run(tmp_path / "run"), tmp_path / "c", episodes=1, rule=InterventionRule(1e-9, 1), seed=5)
     corrections = read_demonstrations(tmp_path / "c")
     assert card["expert_steps_total"] > 0 and corrections.images is not None
     assert corrections.images.shape == (corrections.num_steps, 32, 32, 3)

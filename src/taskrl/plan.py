@@ -2,8 +2,8 @@
 the sharing strategy, and has each check its own fit; later stages read the plan.
 
 `validate` is the same checks, returning the config. Run-level settings are checked here, each section
-by its own ``validate()``, env against algorithm by [`check_fit`][taskrl.agents.fit.check_fit], what the
-settings ask of the algorithm by [`check_run_needs`][taskrl.agents.fit.check_run_needs], each run mode's
+by its own ``validate()``, env against algorithm by [`check_fit`][taskrl.fit.check_fit], what the
+settings ask of the algorithm by [`check_run_needs`][taskrl.fit.check_run_needs], each run mode's
 and sharing strategy's needs by their own ``check``, and the family's rules by ``family.check``.
 """
 
@@ -12,13 +12,13 @@ from __future__ import annotations
 import dataclasses
 
 from taskrl.agents.compiled import RUN_COMPILE_MODES
-from taskrl.agents.fit import check_fit, check_run_needs
 from taskrl.agents.registry import ALGORITHMS, algorithm
 from taskrl.agents.spec import AlgorithmSpec
 from taskrl.config import TrainConfig
 from taskrl.envs.registry import ENV_FAMILIES, env_family, env_label
 from taskrl.envs.spec import EnvFamily
 from taskrl.errors import one_of, require
+from taskrl.fit import check_fit, check_run_needs
 from taskrl.runmodes.registry import run_mode
 from taskrl.runmodes.spec import RunMode
 from taskrl.setting_values import check_device

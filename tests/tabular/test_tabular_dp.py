@@ -13,6 +13,7 @@ from taskrl.tabular import (
     evaluate_policy,
     evaluate_policy_iterative,
     grid_world,
+    mdp_from_gymnasium,
     policy_improvement,
     policy_iteration,
     q_values,
@@ -174,7 +175,7 @@ def test_krylov_falls_back_when_bicgstab_breaks_down():
 def test_undiscounted_policy_iteration_starts_from_a_proper_policy():
     from taskrl.tabular import proper_policy
 
-    cliff = FiniteMDP.from_gymnasium("CliffWalking-v1", gamma=1.0)
+    cliff = mdp_from_gymnasium("CliffWalking-v1", gamma=1.0)
     evaluate_policy(cliff, proper_policy(cliff))  # not singular: it terminates
     pi = policy_iteration(cliff)  # action 0 ("up") everywhere would be singular
     vi = value_iteration(cliff, tol=1e-12)

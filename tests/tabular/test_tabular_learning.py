@@ -10,6 +10,7 @@ from taskrl.tabular import (
     evaluate_policy,
     fitted_q_iteration,
     grid_world,
+    mdp_from_gymnasium,
     q_learning,
     sample_transitions,
     value_iteration,
@@ -48,7 +49,7 @@ def test_q_learning_from_a_gymnasium_env():
     env = gym.make("FrozenLake-v1", is_slippery=False)
     # Deterministic dynamics: a constant step size of 1 (lr_exponent=0) is exact.
     res = q_learning(env, episodes=1_500, gamma=0.9, epsilon=0.3, lr_exponent=0.0, seed=0)
-    mdp = FiniteMDP.from_gymnasium(env, gamma=0.9)
+    mdp = mdp_from_gymnasium(env, gamma=0.9)
     start = int(np.argmax(mdp.initial))
     # Deterministic lake: the greedy policy must take a shortest path (6 steps) to the goal.
     assert evaluate_policy(mdp, res.policy)[start] == pytest.approx(0.9**5)

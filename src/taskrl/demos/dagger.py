@@ -84,30 +84,30 @@ class _Gate:
 
 
 def collect_interventions(
-    run_dir: str | Path,
+    run: tuple[Any, Any, Any],
     out: str | Path,
     *,
+    run_name: str = "",
     episodes: int = 10,
     rule: InterventionRule | None = None,
     seed: int = 2,
     after_success: int = 10,
-    device: str = "cpu",
     progress: Callable[[int, int], Any] | None = None,
 ) -> dict[str, Any]:
     """Run a trained policy with its env family's scripted expert gating it (HG-DAgger) and write the expert's
     corrections as a dataset in ``out``; returns the card (with the counts of both drivers' steps).
 
     Args:
-        run_dir: a run trained on a family with a scripted expert (``taskrl demos collect`` lists them).
+        run: ``(agent, config, spaces)`` of a run trained on a family with a scripted expert (``taskrl demos collect``
+            lists them), as [`taskrl.loading.load_run`][taskrl.loading.load_run] gives it (on the device the policy runs on).
+        run_name: what the card calls that run (its folder).
         out: the folder of the new dataset (``out/data``); nothing is written when the expert never took over.
         episodes: episodes per task, the policy and the expert sharing the control.
         rule: the intervention rule (default `InterventionRule`).
         seed: seed of the goals (keep it apart from the demonstrations' and the evaluation's).
         after_success: steps an episode goes on after its first success (as ``taskrl demos collect``).
-        device: where the policy runs.
         progress: ``(episodes done, episodes wanted)`` after every step.
     """
-    from taskrl.loading import load_run
     from taskrl.training.evaluation import ActingPolicy
 
     rule = rule or InterventionRule()
@@ -115,9 +115,11 @@ def collect_interventions(
     if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
         raise ConfigError("episodes", f"must be an integer >= 1 (got {episodes!r})")
     out = check_new_dataset_folder(out)
-    agent, config, spaces = load_run(run_dir, device)
+    agent, config, spaces = run
     if spaces.task_set is None:
-        raise ConfigError("run_dir", f"{run_dir} was trained on {config.env}, which has no task set for a scripted expert")
+        raise ConfigError(
+            "run_dir", f"{run_name or 'the run'} was trained on {config.env}, which has no task set for a scripted expert"
+        )
     source = demo_source(f"{config.env}:{','.join(spaces.task_set.names)}")
     view = getattr(config.env_settings, "policy_observation", None)  # the run's protocol (a hidden goal, say)
     policy = ActingPolicy(agent)
@@ -198,9 +200,9 @@ def collect_interventions(
     finally:
         env.close()
     card = {
-        "source": f"hg-dagger of {Path(run_dir).name}",
+        "source": f"hg-dagger of {Path(run_name).name}",
         "expert": "scripted, intervening",
-        "run": str(run_dir),
+        "run": str(run_name),
         "checkpoint_step": agent.loaded_step,
         "rule": dataclasses.asdict(rule),
         "seed": seed,

@@ -40,8 +40,10 @@ from taskrl.tabular.policies import (
     uniform_policy,
 )
 from taskrl.tabular.render import render_grid
+from taskrl.tabular.toytext import mdp_from_gymnasium
 
 __all__ = [
+    "mdp_from_gymnasium",
     "FiniteMDP",
     "GridLayout",
     "Solution",

@@ -17,7 +17,7 @@ from taskrl.tabular.examples import drummer, grid_world
 from taskrl.tabular.learning import fitted_q_iteration, q_learning, sample_transitions
 from taskrl.tabular.mdp import FiniteMDP
 from taskrl.tabular.render import render_grid
-from taskrl.tabular.toytext import TOY_TEXT_ENVS
+from taskrl.tabular.toytext import TOY_TEXT_ENVS, mdp_from_gymnasium
 
 __all__ = ["main", "ENVS", "METHODS"]
 
@@ -63,7 +63,7 @@ def _make_env(name: str, gamma: float | None) -> tuple[FiniteMDP, int]:
 
     env = gym.make(name)
     limit = env.spec.max_episode_steps if env.spec is not None and env.spec.max_episode_steps else 1_000
-    return FiniteMDP.from_gymnasium(env, gamma=g), limit
+    return mdp_from_gymnasium(env, gamma=g), limit
 
 
 def _fmt(x: float) -> str:

@@ -283,22 +283,3 @@ class FiniteMDP:
             f"FiniteMDP(name={self.name!r}, states={self.n_states}, actions={self.n_actions}, "
             f"gamma={self.gamma}, terminal={int(self.terminal.sum())}, nnz={self._P_am.nnz})"
         )
-
-    # ------------------------------------------------------------------ constructors
-    @classmethod
-    def from_gymnasium(cls, env: Any, gamma: float = 0.99, **make_kwargs: Any) -> FiniteMDP:
-        """Build the MDP from a gymnasium toy-text environment's transition table ``env.P``.
-
-        Works for any environment whose unwrapped form has ``P[s][a] = [(prob, s', reward,
-        terminated), ...]`` (FrozenLake, CliffWalking, Taxi). States entered with
-        ``terminated=True`` become terminal states.
-
-        Args:
-            env: a gymnasium environment (wrapped or not) or an environment id such as
-                ``"FrozenLake-v1"``.
-            gamma: discount factor of the resulting MDP.
-            **make_kwargs: forwarded to ``gymnasium.make`` when ``env`` is an id.
-        """
-        from taskrl.tabular.toytext import mdp_from_gymnasium
-
-        return mdp_from_gymnasium(env, gamma=gamma, **make_kwargs)

@@ -46,7 +46,16 @@ def _layout(env: Any, n_states: int) -> tuple[GridLayout | None, tuple[str, ...]
 
 
 def mdp_from_gymnasium(env: Any, gamma: float = 0.99, **make_kwargs: Any) -> FiniteMDP:
-    """See `FiniteMDP.from_gymnasium`."""
+    """The `FiniteMDP` of a gymnasium toy-text environment's transition table ``env.P``.
+
+    Works for any environment whose unwrapped form has ``P[s][a] = [(prob, s', reward, terminated), ...]``
+    (FrozenLake, CliffWalking, Taxi). States entered with ``terminated=True`` become terminal states.
+
+    Args:
+        env: a gymnasium environment (wrapped or not) or an environment id such as ``"FrozenLake-v1"``.
+        gamma: discount factor of the resulting MDP.
+        **make_kwargs: forwarded to ``gymnasium.make`` when ``env`` is an id.
+    """
     name = None
     if isinstance(env, str):
         import gymnasium as gym

@@ -9,7 +9,6 @@ from typing import Any
 import gymnasium as gym
 import torch
 
-from taskrl.agents.fit import check_fit
 from taskrl.agents.registry import algorithm
 from taskrl.agents.spec import AgentInputs
 from taskrl.conditioning.networks import make_conditioning
@@ -18,6 +17,7 @@ from taskrl.envs.base import BatchedEnv
 from taskrl.envs.registry import env_family
 from taskrl.envs.spec import EnvFamily, EnvRequest, env_kind
 from taskrl.errors import ConfigError
+from taskrl.fit import check_fit
 from taskrl.replay import EpisodeReplay, HindsightRelabeler
 from taskrl.setting_values import check_device
 from taskrl.sharing import TaskSharing
@@ -97,7 +97,7 @@ def make_agent(config: TrainConfig, env: Any, device: torch.device) -> Any:
     """The agent of ``config.algo`` for ``env``'s spaces (an env, or an object with its spaces).
 
     The env is checked against the algorithm with the same rules as before building
-    ([`taskrl.agents.fit.check_fit`][taskrl.agents.fit.check_fit]), now with the env's real kind and action space.
+    ([`taskrl.fit.check_fit`][taskrl.fit.check_fit]), now with the env's real kind and action space.
     """
     check_fit(config, env_kind(env), action_kind(env.single_action_space), "image" in env.single_observation_space.spaces)
     if action_kind(env.single_action_space) is None:

@@ -4,14 +4,10 @@ declares) and again once the env is built (with what it is): the same rules both
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 from taskrl.agents.registry import ALGORITHMS, algorithm
+from taskrl.config import TrainConfig
 from taskrl.errors import ConfigError, require
 from taskrl.setting_values import changed_fields
-
-if TYPE_CHECKING:  # annotations only: the config sits above the agents
-    from taskrl.config import TrainConfig
 
 __all__ = ["check_fit", "check_run_needs"]
 
