@@ -26,16 +26,17 @@ import torch
 from torch import nn
 
 sys.path.insert(0, str(Path(__file__).parent))
-from grasp_probe import STATE, auc, placed_bins  # noqa: E402
-from taskrl.encoders import ImageStateInput, random_shift  # noqa: E402
+from grasp_probe import STATE, auc, placed_bins, rows_of, shifted  # noqa: E402
+from taskrl.agents.parts import PictureState  # noqa: E402
+from taskrl.encoders import ImageStateInput  # noqa: E402
 from taskrl.fused_q import PictureActionQ  # noqa: E402
 from taskrl.nets import StateActionQ  # noqa: E402
 
 HIDDEN = (256, 256)
 
 
-def labelled_closes(n: int, seed: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """``(flat inputs [n, 5 + 64*64*3], actions [n, 4], holds [n])``: a closing action from a placed gripper."""
+def labelled_closes(n: int, seed: int) -> tuple[PictureState, torch.Tensor, torch.Tensor]:
+    """``(states [n], actions [n, 4], holds [n])``: a closing action from a placed gripper."""
     env, x, g = placed_bins(n, seed, 0.2)
     action = torch.rand(n, 4, generator=g) * 2 - 1
     action[:, 3] = 1.0  # close
@@ -49,13 +50,13 @@ def network(fusion: str) -> nn.Module:
     return StateActionQ(STATE + 64 * 64 * 3, 4, HIDDEN, ImageStateInput(STATE, (64, 64, 3), "conv", 50))
 
 
-def seconds_per_candidate(net: nn.Module, x: torch.Tensor, repeats: int = 5) -> float:
+def seconds_per_candidate(net: nn.Module, x: PictureState, repeats: int = 5) -> float:
     actions = torch.rand(64, 32, 4) * 2 - 1
     best = math.inf
     with torch.no_grad():
         for _ in range(repeats):
             start = time.perf_counter()
-            net.score_actions(x[:64], actions)
+            net.score_actions(rows_of(x, slice(0, 64)), actions)
             best = min(best, time.perf_counter() - start)
     return best / (64 * 32)
 
@@ -70,13 +71,13 @@ def probe(fusion: str, pad: int, updates: int, train: tuple, test: tuple, seed: 
     for step in range(updates + 1):
         if step % 1000 == 0:
             with torch.no_grad():
-                score = torch.cat([net(x_test[i : i + 500], a_test[i : i + 500]) for i in range(0, len(x_test), 500)])
+                score = torch.cat(
+                    [net(rows_of(x_test, slice(i, i + 500)), a_test[i : i + 500]) for i in range(0, x_test.rows, 500)]
+                )
             curve.append({"updates": step, "auc": auc(score, y_test), "seconds": time.perf_counter() - start})
             print(fusion, pad, curve[-1], flush=True)
-        rows = torch.randint(len(x), (64,), generator=g)
-        batch = x[rows]
-        pictures = random_shift(batch[:, STATE:].reshape(-1, 64, 64, 3), pad, g).reshape(len(rows), -1)
-        logits = net(torch.cat([batch[:, :STATE], pictures], 1), a[rows])
+        rows = torch.randint(x.rows, (64,), generator=g)
+        logits = net(shifted(rows_of(x, rows), pad, g), a[rows])
         loss = nn.functional.binary_cross_entropy_with_logits(logits, y[rows])
         optimiser.zero_grad()
         loss.backward()

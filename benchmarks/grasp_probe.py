@@ -27,13 +27,24 @@ from torch import nn
 
 sys.path.insert(0, str(Path(__file__).parent))
 from common import append_results  # noqa: E402
+from taskrl.agents.parts import PictureState  # noqa: E402
 from taskrl.encoders import ImageStateInput, random_shift  # noqa: E402
 from taskrl.envs.grasp import Grasp, GraspSettings  # noqa: E402
 
 STATE = 5  # the grasp env's state vector
 
 
-def placed_bins(n: int, seed: int, spread: float) -> tuple[Grasp, torch.Tensor, torch.Generator]:
+def rows_of(x: PictureState, rows: torch.Tensor | slice) -> PictureState:
+    """The states ``rows`` of a batch."""
+    return PictureState(x.vector[rows], x.pictures[rows])
+
+
+def shifted(x: PictureState, pad: int, generator: torch.Generator) -> PictureState:
+    """The states with their pictures shifted (DrQ's augmentation)."""
+    return PictureState(x.vector, random_shift(x.pictures[:, 0], pad, generator)[:, None])
+
+
+def placed_bins(n: int, seed: int, spread: float) -> tuple[Grasp, PictureState, torch.Generator]:
     """``(env, flat inputs [n, 5 + 64*64*3], generator)``: ``n`` bins with the gripper within ``spread`` of an object
     (70%) or anywhere, at a random yaw."""
     env = Grasp(GraspSettings(), num_envs=n, seed=seed)
@@ -45,11 +56,12 @@ def placed_bins(n: int, seed: int, spread: float) -> tuple[Grasp, torch.Tensor, 
     env.gripper = torch.where((torch.rand(n, generator=g) < 0.7)[:, None], near, anywhere).clamp(0, 1)
     env.yaw = math.pi * torch.rand(n, generator=g)
     obs = env._obs()
-    return env, torch.cat([obs["observation"], obs["image"].reshape(n, -1).float()], 1), g
+    return env, PictureState(obs["observation"], obs["image"][:, None]), g
 
 
 def labelled_states(n: int, seed: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """``(flat inputs [n, 5 + 64*64*3], holds [n])``: would closing where the gripper is hold an object?"""
+    """``(states (the gripper's 5 numbers and the 64x64 picture), holds [n])``: would closing where the gripper is hold
+    an object?"""
     env, x, _ = placed_bins(n, seed, 0.1)
     return x, env.holdable().any(1).float()
 
@@ -80,10 +92,8 @@ def probe(init: str, pad: int, kind: str, updates: int, train: tuple, test: tupl
                 score = net(x_test).squeeze(1)
             curve.append({"updates": step, "auc": auc(score, y_test), "seconds": time.perf_counter() - start})
             print(init, pad, kind, curve[-1], flush=True)
-        rows = torch.randint(len(x), (64,), generator=g)
-        batch = x[rows]
-        pictures = random_shift(batch[:, STATE:].reshape(-1, 64, 64, 3), pad, g).reshape(len(rows), -1)
-        loss = nn.functional.binary_cross_entropy_with_logits(net(torch.cat([batch[:, :STATE], pictures], 1)).squeeze(1), y[rows])
+        rows = torch.randint(x.rows, (64,), generator=g)
+        loss = nn.functional.binary_cross_entropy_with_logits(net(shifted(rows_of(x, rows), pad, g)).squeeze(1), y[rows])
         optimiser.zero_grad()
         loss.backward()
         optimiser.step()

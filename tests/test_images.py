@@ -9,7 +9,7 @@ import torch
 
 import taskrl
 from helpers import small_run
-from taskrl.agents.parts import ObservationInput
+from taskrl.agents.parts import ObservationInput, PictureState
 from taskrl.agents.qtopt import QTOptAgent, QTOptConfig
 from taskrl.encoders import ImageStateInput, random_shift
 from taskrl.envs.grasp import Grasp, GraspSettings
@@ -37,13 +37,16 @@ def test_random_shift_moves_each_picture_by_its_own_offset_within_the_pad():
     assert torch.equal(random_shift(images, 0), images)
 
 
-def test_image_columns_pass_unnormalised_and_the_vector_is_normalised():
-    inputs = ObservationInput(("observation", "image"), 3 + 2 * 2 * 3, normalize=True, raw_dim=12)
+def test_pictures_stay_stored_uint8_pictures_beside_the_normalised_vector():
+    inputs = ObservationInput(("observation", "image"), 3 + 2 * 2 * 3, normalize=True, picture_dim=12)
     obs = {"observation": torch.randn(32, 3) * 10 + 5, "image": torch.randint(0, 256, (32, 2, 2, 3), dtype=torch.uint8)}
     inputs.update_statistics(obs)
     x = inputs(obs)
-    assert torch.equal(x[:, 3:], obs["image"].flatten(1).float())
-    assert x[:, :3].mean().abs() < 0.5 and x[:, :3].std() < 2
+    assert isinstance(x, PictureState) and x.pictures.dtype == torch.uint8
+    assert torch.equal(x.pictures, obs["image"][:, None])  # [B, K=1, H, W, C], never flattened into the vector
+    assert x.vector.shape == (32, 3) and x.vector.mean().abs() < 0.5 and x.vector.std() < 2
+    alone = ObservationInput(("image",), 12, normalize=True, picture_dim=12)({"image": obs["image"]})
+    assert alone.vector.shape == (32, 0) and torch.equal(alone.pictures, obs["image"][:, None])
 
 
 def test_cem_scores_encode_each_picture_once_and_match_the_plain_forward_pass():
@@ -51,13 +54,13 @@ def test_cem_scores_encode_each_picture_once_and_match_the_plain_forward_pass():
     encoder = ImageStateInput(2, (16, 16, 3), "conv", 8)
     q = StateActionQ(2 + 16 * 16 * 3, 4, (32,), encoder)
     calls = []
-    encoder.register_forward_hook(lambda module, args, out: calls.append(args[0].shape[0]))
-    x = torch.cat([torch.randn(5, 2), torch.randint(0, 256, (5, 768)).float()], 1)
+    encoder.register_forward_hook(lambda module, args, out: calls.append(args[0].rows))
+    x = PictureState(torch.randn(5, 2), torch.randint(0, 256, (5, 1, 16, 16, 3), dtype=torch.uint8))
     actions = torch.rand(5, 7, 4) * 2 - 1
     with torch.no_grad():
         scores = q.score_actions(x, actions)
         assert calls == [5]  # one encoding per state, not per scored action
-        plain = q(x.repeat_interleave(7, 0), actions.reshape(35, 4)).view(5, 7)
+        plain = q(PictureState(*(t.repeat_interleave(7, 0) for t in x)), actions.reshape(35, 4)).view(5, 7)
     torch.testing.assert_close(scores, plain, rtol=1e-4, atol=1e-5)
 
 
@@ -100,8 +103,8 @@ def test_every_update_shifts_the_pictures_of_both_states_unless_turned_off(monke
         config = QTOptConfig(hidden_sizes=(8,), augment_pad=pad)
         agent = QTOptAgent(("observation", "image"), 5 + 768, env.single_action_space, config, image_shape=(16, 16, 3))
         seen = {"online": [], "target": []}
-        agent.q.state_input.register_forward_hook(lambda m, args, out, seen=seen: seen["online"].append(args[0][:, 5:]))
-        agent.q_target1.state_input.register_forward_hook(lambda m, args, out, seen=seen: seen["target"].append(args[0][:, 5:]))
+        agent.q.state_input.register_forward_hook(lambda m, args, out, seen=seen: seen["online"].append(args[0].pictures))
+        agent.q_target1.state_input.register_forward_hook(lambda m, args, out, seen=seen: seen["target"].append(args[0].pictures))
         agent.update(batch, generator=torch.Generator().manual_seed(0))
         pictures = {"online": batch.obs["image"], "target": batch.next_obs["image"]}
         if pad:
@@ -109,7 +112,7 @@ def test_every_update_shifts_the_pictures_of_both_states_unless_turned_off(monke
             pictures = {"online": shifted[0]["image"], "target": shifted[1]["image"]}
             assert not torch.equal(shifted[0]["image"], batch.obs["image"])
         for who, picture in pictures.items():
-            assert seen[who] and torch.equal(seen[who][-1], picture.flatten(1).float()), who
+            assert seen[who] and torch.equal(seen[who][-1], picture[:, None]), who
 
 
 def test_sac_from_pixels_shares_one_encoder_trained_by_the_critics_only_and_targets_read_a_lagged_copy(monkeypatch):
@@ -424,10 +427,10 @@ def test_the_keypoint_encoder_hands_coordinates_on_and_follows_an_object_across_
     encoder = ImageStateInput(2, (16, 16, 3), "keypoints", 50)
     assert encoder.out_dim == 2 + 64 and isinstance(encoder.head, torch.nn.Identity)
     encoder.trunk[-1].log_temperature.data.fill_(-4.0)  # a sharp softmax, as training makes it (it starts at 1)
-    pictures = torch.zeros(2, 16, 16, 3)
-    pictures[0, 2:5, 2:5] = 255.0  # a white square top left, then bottom right
-    pictures[1, 10:13, 10:13] = 255.0
-    x = torch.cat([torch.zeros(2, 2), pictures.reshape(2, -1)], 1)
+    pictures = torch.zeros(2, 1, 16, 16, 3, dtype=torch.uint8)
+    pictures[0, 0, 2:5, 2:5] = 255  # a white square top left, then bottom right
+    pictures[1, 0, 10:13, 10:13] = 255
+    x = PictureState(torch.zeros(2, 2), pictures)
     with torch.no_grad():
         keypoints = encoder(x)[:, 2:].view(2, 32, 2)
     moved = (keypoints[1] - keypoints[0]).mean(0)  # averaged over channels: every one sees the square move
@@ -448,13 +451,13 @@ def test_the_fused_q_adds_the_action_to_the_conv_map_and_scores_candidates_on_on
     torch.manual_seed(0)
     q = PictureActionQ(5, (16, 16, 3), 4, (32,))
     calls = []
-    q.state_input.register_forward_hook(lambda module, args, out: calls.append(args[0].shape[0]))
-    x = torch.cat([torch.randn(3, 5), torch.randint(0, 256, (3, 768)).float()], 1)
+    q.state_input.register_forward_hook(lambda module, args, out: calls.append(args[0].rows))
+    x = PictureState(torch.randn(3, 5), torch.randint(0, 256, (3, 1, 16, 16, 3), dtype=torch.uint8))
     actions = torch.rand(3, 6, 4) * 2 - 1
     with torch.no_grad():
         scores = q.score_actions(x, actions)
         assert calls == [3] and scores.shape == (3, 6)
-        plain = q(x.repeat_interleave(6, 0), actions.reshape(18, 4)).view(3, 6)
+        plain = q(PictureState(*(t.repeat_interleave(6, 0) for t in x)), actions.reshape(18, 4)).view(3, 6)
     torch.testing.assert_close(scores, plain, rtol=1e-4, atol=1e-5)
     assert scores.std(dim=1).min() > 0  # candidates differ
 
@@ -474,3 +477,49 @@ def test_qtopt_with_the_fused_network_trains_it_and_its_targets_keep_their_own()
     assert agent.q_target1.state_input is not agent.q.state_input
     with pytest.raises(ConfigError, match="fusion"):
         QTOptConfig(fusion="late").validate()
+
+
+@pytest.mark.parametrize(
+    "preset, settings",
+    [
+        ("grasp-qtopt-pixels", {}),
+        ("grasp-qtopt-pixels", {"fusion": "conv"}),
+        ("grasp-qtopt-pixels", {"algo": "sac"}),
+        ("pixelreach-sac-her", {}),  # the scene and its goal picture: two pictures, stacked
+    ],
+)
+def test_every_picture_reading_agent_hands_its_encoder_the_stored_uint8_pictures_shifted(preset, settings, monkeypatch):
+    """Built as a run builds it (``make_agent``), each agent's picture encoder receives the pictures as the replay
+    stores them (uint8 ``[B, K, H, W, C]``), shifted by the update's own shift, and unshifted when acting. Mutation:
+    `ObservationInput` flattening the pictures into the float vector (taskrl's old layout) fails it."""
+    import importlib
+
+    from taskrl.overrides import with_overrides
+    from taskrl.presets import preset_config
+    from taskrl.wiring.parts import make_agent, make_env
+
+    config = with_overrides(preset_config(preset), {"image_size": 16, "hidden_sizes": (8,), "num_envs": 4, **settings})
+    module = importlib.import_module(f"taskrl.agents.{config.algo}")
+    shifted = []
+    shift = module.shift_pictures
+    monkeypatch.setattr(
+        module, "shift_pictures", lambda obs, pad, generator=None: shifted.append(shift(obs, pad, generator)) or shifted[-1]
+    )
+    env = make_env(config, "cpu")
+    agent = make_agent(config, env, torch.device("cpu"))
+    encoder = agent.encoder if config.algo == "sac" else agent.q.state_input
+    seen = []
+    encoder.register_forward_hook(lambda m, args, out: seen.append(args[0].pictures))
+    obs = env.reset(seed=0)
+    keys = [k for k in ("image", "goal_image") if k in obs]
+    stored = lambda o: torch.stack([o[k] for k in keys], 1)  # noqa: E731
+
+    agent.act(obs)
+    assert seen[-1].dtype == torch.uint8 and torch.equal(seen[-1], stored(obs))
+    batch = one_step(env, obs, agent.act(obs, explore=True, generator=torch.Generator().manual_seed(0)))
+    seen.clear()
+    agent.update(batch, generator=torch.Generator().manual_seed(1))
+    assert shifted and not torch.equal(stored(shifted[0]), stored(batch.obs))
+    assert any(s.dtype == torch.uint8 and torch.equal(s, stored(shifted[0])) for s in seen)  # the shifted s
+    assert not any(torch.equal(s, stored(batch.obs)) for s in seen)  # never the stored s unshifted
+    env.close()

@@ -1,16 +1,16 @@
 """Image encoders and the image augmentation of the update.
 
-An image observation reaches a network as uint8 values (0-255) in the last columns of its flat input
-([`ObservationInput`][taskrl.agents.parts.ObservationInput] leaves them unnormalised); `ImageStateInput` splits
-them off, encodes the picture once per state with a conv stack or a small ResNet, and hands
-``[vector part, image features]`` on. `random_shift` is DrQ's augmentation: pad by replicating the
+An image observation reaches a network as the replay stores it, uint8 ``[B, H, W, C]`` (0-255) beside the state
+vector ([`ObservationInput`][taskrl.agents.parts.ObservationInput] gives both as a
+[`PictureState`][taskrl.agents.parts.PictureState]; no picture is flattened into the vector); `ImageStateInput`
+encodes the pictures once per state with a conv stack or a small ResNet, and hands ``[vector, image features]`` on. `random_shift` is DrQ's augmentation: pad by replicating the
 border, crop back at a random offset drawn per observation (a scene and its goal picture move together).
 """
 
 from __future__ import annotations
 
 import math
-from typing import Literal
+from typing import Any, Literal
 
 import torch
 from torch import nn
@@ -25,6 +25,8 @@ __all__ = [
     "conv_stack",
     "random_shift",
     "shift_pictures",
+    "stacked_channels",
+    "picture_values",
     "small_resnet",
     "SpatialSoftmax",
     "keypoint_stack",
@@ -33,7 +35,7 @@ __all__ = [
 ENCODERS = ("conv", "resnet", "keypoints")
 #: the encoders `FiLMPictureEncoder` (behaviour cloning) builds
 FILM_ENCODERS = ("conv", "resnet")
-#: the observation keys that hold pictures, in the order their columns end the flat input
+#: the observation keys that hold pictures, in the order they are stacked for the encoder (the scene, then its goal)
 PICTURE_KEYS = ("image", "goal_image")
 
 
@@ -124,15 +126,23 @@ def keypoint_stack(channels: int, height: int, width: int, orthogonal: bool = Tr
     )
 
 
+def stacked_channels(pictures: torch.Tensor) -> torch.Tensor:
+    """``[B, K, H, W, C]`` uint8 pictures -> ``[B, K*C, H, W]`` float, centred (``/ 255 - 0.5``): what the conv
+    encoders read. Centred as DrQ's are: a PixelReach run on all-positive inputs that never learnt ended with its
+    features nearly constant over states (std 0.009 against 0.45 in one that learnt)."""
+    b, k, h, w, c = pictures.shape
+    return pictures.permute(0, 1, 4, 2, 3).reshape(b, k * c, h, w) / 255.0 - 0.5
+
+
 class ImageStateInput(nn.Module):
-    """``x [B, vector + H*W*C] -> [B, vector + features]``: the image columns (uint8 values, channels last)
+    """``PictureState(vector [B, V], pictures [B, K, H, W, C] uint8) -> [B, V + features]``: the pictures
     through a conv encoder, a linear layer to ``features``, LayerNorm and tanh (DrQ's head), the vector
     columns unchanged. Several pictures (``image_shape`` ``(K, H, W, C)``: the scene and a goal picture)
     are stacked along the channels and encoded together, so the encoder compares them pixel by pixel.
 
     Args:
-        vector_dim: the leading columns that are not the image.
-        image_shape: ``(H, W, C)``, or ``(K, H, W, C)`` for K pictures one after the other.
+        vector_dim: the state vector's width ``V``.
+        image_shape: ``(H, W, C)``, or ``(K, H, W, C)`` for K pictures (the scene and a goal picture).
         kind: ``conv`` (`conv_stack`), ``resnet`` (`small_resnet`) or ``keypoints``
             (`keypoint_stack`: coordinates, which go to the network as they are, without the head).
         features: the image's feature size (``conv`` and ``resnet``).
@@ -155,13 +165,9 @@ class ImageStateInput(nn.Module):
             self.head, flat = nn.Sequential(nn.Linear(flat, features), nn.LayerNorm(features), nn.Tanh()), features
         self.out_dim = self.vector_dim + flat
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        *_, h, w, c = self.image_shape
-        k = self.pictures
-        # centred, as DrQ's are (see FiLMPictureEncoder.forward): a PixelReach run on all-positive inputs that never
-        # learnt ended with its features nearly constant over states (std 0.009 against 0.45 in one that learnt)
-        image = x[:, self.vector_dim :].reshape(-1, k, h, w, c).permute(0, 1, 4, 2, 3).reshape(-1, k * c, h, w) / 255.0 - 0.5
-        return torch.cat([x[:, : self.vector_dim], self.head(self.trunk(image))], dim=1)
+    def forward(self, state: Any) -> torch.Tensor:
+        """``state``: a [`PictureState`][taskrl.agents.parts.PictureState] -> ``[B, V + features]``."""
+        return torch.cat([state.vector, self.head(self.trunk(stacked_channels(state.pictures)))], dim=1)
 
 
 class FiLMPictureEncoder(nn.Module):
@@ -247,6 +253,6 @@ def shift_pictures(obs: dict[str, torch.Tensor], pad: int, generator: torch.Gene
     return {**obs, **dict(zip(keys, shifted.split(channels, dim=-1)))}
 
 
-def image_size(shape: tuple[int, ...]) -> int:
-    """Values in one picture of ``shape``."""
+def picture_values(shape: tuple[int, ...]) -> int:
+    """The values one observation's pictures of ``shape`` hold (``H*W*C``, or ``K*H*W*C``)."""
     return int(math.prod(shape))

@@ -20,7 +20,8 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from taskrl.encoders import _conv, _conv_blocks
+from taskrl.agents.parts import PictureState
+from taskrl.encoders import _conv, _conv_blocks, stacked_channels
 from taskrl.nets import mlp
 
 __all__ = ["FUSIONS", "PictureActionQ"]
@@ -32,7 +33,8 @@ LATE = 16  # channels of the late convolution
 
 
 class _EarlyPicture(nn.Module):
-    """``x [B, vector + H*W*C] -> ([B, vector], [B, 32, H/8, W/8])``: the picture's early conv map, once per state."""
+    """``PictureState(vector [B, V], pictures [B, K, H, W, C]) -> ([B, V], [B, 32, H/8, W/8])``: the pictures' early
+    conv map, once per state."""
 
     def __init__(self, vector_dim: int, image_shape: tuple[int, ...]) -> None:
         super().__init__()
@@ -44,19 +46,16 @@ class _EarlyPicture(nn.Module):
             layers += [conv, nn.ReLU()]
         self.convs = nn.Sequential(*layers)
 
-    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        *_, h, w, c = self.image_shape
-        k = self.pictures
-        image = x[:, self.vector_dim :].reshape(-1, k, h, w, c).permute(0, 1, 4, 2, 3).reshape(-1, k * c, h, w) / 255.0 - 0.5
-        return x[:, : self.vector_dim], self.convs(image)
+    def forward(self, state: PictureState) -> tuple[torch.Tensor, torch.Tensor]:
+        return state.vector, self.convs(stacked_channels(state.pictures))
 
 
 class PictureActionQ(nn.Module):
     """Q(x, a) with the action added to an intermediate conv feature map (module docstring).
 
     Args:
-        vector_dim: the leading columns of ``x`` that are not the picture (the state vector, normalised).
-        image_shape: ``(H, W, C)`` (or ``(K, H, W, C)``) of the picture in the remaining columns (uint8 values).
+        vector_dim: the state vector's width (normalised).
+        image_shape: ``(H, W, C)`` (or ``(K, H, W, C)``) of the pictures beside it (uint8 values).
         action_dim: the action's width.
         hidden_sizes: widths of the MLP after the late convolution.
     """
@@ -75,13 +74,13 @@ class PictureActionQ(nn.Module):
         added = torch.relu(early + self.embed(torch.cat([vector, action], -1))[:, :, None, None])
         return self.head(self.late(added)).squeeze(-1)
 
-    def forward(self, x: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
-        """x [B, D], action [B, A] -> [B]."""
+    def forward(self, x: PictureState, action: torch.Tensor) -> torch.Tensor:
+        """x (``B`` states), action [B, A] -> [B]."""
         vector, early = self.state_input(x)
         return self._q(vector, early, action)
 
-    def score_actions(self, x: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
-        """x [B, D], actions [B, N, A] -> [B, N]: the early map once per state, the rest once per candidate."""
+    def score_actions(self, x: PictureState, actions: torch.Tensor) -> torch.Tensor:
+        """x (``B`` states), actions [B, N, A] -> [B, N]: the early map once per state, the rest once per candidate."""
         b, n, a = actions.shape
         vector, early = self.state_input(x)
         repeat = lambda t: t.repeat_interleave(n, 0)  # noqa: E731

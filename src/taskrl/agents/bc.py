@@ -37,6 +37,7 @@ import torch.nn.functional as F
 from taskrl.agents.base import Agent
 from taskrl.agents.parts import (
     ActionBox,
+    PictureState,
     check_learning_settings,
     check_non_negative,
     check_probability,
@@ -46,7 +47,7 @@ from taskrl.agents.spec import AlgorithmSpec
 from taskrl.conditioning.demo_encoder import DemoEncoder
 from taskrl.conditioning.networks import ConditionedMLP, ConditioningConfig
 from taskrl.conditioning.task_encoders import LanguageTaskEncoder
-from taskrl.encoders import FILM_ENCODERS, FiLMPictureEncoder, image_size, shift_pictures
+from taskrl.encoders import FILM_ENCODERS, FiLMPictureEncoder, picture_values, shift_pictures
 from taskrl.errors import ConfigError, one_of, require
 
 __all__ = ["BCAgent", "BCConfig"]
@@ -146,8 +147,8 @@ class BCAgent(Agent):
         self.image_shape = getattr(inputs, "image_shape", None)
         if self.image_shape is not None and len(self.image_shape) != 3:
             raise ConfigError("env", "behaviour cloning reads one camera picture per state; this env gives goal pictures too")
-        raw = image_size(self.image_shape) if self.image_shape is not None else 0
-        self.setup(config, device, inputs.keys, inputs.dim, conditioning, raw_dim=raw)
+        raw = picture_values(self.image_shape) if self.image_shape is not None else 0
+        self.setup(config, device, inputs.keys, inputs.dim, conditioning, picture_dim=raw)
         self.box = ActionBox(inputs.action_space, self.device)
         # state_dim: the state vector's width (the picture's columns excluded)
         self.action_dim, self.state_dim = self.box.dim, int(inputs.dim) - raw
@@ -288,12 +289,11 @@ class BCAgent(Agent):
         return None if table is None else table[task.long().view(-1)]
 
     # ---------------------------------------------------------------- acting
-    def _heads(self, x: torch.Tensor, context: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor | None]:
-        """``(mean [B, H, A], log_std [B, H, A] or None)`` in the unit box, from the flat input ``x`` (the state
-        vector, then the picture's values where the env has a camera)."""
+    def _heads(self, x: torch.Tensor | PictureState, context: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """``(mean [B, H, A], log_std [B, H, A] or None)`` in the unit box, from the input ``x`` (the state vector,
+        or a `PictureState` where the env has a camera: the picture goes to the encoder as stored)."""
         if self.encoder is not None:
-            picture = x[:, self.state_dim :].reshape(-1, *self.image_shape)
-            x = torch.cat([x[:, : self.state_dim], self.encoder(picture, context)], 1)
+            x = torch.cat([x.vector, self.encoder(x.pictures[:, 0], context)], 1)
         out = self.net(x, context)
         b, h, a = out.shape[0], self.config.chunk, self.action_dim
         if self.config.loss == "gaussian":

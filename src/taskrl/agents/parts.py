@@ -1,7 +1,8 @@
 """Pieces every agent shares, so each agent's file holds only its own algorithm.
 
 - `ObservationInput`: the network input (chosen observation keys -> float -> running
-  normalisation), one module for the online and target networks alike;
+  normalisation; pictures beside that vector as stored, a `PictureState`), one module for the online and target
+  networks alike;
 - `ActionBox`: between an action box ``[low, high]`` and the ``[-1, 1]^A`` networks see;
 - `td_target`: ``y = r + gamma (1 - terminated) v'``, optionally clipped;
 - `polyak_update`: ``theta_target <- tau theta + (1 - tau) theta_target`` over parameter lists;
@@ -16,47 +17,80 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, NamedTuple
 
 import torch
 from torch import nn
 
 from taskrl.agents.cem import action_bounds, sample_in_box
+from taskrl.encoders import PICTURE_KEYS
 from taskrl.errors import require
 from taskrl.nets import ObsConcat
 from taskrl.normalization import RunningNorm
 from taskrl.types import Obs
 
 
-class ObservationInput(nn.Module):
-    """``obs -> [keys concatenated, as float] -> (x - mean) / std`` (clipped), or no normalisation.
+class PictureState(NamedTuple):
+    """A batch of states as the networks of an agent with a camera read them: the state vector (normalised) and the
+    pictures as the replay stores them.
 
-    Args:
-        keys: observation keys the networks read, e.g. ``("observation", "desired_goal")``.
-        dim: total flattened size of those keys.
-        normalize: standardise with running statistics from the training batches.
-        raw_dim: trailing columns passed on as they are (an image's 0-255 values, which its encoder scales).
+    Attributes:
+        vector: ``[B, V]`` float, the vector keys concatenated (``V`` may be 0: pictures only).
+        pictures: ``[B, K, H, W, C]`` uint8, the picture keys (`taskrl.encoders.PICTURE_KEYS`: the scene, then a goal
+            picture) stacked; their encoder scales them.
     """
 
-    def __init__(self, keys: Sequence[str], dim: int, normalize: bool, raw_dim: int = 0) -> None:
-        super().__init__()
-        self.keys, self.dim, self.raw_dim = tuple(keys), int(dim), int(raw_dim)
-        self.encode = ObsConcat(keys)
-        self.normalize = (
-            RunningNorm(dim - raw_dim) if normalize and dim > raw_dim else nn.Identity()
-        )  # pixels only: nothing to scale
+    vector: torch.Tensor
+    pictures: torch.Tensor
 
-    def forward(self, obs: Obs) -> torch.Tensor:
-        x = self.encode(obs)
-        if not self.raw_dim:
-            return self.normalize(x)
-        cut = self.dim - self.raw_dim
-        return torch.cat([self.normalize(x[:, :cut]), x[:, cut:]], dim=1)
+    @property
+    def rows(self) -> int:
+        """The batch size ``B``."""
+        return self.vector.shape[0]
+
+
+def state_rows(x: torch.Tensor | PictureState) -> int:
+    """The batch size of a networks' input: a tensor ``[B, D]`` or a `PictureState`."""
+    return x.rows if isinstance(x, PictureState) else x.shape[0]
+
+
+class ObservationInput(nn.Module):
+    """``obs -> [vector keys concatenated, as float] -> (x - mean) / std`` (clipped), or no normalisation; where
+    the keys hold pictures (`taskrl.encoders.PICTURE_KEYS`), a `PictureState`: that vector beside the pictures as
+    they are (uint8 ``[B, H, W, C]`` each, stacked), never flattened into it.
+
+    Args:
+        keys: observation keys the networks read, e.g. ``("observation", "desired_goal")`` or ``("observation",
+            "image")``.
+        dim: the numbers one observation holds under those keys (pictures included).
+        normalize: standardise the vector with running statistics from the training batches.
+        picture_dim: how many of ``dim`` are pictures' values (so the vector's width is ``dim - picture_dim``).
+    """
+
+    def __init__(self, keys: Sequence[str], dim: int, normalize: bool, picture_dim: int = 0) -> None:
+        super().__init__()
+        self.keys, self.dim = tuple(keys), int(dim)
+        self.picture_keys = tuple(k for k in PICTURE_KEYS if k in self.keys)
+        self.vector_keys = tuple(k for k in self.keys if k not in self.picture_keys)
+        self.vector_dim = self.dim - int(picture_dim)
+        self.encode = ObsConcat(self.vector_keys)
+        # pixels only: nothing to scale
+        self.normalize = RunningNorm(self.vector_dim) if normalize and self.vector_dim > 0 else nn.Identity()
+
+    def forward(self, obs: Obs) -> torch.Tensor | PictureState:
+        if not self.picture_keys:
+            return self.normalize(self.encode(obs))
+        pictures = torch.stack([obs[k] for k in self.picture_keys], dim=1)
+        if self.vector_keys:
+            vector = self.normalize(self.encode(obs))
+        else:
+            vector = torch.zeros(pictures.shape[0], 0, device=pictures.device)
+        return PictureState(vector, pictures)
 
     def update_statistics(self, obs: Obs) -> None:
         """Merge a training batch into the running statistics (no-op without normalisation)."""
         if isinstance(self.normalize, RunningNorm):
-            self.normalize.update(self.encode(obs)[:, : self.dim - self.raw_dim])
+            self.normalize.update(self.encode(obs))
 
 
 class ActionBox:

@@ -72,10 +72,11 @@ from taskrl.agents.parts import (
     negative_return_bounds,
     polyak_update,
     share_on_bound,
+    state_rows,
     td_target,
 )
 from taskrl.agents.spec import AlgorithmSpec
-from taskrl.encoders import ENCODERS, ImageStateInput, image_size, shift_pictures
+from taskrl.encoders import ENCODERS, ImageStateInput, picture_values, shift_pictures
 from taskrl.errors import one_of, require
 from taskrl.fused_q import FUSIONS, PictureActionQ
 from taskrl.nets import StateActionQ
@@ -205,8 +206,8 @@ class QTOptAgent(Agent):
         image_shape: tuple[int, ...] | None = None,
     ) -> None:
         self.image_shape = tuple(image_shape) if image_shape is not None else None
-        raw = image_size(self.image_shape) if self.image_shape is not None else 0
-        self.setup(config, device, input_keys, input_dim, raw_dim=raw)
+        raw = picture_values(self.image_shape) if self.image_shape is not None else 0
+        self.setup(config, device, input_keys, input_dim, picture_dim=raw)
         self.box = ActionBox(action_space, self.device)
         self.action_dim = self.box.dim
         self.unit_low, self.unit_high = -torch.ones_like(self.box.low), torch.ones_like(self.box.high)
@@ -270,7 +271,7 @@ class QTOptAgent(Agent):
         if target and warm_start is None:
             sizes = {"iterations": c.target_iterations, "samples": c.target_samples, "elites": c.target_elites}
         return self.cem.maximize(
-            score, x.shape[0], self.unit_low, self.unit_high, init_mean=warm_start, generator=generator, **sizes
+            score, state_rows(x), self.unit_low, self.unit_high, init_mean=warm_start, generator=generator, **sizes
         )
 
     # ---------------------------------------------------------------- acting

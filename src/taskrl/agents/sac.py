@@ -67,7 +67,7 @@ from taskrl.agents.parts import (
 )
 from taskrl.agents.spec import AlgorithmSpec
 from taskrl.conditioning.networks import TaskConditioning, network_for
-from taskrl.encoders import ENCODERS, ImageStateInput, image_size, shift_pictures
+from taskrl.encoders import ENCODERS, ImageStateInput, picture_values, shift_pictures
 from taskrl.errors import one_of, require
 from taskrl.replay.batch import Batch, Obs
 
@@ -243,8 +243,8 @@ class SACAgent(Agent):
         image_shape: tuple[int, ...] | None = None,
     ) -> None:
         self.image_shape = tuple(image_shape) if image_shape is not None else None
-        raw = image_size(self.image_shape) if self.image_shape is not None else 0
-        self.setup(config, device, input_keys, input_dim, conditioning, raw_dim=raw)
+        raw = picture_values(self.image_shape) if self.image_shape is not None else 0
+        self.setup(config, device, input_keys, input_dim, conditioning, picture_dim=raw)
         self.box = ActionBox(action_space, self.device)
         self.action_dim = self.box.dim
         self.target_entropy = config.target_entropy_per_dim * self.action_dim

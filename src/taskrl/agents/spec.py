@@ -16,9 +16,10 @@ LoopKind = Literal["off_policy", "on_policy", "offline"]
 
 @dataclasses.dataclass(frozen=True)
 class AgentInputs:
-    """What an agent is built for: the observation keys its networks read, their flattened size,
-    and the action space; on envs with a camera, the picture's shape ``(H, W, C)`` (its key ``image`` comes
-    last in ``keys``, its values the last columns of the flat input)."""
+    """What an agent is built for: the observation keys its networks read, the numbers one observation holds under
+    them, and the action space; on envs with a camera, the pictures' shape ``(H, W, C)`` (``(2, H, W, C)`` with a goal
+    picture). Pictures reach the networks as stored, beside the vector of the other keys
+    ([`PictureState`][taskrl.agents.parts.PictureState])."""
 
     keys: tuple[str, ...]
     dim: int

@@ -27,7 +27,7 @@ from taskrl.training.per_task import evaluate_per_task
 __all__ = ["RunParts", "make_agent", "make_env", "make_evaluator", "make_relabeler", "resolve_device"]
 
 #: Observation keys the networks read, where the env has them (the task index is read separately).
-# the pictures last: their columns end the flat input. A goal given as a picture replaces the state goal as input
+# the pictures (kept as pictures beside the vector of the others). A goal given as a picture replaces the state goal as input
 # (the state goal stays in the observation for rewards and relabelling).
 AGENT_INPUT_KEYS = ("observation", "desired_goal", "image", "goal_image")
 
