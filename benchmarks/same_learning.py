@@ -46,7 +46,41 @@ CASES = {
     "pointreach-qtopt-her": ("pointreach-qtopt-her", ["--total-steps", "3000", "--eval-interval", "1500"]),
     "pointreach-mt-ppo-onehot": ("pointreach-mt-ppo-onehot", ["--total-steps", "8192", "--eval-interval", "4096"]),
     "pointreach-mt-sac-onehot": ("pointreach-mt-sac-onehot", ["--total-steps", "3000", "--eval-interval", "1500"]),
+    # from pictures: the scene and its goal picture (SAC), QT-Opt's two networks, BC-Z's FiLM encoder
+    "pixelreach-sac-her": (
+        "pixelreach-sac-her",
+        ["--total-steps", "1600", "--learning-starts", "800", "--eval-interval", "800", "--eval-episodes", "20"],
+    ),
+    "pixelpush-sac-her": (
+        "pixelpush-sac-her",
+        ["--total-steps", "1600", "--learning-starts", "800", "--eval-interval", "800", "--eval-episodes", "20"],
+    ),
+    "grasp-qtopt-pixels": (
+        "grasp-qtopt-pixels",
+        ["--total-steps", "1200", "--learning-starts", "400", "--eval-interval", "600", "--eval-episodes", "20"],
+    ),
+    "grasp-qtopt-pixels-conv": (
+        "grasp-qtopt-pixels",
+        [
+            "--fusion",
+            "conv",
+            "--total-steps",
+            "1200",
+            "--learning-starts",
+            "400",
+            "--eval-interval",
+            "600",
+            "--eval-episodes",
+            "20",
+        ],
+    ),
+    "bc-tabletop-language": (
+        "bc-tabletop-language",
+        ["--dataset", "tabletop-demos", "--total-steps", "300", "--eval-interval", "150", "--eval-episodes", "4"],
+    ),
 }
+#: datasets a case reads, collected once (by the working tree) into the cases' folder: name -> ``taskrl demos`` arguments
+DATASETS = {"tabletop-demos": ["collect", "tabletop", "--episodes", "10", "--noise", "0.2", "--no-progress"]}
 TIMING = {"wall_seconds", "env_steps_per_s", "updates_per_s"}
 #: exploration levels logged under another name (the value is the agent's, at the same step)
 RENAMED = {"epsilon", "random_action_prob"}
@@ -89,6 +123,10 @@ def main() -> None:
         tree = Path(tmp) / "base"
         subprocess.run(["git", "worktree", "add", "-q", "--detach", str(tree), args.base], check=True, cwd=ROOT)
         try:
+            for name, collect in DATASETS.items():
+                if any(name in CASES[case][1] for case in args.presets):
+                    command = [sys.executable, "-m", "taskrl.cli", "demos", *collect, "--out", str(Path(tmp) / name)]
+                    subprocess.run(command, check=True, env={**os.environ, "PYTHONPATH": str(ROOT / "src")}, capture_output=True)
             for case in args.presets:
                 preset, case_args = CASES[case]
                 base = run(tree / "src", preset, case_args, Path(tmp) / f"{case}-base")

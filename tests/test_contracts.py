@@ -17,6 +17,7 @@ import torch
 import taskrl
 from taskrl.agents.registry import ALGORITHMS
 from taskrl.config import TrainConfig
+from taskrl.encoders import PICTURE_ENCODERS
 from taskrl.envs.registry import ENV_FAMILIES
 from taskrl.errors import ConfigError
 from taskrl.fit import check_fit
@@ -310,3 +311,51 @@ def test_two_settings_that_switch_on_two_run_modes_are_one_line_naming_both():
             run_mode(both)
     finally:
         RUN_MODES.pop("collect_only")
+
+
+#: the algorithms that read pictures, and the picture family each trains on here
+PICTURE_RUNS = {"qtopt": "grasp", "sac": "grasp", "bc": "tabletop"}
+
+
+def test_every_algorithm_that_reads_pictures_is_generated_here():
+    assert set(PICTURE_RUNS) == {name for name, spec in ALGORITHMS.items() if spec.images}
+
+
+@pytest.mark.parametrize(
+    "encoder, algo", list(itertools.product(PICTURE_ENCODERS, PICTURE_RUNS)) if "PICTURE_ENCODERS" in globals() else []
+)
+def test_every_picture_encoder_trains_with_every_algorithm_that_reads_pictures(encoder, algo, tmp_path, request):
+    """A registered encoder is one every picture-reading algorithm trains with, or refuses in one line before building
+    (behaviour cloning: an encoder without FiLM blocks)."""
+    family = PICTURE_RUNS[algo]
+    settings: dict[str, Any] = {**SMALLEST[family], "encoder": encoder}
+    if algo == "bc":
+        settings["dataset"] = str(request.getfixturevalue("picture_demos"))
+    train = functools.partial(
+        taskrl.train, None, base=TrainConfig(), out=tmp_path / "run", env=family, algo=algo, num_envs=2, tensorboard=False
+    )
+    tiny = dict(
+        her="none", hidden_sizes=(16,), learning_starts=2, updates_per_step=1, batch_size=4, eval_episodes=1, eval_interval=10**6
+    )
+    if algo == "bc" and PICTURE_ENCODERS[encoder].film_blocks is None:
+        with pytest.raises(ConfigError, match="encoder"):
+            train(total_steps=3, **{**tiny, **settings})
+        assert not (tmp_path / "run").exists()
+        return
+    run = train(total_steps=3 if algo == "bc" else 40, **{**tiny, **settings})
+    assert run.metrics["updates"] >= 1 and run.config.algo_settings.encoder == encoder
+    loaded = taskrl.load(run.run_dir)
+    encoder = (lambda agent: agent.q.state_input) if algo == "qtopt" else (lambda agent: agent.encoder)  # noqa: E731
+    assert isinstance(encoder(run.agent).trunk if algo != "bc" else encoder(run.agent).blocks, torch.nn.Module)
+    for mine, saved in zip(encoder(run.agent).state_dict().values(), encoder(loaded).state_dict().values()):
+        assert torch.equal(mine, saved)
+
+
+@pytest.fixture(scope="module")
+def picture_demos(tmp_path_factory):
+    """Two tabletop demonstrations per task, with their 32x32 pictures."""
+    from taskrl.cli import main
+
+    out = tmp_path_factory.mktemp("picture-demos") / "tabletop"
+    assert main(["demos", "collect", "tabletop", "--out", str(out), "--episodes", "2", "--no-progress"]) == 0
+    return out

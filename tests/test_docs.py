@@ -112,6 +112,60 @@ def test_the_new_sharing_strategy_guide_runs(tmp_path):
     assert done.returncode == 0, done.stderr[-2000:]
 
 
+def guide_code(name: str) -> str:
+    page = (ROOT / "docs" / "guides" / name).read_text()
+    return "\n".join(re.findall(r"```python\n(.*?)```", page, re.S))
+
+
+@pytest.mark.slow
+def test_the_new_image_encoder_guide_runs(tmp_path):
+    """The guide's encoder, registered from the user's module: QT-Opt, SAC and behaviour cloning train with it from the
+    command line, and its weights are saved and loaded."""
+    (tmp_path / "my_encoders.py").write_text(guide_code("new_image_encoder.md"))
+    env = {"PYTHONPATH": str(tmp_path)}
+    tiny = ["--env-module", "my_encoders", "--encoder", "pooled", "--image-size", "16", "--num-envs", "2", "--batch-size", "8"]
+    tiny += ["--learning-starts", "8", "--eval-episodes", "1", "--no-tensorboard", "--no-progress"]
+    for preset, algo in (("grasp-qtopt-pixels", "qtopt"), ("grasp-qtopt-pixels", "sac")):
+        done = cli("train", preset, "--algo", algo, *tiny, "--total-steps", "40", "--eval-interval", "40", "--out", algo, cwd=tmp_path, env=env)  # fmt: skip
+        assert done.returncode == 0, done.stderr[-2000:]
+        loaded = subprocess.run(
+            [sys.executable, "-c", f"import my_encoders, taskrl; a = taskrl.load('{algo}'); print(type(a).__name__)"],
+            cwd=tmp_path, env={**__import__("os").environ, **env}, capture_output=True, text=True,
+        )  # fmt: skip
+        assert loaded.returncode == 0, loaded.stderr[-2000:]
+    demos = cli("demos", "collect", "tabletop", "--episodes", "2", "--out", "demos", "--no-progress", cwd=tmp_path)
+    assert demos.returncode == 0, demos.stderr[-2000:]
+    done = cli(
+        "train", "bc-tabletop-language", "--dataset", "demos", *tiny[:4], "--image-size", "32", "--total-steps", "3",
+        "--eval-interval", "3", "--eval-episodes", "1", "--no-tensorboard", "--no-progress", "--out", "bc", cwd=tmp_path, env=env,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert (tmp_path / "bc" / "checkpoints" / "latest").exists()
+
+
+def test_the_new_run_mode_guide_runs(tmp_path):
+    """The guide's collect-only mode, registered from the user's code: the run resolves to it, stores its transitions,
+    makes no update and no evaluation before its first step; what it asks of the settings is one line."""
+    script = tmp_path / "guide.py"
+    script.write_text(
+        guide_code("new_run_mode.md")
+        + "\nimport taskrl\nfrom taskrl.config import TrainConfig\nfrom taskrl.errors import ConfigError\n"
+        + "from taskrl.overrides import with_overrides\nfrom taskrl.plan import resolve\n"
+        + "from taskrl.presets import preset_config\n"
+        + "config = with_overrides(preset_config('bitflip-her'), {'learning_starts': 10_000, 'total_steps': 400})\n"
+        + "assert resolve(config).mode.name == 'collect_only'\n"
+        + "assert resolve(with_overrides(config, {'learning_starts': 100})).mode.name == 'off_policy'\n"
+        + "run = taskrl.train('bitflip-her', out='run', n_bits=5, learning_starts=10_000, total_steps=400,"
+        + " eval_interval=200, eval_episodes=2, tensorboard=False)\n"
+        + "rows = list(__import__('csv').DictReader(open('run/metrics.csv')))\n"
+        + "assert run.metrics['updates'] == 0 and int(rows[0]['env_steps']) > 0, rows\n"
+        + "try:\n    resolve(with_overrides(config, {'save_replay': False}))\n    raise SystemExit('not refused')\n"
+        + "except ConfigError as error:\n    assert error.field == 'save_replay', error\n"
+    )
+    done = subprocess.run([sys.executable, str(script)], cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-2000:]
+
+
 def test_the_reference_documents_every_setting_family_algorithm_and_preset():
     from taskrl.agents.registry import ALGORITHMS
     from taskrl.envs.registry import ENV_FAMILIES

@@ -117,7 +117,7 @@ def test_every_update_shifts_the_pictures_of_both_states_unless_turned_off(monke
 
 def test_sac_from_pixels_shares_one_encoder_trained_by_the_critics_only_and_targets_read_a_lagged_copy(monkeypatch):
     import taskrl.agents.sac as sac
-    import taskrl.encoders as encoders
+    import taskrl.encoders.shift as encoders
 
     seen = []
     shift = encoders.random_shift

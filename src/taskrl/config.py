@@ -169,8 +169,9 @@ def field_docs(cls: type) -> dict[str, str]:
     for line in lines:
         text = line.strip()
         head, sep, rest = text.partition(":")
-        if sep and head and all(part.isidentifier() for part in head.replace(" ", "").split(",")):
-            current = [h.strip() for h in head.split(",")]
+        names = [h.strip() for h in head.split(",")]
+        if sep and head and all(name.isidentifier() for name in names):  # "lr:" or "a, b:", not "spatial softmax:"
+            current = names
             for name in current:
                 docs[name] = rest.strip()
         elif text and current:

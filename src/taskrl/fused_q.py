@@ -21,7 +21,9 @@ import torch
 from torch import nn
 
 from taskrl.agents.parts import PictureState
-from taskrl.encoders import _conv, _conv_blocks, stacked_channels
+from taskrl.encoders.conv import conv_blocks
+from taskrl.encoders.layers import conv3x3
+from taskrl.encoders.state_input import stacked_channels
 from taskrl.nets import mlp
 
 __all__ = ["FUSIONS", "PictureActionQ"]
@@ -42,7 +44,7 @@ class _EarlyPicture(nn.Module):
         *_, h, w, c = self.image_shape
         self.pictures = self.image_shape[0] if len(self.image_shape) == 4 else 1
         layers: list[nn.Module] = []
-        for conv in _conv_blocks(c * self.pictures)[:3]:  # the conv stack's three stride-2 layers
+        for conv in conv_blocks(c * self.pictures)[:3]:  # the conv stack's three stride-2 layers
             layers += [conv, nn.ReLU()]
         self.convs = nn.Sequential(*layers)
 
@@ -64,7 +66,7 @@ class PictureActionQ(nn.Module):
         super().__init__()
         self.state_input = _EarlyPicture(vector_dim, image_shape)  # what a state costs once (CEM reuses it)
         self.embed = nn.Sequential(nn.Linear(vector_dim + action_dim, 64), nn.ReLU(), nn.Linear(64, EMBED))
-        self.late = nn.Sequential(_conv(EMBED, LATE, 2), nn.ReLU(), nn.Flatten())
+        self.late = nn.Sequential(conv3x3(EMBED, LATE, 2), nn.ReLU(), nn.Flatten())
         *_, h, w, _ = self.state_input.image_shape
         with torch.no_grad():
             flat = self.late(torch.zeros(1, EMBED, -(-h // 8), -(-w // 8))).shape[1]

@@ -47,7 +47,7 @@ from taskrl.agents.spec import AlgorithmSpec
 from taskrl.conditioning.demo_encoder import DemoEncoder
 from taskrl.conditioning.networks import ConditionedMLP, ConditioningConfig
 from taskrl.conditioning.task_encoders import LanguageTaskEncoder
-from taskrl.encoders import FILM_ENCODERS, FiLMPictureEncoder, picture_values, shift_pictures
+from taskrl.encoders import FiLMPictureEncoder, picture_encoder, picture_values, shift_pictures
 from taskrl.errors import ConfigError, one_of, require
 
 __all__ = ["BCAgent", "BCConfig"]
@@ -77,8 +77,8 @@ class BCConfig:
         weight_decay: AdamW weight decay.
         held_out_tasks: task names (comma-separated) left out of training and kept for zero-shot
             evaluation (``taskrl eval RUN --held-out``); their demonstrations still serve as prompts there.
-        encoder: on envs with a camera, the picture's encoder, FiLM-modulated by the task: ``conv`` (four 3x3
-            convolutions of 32 channels) or ``resnet`` (a small ResNet).
+        encoder: on envs with a camera, the registered picture encoder (`taskrl.encoders`), FiLM-modulated by the
+            task in every block (an encoder that declares its blocks: ``conv``, ``resnet``).
         image_features: the encoded picture's size.
         augment_pad: on envs with a camera, the random shift of every training picture (pixels of padding; 0: none).
     """
@@ -98,7 +98,7 @@ class BCConfig:
     ensemble_decay: float = 0.5
     weight_decay: float = 1e-4
     held_out_tasks: str = ""
-    encoder: Literal["conv", "resnet"] = "conv"
+    encoder: str = "conv"
     image_features: int = 64
     augment_pad: int = 2
 
@@ -115,7 +115,7 @@ class BCConfig:
         check_probability(self, "language_prompts")
         require(self.demo_frames >= 2, "demo_frames", f"must be >= 2 (got {self.demo_frames})")
         require(1 <= self.chunk <= 100, "chunk", f"must be in 1..100 (got {self.chunk})")
-        one_of(self.encoder, FILM_ENCODERS, "encoder", "encoder")
+        picture_encoder(self.encoder, film=True)
         require(self.image_features >= 1, "image_features", f"must be >= 1 (got {self.image_features})")
         require(self.augment_pad >= 0, "augment_pad", f"must be >= 0 (got {self.augment_pad})")
 

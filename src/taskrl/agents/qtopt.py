@@ -76,7 +76,7 @@ from taskrl.agents.parts import (
     td_target,
 )
 from taskrl.agents.spec import AlgorithmSpec
-from taskrl.encoders import ENCODERS, ImageStateInput, picture_values, shift_pictures
+from taskrl.encoders import ImageStateInput, picture_encoder, picture_values, shift_pictures
 from taskrl.errors import one_of, require
 from taskrl.fused_q import FUSIONS, PictureActionQ
 from taskrl.nets import StateActionQ
@@ -111,10 +111,8 @@ class QTOptConfig:
         target_samples: candidate actions per row in the Bellman target's maximum (its CEM's samples per round).
         target_iterations: CEM rounds in the Bellman target's maximum.
         target_elites: elites of the Bellman target's CEM (its refit between rounds).
-        encoder: on envs with a camera, the picture's encoder in every Q-network: ``conv`` (four 3x3
-            convolutions), ``resnet`` (a small ResNet) or ``keypoints`` (each channel's expected position, a
-            spatial softmax: 64 coordinates read to a fraction of a pixel); the action joins after it, so CEM encodes a
-            picture once per state however many actions it scores.
+        encoder: on envs with a camera, the registered picture encoder (`taskrl.encoders`) in every Q-network; the
+            action joins after it, so CEM encodes a picture once per state however many actions it scores.
         image_features: the encoded picture's size (a linear layer, LayerNorm and tanh after the encoder).
         fusion: on envs with a camera, where the action meets the picture: ``flat`` (after the encoder's
             ``image_features``) or ``conv`` (QT-Opt's network: the action and the state vector embedded and added to
@@ -142,7 +140,7 @@ class QTOptConfig:
     target_samples: int = 32
     target_iterations: int = 1
     target_elites: int = 4
-    encoder: Literal["conv", "resnet", "keypoints"] = "conv"
+    encoder: str = "conv"
     image_features: int = 50
     fusion: Literal["flat", "conv"] = "flat"
     augment_pad: int = 4
@@ -152,7 +150,7 @@ class QTOptConfig:
         check_learning_settings(self)
         one_of(self.loss, ("huber", "mse", "cross_entropy"), "loss", "loss")
         one_of(self.twin, ("lagged", "independent"), "twin", "twin")
-        one_of(self.encoder, ENCODERS, "encoder", "encoder")
+        picture_encoder(self.encoder)
         one_of(self.fusion, FUSIONS, "fusion", "fusion")
         require(self.image_features >= 1, "image_features", f"must be >= 1 (got {self.image_features})")
         check_non_negative(self, "augment_pad")

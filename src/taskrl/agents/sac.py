@@ -48,7 +48,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any, Literal
+from typing import Any
 
 import torch
 import torch.nn.functional as F
@@ -67,8 +67,8 @@ from taskrl.agents.parts import (
 )
 from taskrl.agents.spec import AlgorithmSpec
 from taskrl.conditioning.networks import TaskConditioning, network_for
-from taskrl.encoders import ENCODERS, ImageStateInput, picture_values, shift_pictures
-from taskrl.errors import one_of, require
+from taskrl.encoders import ImageStateInput, picture_encoder, picture_values, shift_pictures
+from taskrl.errors import require
 from taskrl.replay.batch import Batch, Obs
 
 _LOG_2PI = math.log(2 * math.pi)
@@ -94,9 +94,8 @@ class SACConfig:
         per_task_alpha: multi-task runs: one learned temperature per task (else one shared).
         cql_alpha: weight of the conservative (CQL) penalty on the critics; 0 disables it.
         cql_samples: CQL: uniform and policy actions per state (N of each) in its logsumexp.
-        encoder: on envs with a camera, the picture's encoder shared by the actor and the critics: ``conv``
-            (four 3x3 convolutions of 32 channels), ``resnet`` (a small ResNet) or ``keypoints`` (a spatial softmax:
-            each channel's expected position).
+        encoder: on envs with a camera, the registered picture encoder (`taskrl.encoders`) shared by the actor and
+            the critics.
         image_features: the encoded picture's size (a linear layer, LayerNorm and tanh after the encoder).
         augment_pad: on envs with a camera, DrQ's random shift in every update (pixels of padding; 0: none).
     """
@@ -116,14 +115,14 @@ class SACConfig:
     per_task_alpha: bool = True
     cql_alpha: float = 0.0
     cql_samples: int = 10
-    encoder: Literal["conv", "resnet", "keypoints"] = "conv"
+    encoder: str = "conv"
     image_features: int = 50
     augment_pad: int = 4
 
     def validate(self) -> None:
         """Raise `ConfigError` naming the first bad setting."""
         check_learning_settings(self)
-        one_of(self.encoder, ENCODERS, "encoder", "encoder")
+        picture_encoder(self.encoder)
         require(self.image_features >= 1, "image_features", f"must be >= 1 (got {self.image_features})")
         require(self.augment_pad >= 0, "augment_pad", f"must be >= 0 (got {self.augment_pad})")
         require(self.init_alpha > 0, "init_alpha", f"must be > 0 (got {self.init_alpha})")

@@ -71,6 +71,7 @@ def add_config_flags(parser: argparse.ArgumentParser, env: str, algo: str, base:
     ambiguous short names (``{short flag: [its dotted flags]}``) for the error that names them."""
     from taskrl.agents.registry import ALGORITHMS
     from taskrl.config import to_dict
+    from taskrl.encoders import PICTURE_ENCODERS
     from taskrl.envs.registry import ENV_FAMILIES
     from taskrl.setting_names import dotted_name, leaf_fields, setting_help, setting_names
     from taskrl.sharing.registry import SHARING_STRATEGIES
@@ -81,6 +82,11 @@ def add_config_flags(parser: argparse.ArgumentParser, env: str, algo: str, base:
     docs[("env",)] += " Choices: " + "; ".join(f"{f.name} ({f.description})" for f in ENV_FAMILIES.values())
     docs[("algo",)] += " Choices: " + "; ".join(f"{a.name} ({a.description})" for a in ALGORITHMS.values())
     choices = {"env": tuple(ENV_FAMILIES), "algo": tuple(ALGORITHMS), "sharing": tuple(SHARING_STRATEGIES)}
+    # settings whose values are registered pieces: every registered one is a choice, with its summary in the help
+    registered = {("data_sharing", "sharing"): SHARING_STRATEGIES, (algo, "encoder"): PICTURE_ENCODERS}
+    for path, registry in registered.items():
+        if path in docs:
+            docs[path] += " Choices: " + "; ".join(f"{e.name} ({e.summary})" for e in registry.values())
     family = ENV_FAMILIES[env]
     titles = {
         "conditioning": "task conditioning (multi-task networks)",
@@ -104,8 +110,10 @@ def add_config_flags(parser: argparse.ArgumentParser, env: str, algo: str, base:
             text += f" [here: {shown}]"
         kwargs: dict[str, Any] = {"dest": dotted, "default": argparse.SUPPRESS, "help": text}
         origin = typing.get_origin(tp)
-        if name in choices and len(path) == 1 or path == ("data_sharing", "sharing"):
+        if name in choices and len(path) == 1:
             kwargs["choices"] = choices[name]
+        elif path in registered:
+            kwargs["choices"] = tuple(registered[path])
         elif tp is bool:
             kwargs["action"] = argparse.BooleanOptionalAction
         elif origin is typing.Literal:

@@ -1,0 +1,45 @@
+"""DrQ's random shift of pictures, and which observation keys hold pictures."""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch.nn import functional as F
+
+__all__ = ["PICTURE_KEYS", "picture_values", "random_shift", "shift_pictures"]
+
+#: the observation keys that hold pictures, in the order they are stacked for the encoder (the scene, then its goal)
+PICTURE_KEYS = ("image", "goal_image")
+
+
+def random_shift(images: torch.Tensor, pad: int, generator: torch.Generator | None = None) -> torch.Tensor:
+    """DrQ's random shift of ``[B, H, W, C]`` pictures: replicate-pad by ``pad`` and crop back at an offset
+    drawn per picture (0 to ``2 * pad`` in each direction). Same dtype and shape as given."""
+    if pad <= 0:
+        return images
+    b, h, w, c = images.shape
+    padded = F.pad(images.permute(0, 3, 1, 2).float(), (pad, pad, pad, pad), mode="replicate")  # [B, C, H+2p, W+2p]
+    offset = torch.randint(0, 2 * pad + 1, (b, 2), generator=generator, device=images.device)
+    rows = (offset[:, 0:1] + torch.arange(h, device=images.device))[:, None, :, None].expand(b, c, h, w + 2 * pad)
+    cropped = padded.gather(2, rows)
+    cols = (offset[:, 1:2] + torch.arange(w, device=images.device))[:, None, None, :].expand(b, c, h, w)
+    return cropped.gather(3, cols).permute(0, 2, 3, 1).to(images.dtype)
+
+
+def shift_pictures(obs: dict[str, torch.Tensor], pad: int, generator: torch.Generator | None = None) -> dict[str, torch.Tensor]:
+    """``obs`` with its pictures (`PICTURE_KEYS`) shifted by `random_shift`: one offset per row,
+    shared by the row's pictures, since a scene and its goal picture come from one camera and the policy
+    reads where the scene differs from the goal (independent offsets would move that difference by up to
+    ``2 * pad`` pixels)."""
+    keys = [k for k in PICTURE_KEYS if k in obs]
+    if not keys:
+        return obs
+    channels = [obs[k].shape[-1] for k in keys]
+    shifted = random_shift(torch.cat([obs[k] for k in keys], dim=-1), pad, generator)
+    return {**obs, **dict(zip(keys, shifted.split(channels, dim=-1)))}
+
+
+def picture_values(shape: tuple[int, ...]) -> int:
+    """The values one observation's pictures of ``shape`` hold (``H*W*C``, or ``K*H*W*C``)."""
+    return int(math.prod(shape))

@@ -1,0 +1,39 @@
+"""What a picture encoder declares: `PictureEncoder` (each encoder's file declares one)."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from typing import Literal
+
+from torch import nn
+
+__all__ = ["PictureEncoder"]
+
+
+@dataclasses.dataclass(frozen=True)
+class PictureEncoder:
+    """One picture encoder, as the RL agents (SAC, QT-Opt) and behaviour cloning build it.
+
+    Register one with [`register_picture_encoder`][taskrl.encoders.registry.register_picture_encoder]; ``--encoder NAME``
+    then uses it.
+
+    Attributes:
+        name: the value of ``--encoder``.
+        summary: one line for ``--help``.
+        trunk: ``(channels, height, width, orthogonal) -> module`` mapping ``[B, channels, H, W]`` float pictures
+            (centred, ``/ 255 - 0.5``) to ``[B, F]``; ``orthogonal``: DrQ's initialisation (the RL agents) rather than
+            PyTorch's (behaviour cloning).
+        head: whether DrQ's head (linear to ``image_features``, LayerNorm, tanh) follows the trunk; False: the trunk's
+            ``F`` numbers go on as they are (bounded coordinates, say).
+        film_blocks: ``(channels, orthogonal) -> [(block, output channels)]``: the blocks behaviour cloning FiLM-modulates
+            one by one (BC-Z conditions every block on the task); None: behaviour cloning refuses this encoder.
+        film_activation: where the FiLM encoder applies ReLU: after ``each`` block, or once at the ``end``.
+    """
+
+    name: str
+    summary: str
+    trunk: Callable[[int, int, int, bool], nn.Module]
+    head: bool = True
+    film_blocks: Callable[[int, bool], list[tuple[nn.Module, int]]] | None = None
+    film_activation: Literal["each", "end"] = "each"
