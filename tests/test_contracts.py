@@ -313,6 +313,36 @@ def test_two_settings_that_switch_on_two_run_modes_are_one_line_naming_both():
         RUN_MODES.pop("collect_only")
 
 
+def test_a_named_run_mode_is_used_where_it_fits_and_refused_in_one_line_where_it_does_not(capsys):
+    """``--mode NAME`` picks a mode that applies over the one registration order would (a user's mode registered
+    before a built-in), and one that does not apply is one line naming the mode the settings select."""
+    import dataclasses
+
+    from taskrl.cli import main
+    from taskrl.presets import preset_config
+    from taskrl.runmodes.spec import RunMode
+
+    early = RunMode(
+        "early", "a test's mode: off-policy, registered first", lambda c: True, lambda parts, books: None, ("off_policy",)
+    )
+    saved = dict(RUN_MODES)
+    RUN_MODES.clear()
+    RUN_MODES.update({"early": early, **saved})  # registered before every built-in: auto never picks it
+    try:
+        config = preset_config("bitflip-her")
+        assert run_mode(config).name == "off_policy"
+        assert run_mode(dataclasses.replace(config, mode="early")) is early
+        assert run_mode(dataclasses.replace(config, mode="off_policy")).name == "off_policy"
+    finally:
+        RUN_MODES.clear()
+        RUN_MODES.update(saved)
+    with pytest.raises(ConfigError, match=r"names the distributed run mode \(switched on by --distributed\).*select off_policy"):
+        run_mode(dataclasses.replace(config, mode="distributed"))
+    assert main(["train", "bitflip-her", "--mode", "stored_data", "--total-steps", "10"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("taskrl train: error: --mode names the stored_data run mode"), err
+
+
 #: the algorithms that read pictures, and the picture family each trains on here
 PICTURE_RUNS = {"qtopt": "grasp", "sac": "grasp", "bc": "tabletop"}
 

@@ -86,6 +86,9 @@ class TrainConfig:
         offline: learn from stored data only, never stepping an env to collect (the env's
             ``--dataset-quality`` datasets, or ``--offline-data``); ``total_steps``, ``eval_interval`` and
             ``checkpoint_interval`` then count gradient updates; evaluation still runs in the env.
+        mode: the run mode (how the run runs: ``off_policy``, ``on_policy``, ``dataset``, ``stored_data``,
+            ``distributed``, or a registered one); ``auto`` derives it from the algorithm and the switches given
+            (``--offline``, ``--distributed``). A mode named here must fit the run (one line says why not).
         max_hours: stop cleanly (evaluation, checkpoint) after this many hours of wall-clock in
             this invocation, to continue later with ``--resume``; 0 = no limit. Ctrl-C and
             SIGTERM stop the same way.
@@ -135,6 +138,7 @@ class TrainConfig:
     scripted_exploration: float = 0.0
     scripted_steps: int = 0
     offline: bool = False
+    mode: str = "auto"
     max_hours: float = 0.0
     compile: Literal["auto", "off", "default", "reduce-overhead", "max-autotune"] = "auto"
     threads: int = 1

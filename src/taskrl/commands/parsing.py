@@ -73,6 +73,7 @@ def add_config_flags(parser: argparse.ArgumentParser, env: str, algo: str, base:
     from taskrl.config import to_dict
     from taskrl.encoders import PICTURE_ENCODERS
     from taskrl.envs.registry import ENV_FAMILIES
+    from taskrl.runmodes.registry import RUN_MODES
     from taskrl.setting_names import dotted_name, leaf_fields, setting_help, setting_names
     from taskrl.sharing.registry import SHARING_STRATEGIES
 
@@ -81,7 +82,8 @@ def add_config_flags(parser: argparse.ArgumentParser, env: str, algo: str, base:
     values = to_dict(base) if base is not None and base.env == env and base.algo == algo else {}
     docs[("env",)] += " Choices: " + "; ".join(f"{f.name} ({f.description})" for f in ENV_FAMILIES.values())
     docs[("algo",)] += " Choices: " + "; ".join(f"{a.name} ({a.description})" for a in ALGORITHMS.values())
-    choices = {"env": tuple(ENV_FAMILIES), "algo": tuple(ALGORITHMS), "sharing": tuple(SHARING_STRATEGIES)}
+    docs[("mode",)] += " Choices: auto; " + "; ".join(f"{m.name} ({m.summary})" for m in RUN_MODES.values())
+    choices = {"env": tuple(ENV_FAMILIES), "algo": tuple(ALGORITHMS), "mode": ("auto", *RUN_MODES)}
     # settings whose values are registered pieces: every registered one is a choice, with its summary in the help
     registered = {("data_sharing", "sharing"): SHARING_STRATEGIES, (algo, "encoder"): PICTURE_ENCODERS}
     for path, registry in registered.items():

@@ -26,7 +26,7 @@ BUILT_IN: tuple[RunMode, ...] = (
     distributed.DISTRIBUTED,
 )
 
-RUN_MODES: Registry[RunMode] = Registry("run_mode", BUILT_IN)
+RUN_MODES: Registry[RunMode] = Registry("mode", BUILT_IN, hint=", or auto")
 
 
 def register_run_mode(mode: RunMode, replace: bool = False) -> RunMode:
@@ -35,8 +35,10 @@ def register_run_mode(mode: RunMode, replace: bool = False) -> RunMode:
 
 
 def run_mode(config: TrainConfig) -> RunMode:
-    """The mode ``config`` runs in; a `ConfigError` on ``algo`` when that mode does not run its algorithm, and on the
-    first setting when two settings switch on two modes."""
+    """The mode ``config`` runs in: ``config.mode`` when named, else the most recently registered mode that applies.
+
+    A `ConfigError` on ``mode`` when a named mode does not apply to the config, on ``algo`` when the mode does not run
+    its algorithm, and on the first setting when two settings switch on two modes."""
     loop = algorithm(config.algo).loop
     applying = [mode for mode in reversed(list(RUN_MODES.values())) if mode.applies(config)]
     switched = [mode for mode in applying if mode.selected_by]
@@ -47,6 +49,15 @@ def run_mode(config: TrainConfig) -> RunMode:
             f"--{first.selected_by.replace('_', '-')} selects the {first.name} run mode and "
             f"--{second.selected_by.replace('_', '-')} the {second.name} one; a run has one mode: drop one of them",
         )
+    if config.mode != "auto":
+        named = RUN_MODES.lookup(config.mode)
+        if named not in applying:
+            switch = f" (switched on by --{named.selected_by.replace('_', '-')})" if named.selected_by else ""
+            derived = f"; the settings given select {applying[0].name}" if applying else ""
+            raise ConfigError(
+                "mode", f"names the {named.name} run mode{switch}, which does not run this config{derived}; use auto"
+            )
+        applying = [named]
     if applying:
         mode = applying[0]
         if loop not in mode.loops:
