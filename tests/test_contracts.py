@@ -389,3 +389,23 @@ def picture_demos(tmp_path_factory):
     out = tmp_path_factory.mktemp("picture-demos") / "tabletop"
     assert main(["demos", "collect", "tabletop", "--out", str(out), "--episodes", "2", "--no-progress"]) == 0
     return out
+
+
+def test_every_family_with_a_camera_shares_one_camera_setting_validated_in_one_place():
+    """The families whose settings have a picture size take it from `CameraSettings`, and refuse a size outside its
+    one range with the same line."""
+    from taskrl.envs.camera import IMAGE_SIZES, CameraSettings
+
+    cameras = [f for f in ENV_FAMILIES.values() if "image_size" in {x.name for x in dataclasses.fields(f.settings)}]
+    assert {f.name for f in cameras} >= {"pixelreach", "pixelpush", "tabletop", "grasp", "kukagrasp", "fetchreach", "mt10"}
+    messages = set()
+    for family in cameras:
+        assert issubclass(family.settings, CameraSettings), family.name
+        named = {"env_id": GYM_IDS["box"]} if "env_id" in {x.name for x in dataclasses.fields(family.settings)} else {}
+        for size in (IMAGE_SIZES[0] - 1, IMAGE_SIZES[1] + 1):
+            with pytest.raises(ConfigError) as refused:
+                family.settings(image_size=size, **named).validate()
+            assert refused.value.field == "image_size", family.name
+            messages.add(refused.value.message.replace(str(size), "N"))
+        family.settings(image_size=IMAGE_SIZES[0], **named).validate()
+    assert len(messages) == 1, messages

@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Literal
 
+from taskrl.envs.camera import CameraSettings
 from taskrl.envs.gymnasium_adapter import VECTOR_STRATEGIES, GymnasiumGoalEnv
 from taskrl.envs.pixels import check_pixel_settings, pixel_factory
 from taskrl.envs.spec import EnvFamily, EnvRequest
@@ -26,7 +27,7 @@ FETCH_IDS = {
 
 
 @dataclasses.dataclass
-class FetchSettings:
+class FetchSettings(CameraSettings):
     """Settings of the Fetch families.
 
     Attributes:
@@ -42,6 +43,7 @@ class FetchSettings:
 
     def validate(self) -> None:
         one_of(self.vector_strategy, VECTOR_STRATEGIES, "vector_strategy", "strategy")
+        super().validate()
         check_pixel_settings(self)
 
 

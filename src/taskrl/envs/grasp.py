@@ -47,6 +47,7 @@ import numpy as np
 import torch
 
 from taskrl.envs.base import NativeEnv, Obs, StepResult
+from taskrl.envs.camera import CameraSettings
 from taskrl.envs.spec import EnvFamily, EnvRequest
 from taskrl.errors import one_of, require
 
@@ -88,7 +89,7 @@ FINGER_HALF = (0.012, 0.03)  # a finger's half-size across and along the jaw
 
 
 @dataclasses.dataclass
-class GraspSettings:
+class GraspSettings(CameraSettings):
     """Settings of the grasp env.
 
     Attributes:
@@ -118,7 +119,7 @@ class GraspSettings:
         one_of(self.objects, tuple(GRASP_OBJECT_SETS), "objects", "object set")
         one_of(self.reward, ("simulator", "detector"), "reward", "reward")
         require(1 <= self.num_objects <= 8, "num_objects", f"must be in 1..8 (got {self.num_objects})")
-        require(16 <= self.image_size <= 256, "image_size", f"must be in 16..256 pixels (got {self.image_size})")
+        super().validate()  # the camera
         require(self.horizon >= 1, "horizon", f"must be >= 1 (got {self.horizon})")
         require(self.max_move > 0 and self.max_turn > 0, "max_move", "max_move and max_turn must be > 0")
         require(0 < self.opening <= 1, "opening", f"must be in (0, 1] of the bin (got {self.opening})")

@@ -21,6 +21,7 @@ from typing import Any, Literal
 import gymnasium as gym
 
 from taskrl.envs.base import BatchedEnv
+from taskrl.envs.camera import CameraSettings
 from taskrl.envs.gymnasium_adapter import VECTOR_STRATEGIES, GymnasiumGoalEnv, GymnasiumVectorEnv
 from taskrl.envs.pixels import check_pixel_settings, pixel_factory
 from taskrl.envs.spec import EnvFamily, EnvRequest
@@ -33,7 +34,7 @@ PYTHON_SOURCE = "python:"
 
 
 @dataclasses.dataclass
-class GymnasiumSettings:
+class GymnasiumSettings(CameraSettings):
     """Settings of the ``gym`` family (any gymnasium environment).
 
     Attributes:
@@ -68,6 +69,7 @@ class GymnasiumSettings:
             f"must be >= 0 (0 = the registered limit; got {self.max_episode_steps})",
         )
         one_of(self.vector_strategy, VECTOR_STRATEGIES, "vector_strategy", "strategy")
+        super().validate()
         check_pixel_settings(self)
 
 

@@ -55,6 +55,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 
+from taskrl.envs.camera import CameraSettings
 from taskrl.envs.gymnasium_adapter import VECTOR_STRATEGIES, GymnasiumVectorEnv
 from taskrl.envs.spec import EnvFamily, EnvRequest
 from taskrl.errors import ConfigError, one_of, require
@@ -129,7 +130,7 @@ def random_grasp_action(generator: torch.Generator, n: int, height_hack: bool = 
 
 
 @dataclasses.dataclass
-class KukaGraspSettings:
+class KukaGraspSettings(CameraSettings):
     """Settings of the ``kukagrasp`` family (the pybullet grasping benchmark; the ``grasp`` extra).
 
     Attributes:
@@ -156,7 +157,7 @@ class KukaGraspSettings:
         one_of(self.vector_strategy, VECTOR_STRATEGIES, "vector_strategy", "strategy")
         require(self.redraw_every >= 1, "redraw_every", f"must be >= 1 episode (got {self.redraw_every})")
         require(1 <= self.num_objects <= 20, "num_objects", f"must be in 1-20 (got {self.num_objects})")
-        require(16 <= self.image_size <= 256, "image_size", f"must be in 16-256 pixels (got {self.image_size})")
+        super().validate()  # the camera
 
     def env_kwargs(self) -> dict[str, Any]:
         """The keyword arguments of one `KukaGraspEnv` copy."""

@@ -32,6 +32,7 @@ import numpy as np
 import torch
 
 from taskrl.envs.base import Obs, StepResult
+from taskrl.envs.camera import CameraSettings
 from taskrl.envs.gymnasium_env import PointReachGymEnv
 from taskrl.envs.point_reach import REWARD_TYPES, PointReach
 from taskrl.envs.spec import EnvFamily, EnvRequest
@@ -148,7 +149,7 @@ class PixelPushGymEnv(PointReachGymEnv):
 
 
 @dataclasses.dataclass
-class PixelPushSettings:
+class PixelPushSettings(CameraSettings):
     """Settings of the ``pixelpush`` family.
 
     Attributes:
@@ -167,7 +168,7 @@ class PixelPushSettings:
     def validate(self) -> None:
         one_of(self.reward, REWARD_TYPES, "reward", "reward")
         one_of(self.observation, OBSERVATIONS, "observation", "observation")
-        require(16 <= self.image_size <= 256, "image_size", f"must be in 16..256 pixels (got {self.image_size})")
+        super().validate()  # the camera
         require(self.horizon >= 1, "horizon", f"must be >= 1 (got {self.horizon})")
 
 

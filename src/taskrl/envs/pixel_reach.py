@@ -22,10 +22,11 @@ import numpy as np
 import torch
 
 from taskrl.envs.base import Obs
+from taskrl.envs.camera import CameraSettings
 from taskrl.envs.gymnasium_env import PointReachGymEnv
 from taskrl.envs.point_reach import REWARD_TYPES, PointReach
 from taskrl.envs.spec import EnvFamily, EnvRequest
-from taskrl.errors import one_of, require
+from taskrl.errors import one_of
 
 __all__ = ["FAMILY", "PixelReach", "PixelReachGymEnv", "PixelReachSettings"]
 
@@ -94,7 +95,7 @@ class PixelReachGymEnv(PointReachGymEnv):
 
 
 @dataclasses.dataclass
-class PixelReachSettings:
+class PixelReachSettings(CameraSettings):
     """Settings of the ``pixelreach`` family.
 
     Attributes:
@@ -107,7 +108,7 @@ class PixelReachSettings:
 
     def validate(self) -> None:
         one_of(self.reward, REWARD_TYPES, "reward", "reward")
-        require(16 <= self.image_size <= 256, "image_size", f"must be in 16..256 pixels (got {self.image_size})")
+        super().validate()  # the camera
 
 
 def _make(settings: PixelReachSettings, request: EnvRequest) -> PixelReach:

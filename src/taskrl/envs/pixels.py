@@ -26,7 +26,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from taskrl.errors import ConfigError, one_of, require
+from taskrl.errors import ConfigError, one_of
 
 __all__ = ["OBSERVATIONS", "PixelObservation", "check_pixel_settings", "pixel_factory"]
 
@@ -34,9 +34,8 @@ OBSERVATIONS = ("state", "pixels", "pixels+state")
 
 
 def check_pixel_settings(settings: Any) -> None:
-    """A family's ``observation`` and ``image_size`` settings; a ConfigError names the bad one."""
+    """A family's ``observation`` setting (its ``image_size`` is its `CameraSettings`'); a ConfigError names it."""
     one_of(settings.observation, OBSERVATIONS, "observation", "observation")
-    require(16 <= settings.image_size <= 512, "image_size", f"must be in 16..512 pixels (got {settings.image_size})")
 
 
 class PixelObservation(gym.ObservationWrapper):

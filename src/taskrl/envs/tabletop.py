@@ -37,6 +37,7 @@ import numpy as np
 import torch
 
 from taskrl.envs.base import BatchedEnv, NativeEnv, Obs, StepResult
+from taskrl.envs.camera import CameraSettings
 from taskrl.envs.gymnasium_env import TaskChoiceEnv
 from taskrl.envs.spec import DemoSource, EnvFamily, EnvRequest, Expert
 from taskrl.errors import one_of, require
@@ -244,7 +245,7 @@ class TabletopGymEnv(TaskChoiceEnv):
 
 
 @dataclasses.dataclass
-class TabletopSettings:
+class TabletopSettings(CameraSettings):
     """Settings of the ``tabletop`` family.
 
     Attributes:
@@ -264,7 +265,7 @@ class TabletopSettings:
 
     def validate(self) -> None:
         one_of(self.tasks, ("train", "all"), "tasks", "task set")
-        require(16 <= self.image_size <= 256, "image_size", f"must be in 16..256 pixels (got {self.image_size})")
+        super().validate()  # the camera
         require(self.horizon >= 1, "horizon", f"must be >= 1 (got {self.horizon})")
 
 

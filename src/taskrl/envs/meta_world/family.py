@@ -12,6 +12,7 @@ import numpy as np
 import torch
 
 from taskrl.envs.base import BatchedEnv
+from taskrl.envs.camera import CameraSettings
 from taskrl.envs.gymnasium_adapter import VECTOR_STRATEGIES
 from taskrl.envs.meta_world.catalogue import (
     METAWORLD_DESCRIPTIONS,
@@ -35,7 +36,7 @@ from taskrl.errors import ConfigError, one_of, require
 
 
 @dataclasses.dataclass
-class MetaWorldSettings:
+class MetaWorldSettings(CameraSettings):
     """Settings of the Meta-World families (``mt1``, ``mt10``, ``mt50``).
 
     Attributes:
@@ -73,6 +74,7 @@ class MetaWorldSettings:
         )
         require(self.max_episode_steps >= 1, "max_episode_steps", f"must be >= 1 (got {self.max_episode_steps})")
         one_of(self.vector_strategy, VECTOR_STRATEGIES, "vector_strategy", "strategy")
+        super().validate()
         check_pixel_settings(self)
 
 
