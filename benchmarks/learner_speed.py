@@ -200,6 +200,35 @@ def _with_compile(ours, compile_mode: str, per_call: int, *args):
     return ours(*args, compile_mode, per_call)
 
 
+def _later_run(key: str, seed: int, budget: int, interval: int, target: float) -> dict:
+    """What a user's later run with no flag gets: the same training in a new process, after an earlier process (not
+    timed) compiled the same graphs into the on-disk cache: a folder of this arm's own, so no other arm warms it and
+    no in-memory cache of this process helps."""
+    import os
+    import shutil
+    import subprocess
+    import sys
+
+    cache = tempfile.mkdtemp(prefix="taskrl-inductor-later-")
+    env = {**os.environ, "TORCHINDUCTOR_CACHE_DIR": cache}
+    command = [sys.executable, str(Path(__file__).resolve()), "one", "--cases", key, "--seeds", str(seed)]
+    command += ["--throughput-steps", str(budget)]
+    try:
+        for _ in range(2):  # the first run fills the cache; the second is the one measured
+            done = subprocess.run(command, env=env, check=True, capture_output=True, text=True)
+        return json.loads(done.stdout.strip().splitlines()[-1])
+    finally:
+        shutil.rmtree(cache, ignore_errors=True)
+
+
+def one(args) -> None:
+    """Print the result of one no-flag taskrl throughput run (``--cases KEY --seeds S --throughput-steps N``), for
+    `_later_run`'s processes."""
+    cases = {"dqn32": lambda: dqn_case(32, (64, 64)), "dqn256": lambda: dqn_case(256, (256, 256)), "sac": sac_case}
+    _, _, ours = cases[args.cases[0]]()
+    print(json.dumps(_with_compile(ours, "auto", 0, args.seeds[0], args.throughput_steps, 10**12, 0.0)), flush=True)
+
+
 #: SB3's updates per second on its own env, one update per env step (benchmarks/sb3_env_probe.py, Intel Xeon, RESULTS
 #: "Learner speed at equal work against Stable-Baselines3"): what ``--slice-seconds`` sizes the equal work by
 SB3_UPDATES_PER_S = {"dqn32": 462, "dqn256": 176}
@@ -227,6 +256,8 @@ def equal(args) -> tuple[str, dict]:
             "taskrl compiled, 4 per call": functools.partial(_with_compile, ours, "default", 4),
             # what a user gets with no flag: --compile auto --updates-per-call auto chose from the budget
             "taskrl, no flag": functools.partial(_with_compile, ours, "auto", 0),
+            # the same, as a user's later run: the graphs compiled by an earlier process, from the on-disk cache
+            "taskrl, no flag, later run": functools.partial(_later_run, key),
         }
         runners = {lib: run for lib, run in runners.items() if not args.libs or lib in args.libs or lib == "sb3"}
         runs: dict[str, dict[str, list]] = {lib: {"target": [], "throughput": []} for lib in runners}
@@ -271,10 +302,12 @@ def equal(args) -> tuple[str, dict]:
         if "taskrl, no flag" in runs and runs["taskrl, no flag"]["throughput"]:
             chosen = sorted({r.get("path", "?") for r in runs["taskrl, no flag"]["throughput"]})
             seconds = {lib: _median(r["throughput"], "seconds") for lib, r in runs.items() if r["throughput"]}
+            later = "taskrl, no flag, later run"
             lines.append(
                 f"\nWith no flag the run chose: {'; '.join(chosen)}. Seconds for the same work (compile included): "
                 + ", ".join(f"{lib} {s:.1f}" for lib, s in seconds.items())
                 + f"; SB3 / no flag: {seconds['sb3'] / seconds['taskrl, no flag']:.2f}x"
+                + (f", SB3 / no flag, later run: {seconds['sb3'] / seconds[later]:.2f}x" if later in seconds else "")
                 + (f", eager / no flag: {seconds['taskrl'] / seconds['taskrl, no flag']:.2f}x" if "taskrl" in seconds else "")
             )
         if runs["sb3"]["target"]:
@@ -756,7 +789,7 @@ def loop(args) -> tuple[str, dict]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("mode", choices=["equal", "bound", "curves", "loop", "kernels"])
+    parser.add_argument("mode", choices=["equal", "bound", "curves", "loop", "kernels", "one"])
     parser.add_argument("--loop-steps", type=int, default=8_000, help="loop: env steps of each timed run")
     parser.add_argument("--curve-cases", nargs="+", default=list(CURVE_CASES), choices=list(CURVE_CASES))
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
@@ -790,6 +823,9 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     fresh_compile_cache()  # before anything compiles: the compile times measured are those of a first run
+    if args.mode == "one":
+        one(args)
+        return
     table, data = {"equal": equal, "bound": bound, "curves": curves, "loop": loop, "kernels": kernels}[args.mode](args)
     path = args.json or RESULTS_DIR / f"learner_{args.mode}.json"
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -256,6 +256,9 @@ def test_a_compiled_run_with_several_updates_per_call_learns_bit_flipping(tmp_pa
     assert run.metrics["updates"] % 2 == 0
     assert run.metrics["success_rate"] >= 0.9  # a random policy: about 0.1 on 6 bits
     assert "compiled the updates (default) in" in capsys.readouterr().err
+    from taskrl.agents.compile_rule import cached_calls
+
+    assert cached_calls(run.config) == {2}  # a later run of these shapes expects a later run's compile
 
 
 def test_updates_per_call_is_refused_where_no_loop_takes_it():
@@ -341,6 +344,29 @@ def test_the_estimate_compiles_where_the_planned_updates_pass_the_break_even():
         config = dataclasses.replace(config, compile="auto", total_steps=int(factor * break_even))
         assert planned_updates(config) == int(factor * break_even)
         assert choose_compile(config, compiles=True, many_allowed=False).mode == expected
+
+
+def test_a_compile_an_earlier_run_made_is_estimated_at_a_later_runs_cost(monkeypatch, tmp_path):
+    """Between the break-even of a first compile and that of a later one, auto compiles only where a run of the same
+    shapes compiled before (its marker), and says so; other shapes (another n_bits) stay estimated as a first run."""
+    from taskrl.agents.compile_rule import LATER_RUN_FACTOR, MEASURED, cached_calls, choose_compile, remember_compiled
+
+    monkeypatch.setenv("TORCHINDUCTOR_CACHE_DIR", str(tmp_path))
+    dqn = MEASURED[0]  # DQN (64, 64) / 32
+    saved = (dqn.eager_ms - dqn.compiled_ms) / 1e3
+    updates = int(0.5 * (1 + LATER_RUN_FACTOR) * dqn.compile_seconds / saved)  # between the two break-evens
+    config, _ = _settled(
+        "bitflip-her", batch_size=32, hidden_sizes=(64, 64), updates_per_step=1.0, learning_starts=0, updates_per_call=1
+    )
+    config = dataclasses.replace(config, compile="auto", total_steps=updates)
+    assert cached_calls(config) == set()
+    assert choose_compile(config, compiles=True, many_allowed=False).mode == "off"
+    remember_compiled(config, 1)
+    assert cached_calls(config) == {1}
+    warm = choose_compile(config, compiles=True, many_allowed=False, cached=cached_calls(config))
+    assert warm.mode == "default" and "compiled before on this machine" in warm.reason
+    other = dataclasses.replace(config, env_settings=dataclasses.replace(config.env_settings, n_bits=9))
+    assert cached_calls(other) == set()
 
 
 def test_the_command_line_takes_auto_and_a_run_says_its_choice_first(tmp_path):

@@ -46,6 +46,7 @@ from taskrl.wiring.calls import (
     env_source,
     import_env_module,
     print_notes,
+    remember_compiled_graphs,
     resolve_config,
     run_title,
     settle_compile,
@@ -209,6 +210,7 @@ def train(
             try:
                 with stop.on_signals():
                     state = loop.run(env_seed=config.seed + state.env_steps)
+                remember_compiled_graphs(config, parts.agent)  # a later run of these shapes compiles from the cache
             finally:
                 logger.close()
                 parts.close()

@@ -6,6 +6,11 @@ call) the run's time is estimated as ``compile seconds + planned updates x ms pe
 and the fastest path is taken. A run's planned updates are its ``offline_updates`` plus
 ``updates_per_step x (total_steps - learning_starts)`` (an offline run's ``total_steps`` are updates).
 
+A compile is cheaper where an earlier run on this machine compiled the same shapes (the same algorithm, env
+settings, widths, batch, updates per call, device and torch): torch's on-disk cache then serves most of the work, and
+the estimate takes ``LATER_RUN_FACTOR`` of the first compile's seconds. A run that compiled leaves a marker of its
+shapes in the compile cache (`remember_compiled`) for later runs to find (`cached_calls`).
+
 Networks that read pictures (conv encoders) have no measured case: ``auto`` keeps them eager. Other cases not
 measured take the times of the measured case of the same algorithm nearest in work (batch x the
 network's weights, on a log scale); an algorithm with no case of its own takes SAC's (TD3 and QT-Opt: one
@@ -16,15 +21,34 @@ same rule is used, unmeasured there.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import json
 import math
+from pathlib import Path
 from typing import Any
 
-__all__ = ["MEASURED", "CompileChoice", "MeasuredUpdate", "choose_compile", "planned_updates"]
+import torch
+
+from taskrl.agents.compiled import compile_cache_dir
+
+__all__ = [
+    "MEASURED",
+    "CompileChoice",
+    "MeasuredUpdate",
+    "cached_calls",
+    "choose_compile",
+    "planned_updates",
+    "remember_compiled",
+]
 
 #: compiling four updates per call took 2.24x the seconds of one (49.2 against 22.0 s, DQN (256, 256) / 256:
 #: benchmarks/RESULTS.md, "Compile seconds of a first and a later run")
 MANY_COMPILE_FACTOR = 2.24
 MANY = 4  # updates per call of the compiled-many path
+#: a later run of the same shapes compiled in 0.26x a first run's seconds, with one update per call (5.8 against 22.0 s)
+#: and with four (12.6 against 49.2 s): DQN (256, 256) / 256, benchmarks/RESULTS.md, "Compile seconds of a first and a
+#: later run"
+LATER_RUN_FACTOR = 0.26
 
 
 @dataclasses.dataclass(frozen=True)
@@ -102,7 +126,42 @@ def nearest_measured(algo: str, hidden_sizes: tuple[int, ...], batch_size: int) 
     return min(own, key=lambda m: abs(math.log(m.work / work)))
 
 
-def choose_compile(config: Any, compiles: bool, many_allowed: bool, pictures: bool = False) -> CompileChoice:
+def _shapes_marker(config: Any, per_call: int) -> Path:
+    """The file that says a run of these shapes compiled on this machine: a hash of the algorithm, the env family and
+    its settings, the widths, the batch, the updates per call, the device and torch's version."""
+    shapes = {
+        "algo": config.algo,
+        "env": config.env,
+        "env_settings": dataclasses.asdict(config.env_settings),
+        "hidden_sizes": list(config.algo_settings.hidden_sizes),
+        "batch_size": config.batch_size,
+        "per_call": per_call,
+        "device": config.device,
+        "torch": torch.__version__,
+    }
+    digest = hashlib.sha256(json.dumps(shapes, sort_keys=True, default=str).encode()).hexdigest()[:24]
+    return Path(compile_cache_dir()) / "taskrl-compiled-shapes" / digest
+
+
+def cached_calls(config: Any) -> set[int]:
+    """The updates per call (1, `MANY`, and the run's own where set) whose graphs a run of ``config``'s shapes compiled
+    before on this machine."""
+    return {k for k in {1, MANY, max(config.updates_per_call, 1)} if _shapes_marker(config, k).exists()}
+
+
+def remember_compiled(config: Any, per_call: int) -> None:
+    """Leave the marker `cached_calls` finds: a run of ``config``'s shapes compiled ``per_call`` updates per call."""
+    marker = _shapes_marker(config, per_call)
+    try:
+        marker.parent.mkdir(parents=True, exist_ok=True)
+        marker.touch()
+    except OSError:  # a read-only cache: later runs estimate a first compile, as without a marker
+        pass
+
+
+def choose_compile(
+    config: Any, compiles: bool, many_allowed: bool, pictures: bool = False, cached: set[int] = frozenset()
+) -> CompileChoice:
     """The path of a run whose ``compile`` and ``updates_per_call`` may be ``auto`` (``updates_per_call`` 0).
 
     Args:
@@ -110,6 +169,8 @@ def choose_compile(config: Any, compiles: bool, many_allowed: bool, pictures: bo
         compiles: whether the algorithm has a compiled update.
         many_allowed: whether the run's loop takes several updates per call (off-policy, one process, online).
         pictures: whether its networks read camera pictures (conv encoders: no case measured, so ``auto`` stays eager).
+        cached: the updates per call whose graphs an earlier run of the same shapes compiled (`cached_calls`): their
+            compile is estimated at `LATER_RUN_FACTOR` of a first one.
     """
     mode_auto, calls_auto = config.compile == "auto", config.updates_per_call == 0
     if config.compile == "off" or not (mode_auto or calls_auto):  # set by the user: nothing to choose or say
@@ -121,13 +182,17 @@ def choose_compile(config: Any, compiles: bool, many_allowed: bool, pictures: bo
                              "pictures have no measured compiled update; --compile default tries one)")  # fmt: skip
     n = planned_updates(config)
     case = nearest_measured(config.algo, tuple(config.algo_settings.hidden_sizes), config.batch_size)
+
+    def compiling(k: int) -> float:  # seconds of compiling k updates per call: a first run's, or a later run's
+        return (LATER_RUN_FACTOR if k in cached else 1.0) * (MANY_COMPILE_FACTOR if k > 1 else 1.0) * case.compile_seconds
+
     eager = n * case.eager_ms / 1e3
-    one = case.compile_seconds + n * case.compiled_ms / 1e3
-    many = MANY_COMPILE_FACTOR * case.compile_seconds + n * case.compiled_many_ms / 1e3
+    one = compiling(1) + n * case.compiled_ms / 1e3
+    many = compiling(MANY) + n * case.compiled_many_ms / 1e3
     seconds = {("off", 1): eager, ("off", MANY): eager, ("default", 1): one, ("default", MANY): many}
     if not calls_auto:  # the number of updates per call as set (eager updates cost the same either way)
         k = config.updates_per_call
-        seconds = {("off", k): eager, ("default", k): many if k > 1 else one}
+        seconds = {("off", k): eager, ("default", k): compiling(k) + n * case.compiled_many_ms / 1e3 if k > 1 else one}
     elif not many_allowed:
         seconds = {p: t for p, t in seconds.items() if p[1] == 1}
     if not mode_auto:  # a compile mode as set (``off`` returned above): only its compiled paths
@@ -139,4 +204,9 @@ def choose_compile(config: Any, compiles: bool, many_allowed: bool, pictures: bo
         f"{n:,} planned updates, estimated {eager:.0f} s eager, {one:.0f} s compiled and {many:.0f} s compiled four per "
         f"call, from the measured {case.algo.upper()} {case.hidden_sizes} / {case.batch_size}"
     )
+    if cached:
+        calls = " and ".join(str(k) for k in sorted(cached))
+        basis += (
+            f"; graphs of {calls} per call compiled before on this machine, their compile at a later run's {LATER_RUN_FACTOR}x"
+        )
     return CompileChoice(mode, k, f"compile: {path} ({basis})")

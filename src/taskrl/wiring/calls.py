@@ -13,7 +13,7 @@ from typing import Any
 from rich.console import Console
 
 from taskrl import config as config_io
-from taskrl.agents.compile_rule import choose_compile
+from taskrl.agents.compile_rule import cached_calls, choose_compile, remember_compiled
 from taskrl.agents.registry import algorithm
 from taskrl.config import TrainConfig
 from taskrl.envs.registry import ENV_FAMILIES, family_for_source
@@ -113,10 +113,18 @@ def settle_compile(config: TrainConfig, notes: list[str]) -> TrainConfig:
     spec = algorithm(config.algo)
     many = spec.loop == "off_policy" and not config.cluster.distributed and not config.offline
     pictures = config.env in ENV_FAMILIES and ENV_FAMILIES.lookup(config.env).images
-    choice = choose_compile(config, spec.compiles, many, pictures)
+    choice = choose_compile(config, spec.compiles, many, pictures, cached_calls(config) if spec.compiles else set())
     if choice.reason:  # the run's first line
         notes.insert(0, choice.reason)
     return dataclasses.replace(config, compile=choice.mode, updates_per_call=choice.updates_per_call)
+
+
+def remember_compiled_graphs(config: TrainConfig, agent: Any) -> None:
+    """After a run: mark the shapes whose update graphs compiled (and did not fall back), for later runs' estimate."""
+    for name, per_call in (("step", 1), ("step_many", config.updates_per_call)):
+        step = getattr(agent, name, None)
+        if step is not None and getattr(step, "active", False) and getattr(step, "compile_seconds", 0.0) > 0:
+            remember_compiled(config, per_call)
 
 
 def budget_warnings(config: TrainConfig) -> list[str]:
