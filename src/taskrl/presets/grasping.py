@@ -1,0 +1,63 @@
+"""Grasping from the camera: the native bin and the pybullet benchmark (Quillen et al. 2018)."""
+
+from __future__ import annotations
+
+from taskrl.presets.fragments import KUKAGRASP, QTOPT
+from taskrl.presets.spec import Preset
+
+PRESETS: dict[str, Preset] = {
+    "grasp-qtopt-pixels": Preset(
+        "QT-Opt from the camera: grasp objects in a bin from 64x64 pictures (conv encoder, random shifts, the paper's "
+        "sigmoid Q with a log loss on the 0/1 grasp reward)",
+        {
+            **QTOPT,
+            "env": "grasp",
+            "her": "none",
+            "loss": "cross_entropy",
+            "clip_target": False,  # the sigmoid bounds Q to [0, 1] for the 0/1 reward
+            "gamma": 0.9,
+            "lr": 3e-4,
+            "hidden_sizes": (256, 256),
+            "num_envs": 16,
+            "batch_size": 64,
+            "buffer_size": 100_000,
+            "learning_starts": 1_000,
+            "updates_per_step": 0.25,
+            "total_steps": 200_000,
+            "eval_interval": 5_000,
+            "eval_episodes": 100,
+        },
+    ),
+    "kukagrasp-qtopt": Preset(
+        "QT-Opt on the pybullet grasping benchmark (Quillen et al. 2018): Kuka arm, 5 random objects, 64x64 camera; "
+        "its config's gamma 0.9, Adam 1e-3, 16 samples for the Bellman maximum; sigmoid Q with a log loss",
+        {
+            **KUKAGRASP,
+            "algo": "qtopt",
+            "loss": "cross_entropy",
+            "clip_target": False,  # the sigmoid bounds Q to [0, 1] for the 0/1 grasp reward
+            "gamma": 0.9,
+            "lr": 1e-3,
+            "hidden_sizes": (256, 256),
+            "target_samples": 16,
+            "batch_size": 64,
+            "learning_starts": 0,
+            "updates_per_step": 1.0,
+            "total_steps": 15_000,
+            "eval_interval": 5_000,
+        },
+    ),
+    "kukagrasp-random": Preset(
+        "the benchmark's random grasps (uniform actions, moving down 9 times in 10) stored as pictures, for "
+        "--offline-data: about 3 env steps per grasp, so 31,000 steps are about 10,000 grasps; no learning",
+        {
+            **KUKAGRASP,
+            "algo": "qtopt",
+            "scripted_exploration": 1.0,
+            "learning_starts": 10**9,  # collection only: no update
+            "total_steps": 31_000,
+            "eval_interval": 10**9,
+            "eval_episodes": 1,
+        },
+    ),
+}
