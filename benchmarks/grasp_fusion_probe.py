@@ -27,10 +27,10 @@ from torch import nn
 
 sys.path.insert(0, str(Path(__file__).parent))
 from grasp_probe import STATE, auc, placed_bins, rows_of, shifted  # noqa: E402
-from taskrl.agents.parts import PictureState  # noqa: E402
 from taskrl.encoders import ImageStateInput  # noqa: E402
 from taskrl.fused_q import PictureActionQ  # noqa: E402
 from taskrl.nets import StateActionQ  # noqa: E402
+from taskrl.types import PictureState  # noqa: E402
 
 HIDDEN = (256, 256)
 

@@ -27,9 +27,9 @@ from torch import nn
 
 sys.path.insert(0, str(Path(__file__).parent))
 from common import append_results  # noqa: E402
-from taskrl.agents.parts import PictureState  # noqa: E402
 from taskrl.encoders import ImageStateInput, random_shift  # noqa: E402
 from taskrl.envs.grasp import Grasp, GraspSettings  # noqa: E402
+from taskrl.types import PictureState  # noqa: E402
 
 STATE = 5  # the grasp env's state vector
 

@@ -9,13 +9,14 @@ import torch
 
 import taskrl
 from helpers import small_run
-from taskrl.agents.parts import ObservationInput, PictureState
+from taskrl.agents.parts import ObservationInput
 from taskrl.agents.qtopt import QTOptAgent, QTOptConfig
 from taskrl.encoders import ImageStateInput, random_shift
 from taskrl.envs.grasp import Grasp, GraspSettings
 from taskrl.errors import ConfigError
 from taskrl.nets import StateActionQ
 from taskrl.replay.batch import Batch
+from taskrl.types import PictureState
 
 
 def one_step(env: Grasp, obs: dict, action: torch.Tensor) -> Batch:

@@ -20,11 +20,11 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from taskrl.agents.parts import PictureState
 from taskrl.encoders.conv import conv_blocks
 from taskrl.encoders.layers import conv3x3
 from taskrl.encoders.state_input import stacked_channels
 from taskrl.nets import mlp
+from taskrl.types import PictureState
 
 __all__ = ["FUSIONS", "PictureActionQ"]
 

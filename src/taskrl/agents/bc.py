@@ -37,7 +37,6 @@ import torch.nn.functional as F
 from taskrl.agents.base import Agent
 from taskrl.agents.parts import (
     ActionBox,
-    PictureState,
     check_learning_settings,
     check_non_negative,
     check_probability,
@@ -49,6 +48,7 @@ from taskrl.conditioning.networks import ConditionedMLP, ConditioningConfig
 from taskrl.conditioning.task_encoders import LanguageTaskEncoder
 from taskrl.encoders import FiLMPictureEncoder, picture_encoder, picture_values, shift_pictures
 from taskrl.errors import ConfigError, one_of, require
+from taskrl.types import PictureState
 
 __all__ = ["BCAgent", "BCConfig"]
 

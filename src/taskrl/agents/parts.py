@@ -17,7 +17,7 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any, NamedTuple
+from typing import Any
 
 import torch
 from torch import nn
@@ -27,31 +27,7 @@ from taskrl.encoders import PICTURE_KEYS
 from taskrl.errors import require
 from taskrl.nets import ObsConcat
 from taskrl.normalization import RunningNorm
-from taskrl.types import Obs
-
-
-class PictureState(NamedTuple):
-    """A batch of states as the networks of an agent with a camera read them: the state vector (normalised) and the
-    pictures as the replay stores them.
-
-    Attributes:
-        vector: ``[B, V]`` float, the vector keys concatenated (``V`` may be 0: pictures only).
-        pictures: ``[B, K, H, W, C]`` uint8, the picture keys (`taskrl.encoders.PICTURE_KEYS`: the scene, then a goal
-            picture) stacked; their encoder scales them.
-    """
-
-    vector: torch.Tensor
-    pictures: torch.Tensor
-
-    @property
-    def rows(self) -> int:
-        """The batch size ``B``."""
-        return self.vector.shape[0]
-
-
-def state_rows(x: torch.Tensor | PictureState) -> int:
-    """The batch size of a networks' input: a tensor ``[B, D]`` or a `PictureState`."""
-    return x.rows if isinstance(x, PictureState) else x.shape[0]
+from taskrl.types import Obs, PictureState
 
 
 class ObservationInput(nn.Module):

@@ -72,7 +72,6 @@ from taskrl.agents.parts import (
     negative_return_bounds,
     polyak_update,
     share_on_bound,
-    state_rows,
     td_target,
 )
 from taskrl.agents.spec import AlgorithmSpec
@@ -81,6 +80,7 @@ from taskrl.errors import one_of, require
 from taskrl.fused_q import FUSIONS, PictureActionQ
 from taskrl.nets import StateActionQ
 from taskrl.replay.batch import Batch, Obs
+from taskrl.types import state_rows
 
 
 @dataclasses.dataclass

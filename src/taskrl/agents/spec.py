@@ -19,7 +19,7 @@ class AgentInputs:
     """What an agent is built for: the observation keys its networks read, the numbers one observation holds under
     them, and the action space; on envs with a camera, the pictures' shape ``(H, W, C)`` (``(2, H, W, C)`` with a goal
     picture). Pictures reach the networks as stored, beside the vector of the other keys
-    ([`PictureState`][taskrl.agents.parts.PictureState])."""
+    ([`PictureState`][taskrl.types.PictureState])."""
 
     keys: tuple[str, ...]
     dim: int

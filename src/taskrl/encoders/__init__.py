@@ -3,7 +3,7 @@ augmentation of the update.
 
 An image observation reaches a network as the replay stores it, uint8 ``[B, H, W, C]`` (0-255) beside the state
 vector ([`ObservationInput`][taskrl.agents.parts.ObservationInput] gives both as a
-[`PictureState`][taskrl.agents.parts.PictureState]; no picture is flattened into the vector); `ImageStateInput`
+[`PictureState`][taskrl.types.PictureState]; no picture is flattened into the vector); `ImageStateInput`
 encodes the pictures once per state with a conv stack or a small ResNet, and hands ``[vector, image features]`` on. `random_shift` is DrQ's augmentation: pad by replicating the
 border, crop back at a random offset drawn per observation (a scene and its goal picture move together).
 """

@@ -53,7 +53,7 @@ class ImageStateInput(nn.Module):
         self.out_dim = self.vector_dim + flat
 
     def forward(self, state: Any) -> torch.Tensor:
-        """``state``: a [`PictureState`][taskrl.agents.parts.PictureState] -> ``[B, V + features]``."""
+        """``state``: a [`PictureState`][taskrl.types.PictureState] -> ``[B, V + features]``."""
         return torch.cat([state.vector, self.head(self.trunk(stacked_channels(state.pictures)))], dim=1)
 
 
