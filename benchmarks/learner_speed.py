@@ -221,11 +221,14 @@ def _later_run(key: str, seed: int, budget: int, interval: int, target: float) -
         shutil.rmtree(cache, ignore_errors=True)
 
 
+#: the equal-work cases by name: ``() -> (title, sb3 runner, taskrl runner)``
+EQUAL_CASES = {"dqn32": lambda: dqn_case(32, (64, 64)), "dqn256": lambda: dqn_case(256, (256, 256)), "sac": lambda: sac_case()}
+
+
 def one(args) -> None:
     """Print the result of one no-flag taskrl throughput run (``--cases KEY --seeds S --throughput-steps N``), for
     `_later_run`'s processes."""
-    cases = {"dqn32": lambda: dqn_case(32, (64, 64)), "dqn256": lambda: dqn_case(256, (256, 256)), "sac": sac_case}
-    _, _, ours = cases[args.cases[0]]()
+    _, _, ours = EQUAL_CASES[args.cases[0]]()
     print(json.dumps(_with_compile(ours, "auto", 0, args.seeds[0], args.throughput_steps, 10**12, 0.0)), flush=True)
 
 
@@ -235,7 +238,6 @@ SB3_UPDATES_PER_S = {"dqn32": 462, "dqn256": 176}
 
 
 def equal(args) -> tuple[str, dict]:
-    cases = {"dqn32": lambda: dqn_case(32, (64, 64)), "dqn256": lambda: dqn_case(256, (256, 256)), "sac": sac_case}
     budgets = {"dqn32": (100_000, 20_000), "dqn256": (100_000, 20_000), "sac": (20_000, 6_000)}
     if args.throughput_steps:
         budgets = {key: (to_target, args.throughput_steps) for key, (to_target, _) in budgets.items()}
@@ -247,7 +249,7 @@ def equal(args) -> tuple[str, dict]:
     out, lines = {}, []
     reused = _earlier_runs(args.reuse_log, args.seeds)
     for key in args.cases:
-        title, sb3, ours = cases[key]()
+        title, sb3, ours = EQUAL_CASES[key]()
         to_target, throughput_steps = budgets[key]
         runners = {
             "sb3": sb3,

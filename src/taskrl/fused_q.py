@@ -38,9 +38,9 @@ class _EarlyPicture(nn.Module):
     """``PictureState(vector [B, V], pictures [B, K, H, W, C]) -> ([B, V], [B, 32, H/8, W/8])``: the pictures' early
     conv map, once per state."""
 
-    def __init__(self, vector_dim: int, image_shape: tuple[int, ...]) -> None:
+    def __init__(self, image_shape: tuple[int, ...]) -> None:
         super().__init__()
-        self.vector_dim, self.image_shape = int(vector_dim), tuple(int(n) for n in image_shape)
+        self.image_shape = tuple(int(n) for n in image_shape)
         *_, h, w, c = self.image_shape
         self.pictures = self.image_shape[0] if len(self.image_shape) == 4 else 1
         layers: list[nn.Module] = []
@@ -64,7 +64,7 @@ class PictureActionQ(nn.Module):
 
     def __init__(self, vector_dim: int, image_shape: tuple[int, ...], action_dim: int, hidden_sizes: tuple[int, ...]) -> None:
         super().__init__()
-        self.state_input = _EarlyPicture(vector_dim, image_shape)  # what a state costs once (CEM reuses it)
+        self.state_input = _EarlyPicture(image_shape)  # what a state costs once (CEM reuses it)
         self.embed = nn.Sequential(nn.Linear(vector_dim + action_dim, 64), nn.ReLU(), nn.Linear(64, EMBED))
         self.late = nn.Sequential(conv3x3(EMBED, LATE, 2), nn.ReLU(), nn.Flatten())
         *_, h, w, _ = self.state_input.image_shape
