@@ -355,8 +355,10 @@ def test_every_algorithm_that_reads_pictures_is_generated_here():
     "encoder, algo", list(itertools.product(PICTURE_ENCODERS, PICTURE_RUNS)) if "PICTURE_ENCODERS" in globals() else []
 )
 def test_every_picture_encoder_trains_with_every_algorithm_that_reads_pictures(encoder, algo, tmp_path, request):
-    """A registered encoder is one every picture-reading algorithm trains with, or refuses in one line before building
-    (behaviour cloning: an encoder without FiLM blocks)."""
+    """A registered encoder is one every picture-reading algorithm trains with (the named encoder is the one built), or
+    refuses in one line before building (behaviour cloning: an encoder without FiLM blocks). Mutation: every name
+    building the conv stack (`picture_encoder`) fails it."""
+    encoder_name = encoder
     family = PICTURE_RUNS[algo]
     settings: dict[str, Any] = {**SMALLEST[family], "encoder": encoder}
     if algo == "bc":
@@ -376,7 +378,10 @@ def test_every_picture_encoder_trains_with_every_algorithm_that_reads_pictures(e
     assert run.metrics["updates"] >= 1 and run.config.algo_settings.encoder == encoder
     loaded = taskrl.load(run.run_dir)
     encoder = (lambda agent: agent.q.state_input) if algo == "qtopt" else (lambda agent: agent.encoder)  # noqa: E731
-    assert isinstance(encoder(run.agent).trunk if algo != "bc" else encoder(run.agent).blocks, torch.nn.Module)
+    spec, size = PICTURE_ENCODERS[encoder_name], SMALLEST[family]["image_size"]
+    built = encoder(run.agent).trunk if algo != "bc" else encoder(run.agent).blocks
+    named = spec.trunk(3, size, size, True) if algo != "bc" else torch.nn.ModuleList(b for b, _ in spec.film_blocks(3, False))
+    assert [p.shape for p in built.parameters()] == [p.shape for p in named.parameters()]  # the named encoder was built
     for mine, saved in zip(encoder(run.agent).state_dict().values(), encoder(loaded).state_dict().values()):
         assert torch.equal(mine, saved)
 
