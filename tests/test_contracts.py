@@ -351,16 +351,23 @@ def test_every_algorithm_that_reads_pictures_is_generated_here():
     assert set(PICTURE_RUNS) == {name for name, spec in ALGORITHMS.items() if spec.images}
 
 
+#: each picture-reading algorithm, and QT-Opt a second time with the action inside the encoder (``fusion=conv``)
+PICTURE_ARMS = [(algo, {}) for algo in PICTURE_RUNS] + [("qtopt", {"fusion": "conv"})]
+
+
 @pytest.mark.parametrize(
-    "encoder, algo", list(itertools.product(PICTURE_ENCODERS, PICTURE_RUNS)) if "PICTURE_ENCODERS" in globals() else []
+    "encoder, algo, arm",
+    [(e, a, arm) for e in PICTURE_ENCODERS for a, arm in PICTURE_ARMS] if "PICTURE_ENCODERS" in globals() else [],
+    ids=lambda v: ",".join(f"{k}={x}" for k, x in v.items()) if isinstance(v, dict) else str(v),
 )
-def test_every_picture_encoder_trains_with_every_algorithm_that_reads_pictures(encoder, algo, tmp_path, request):
+def test_every_picture_encoder_trains_with_every_algorithm_that_reads_pictures(encoder, algo, arm, tmp_path, request):
     """A registered encoder is one every picture-reading algorithm trains with (the named encoder is the one built), or
-    refuses in one line before building (behaviour cloning: an encoder without FiLM blocks). Mutation: every name
-    building the conv stack (`picture_encoder`) fails it."""
+    refuses in one line before building (behaviour cloning: an encoder without FiLM blocks; QT-Opt's ``fusion=conv``:
+    one that declares no layer for a late input). Mutations: every name building the conv stack (`picture_encoder`)
+    fails it; the fused network building the conv stack's early layers whatever the encoder fails it."""
     encoder_name = encoder
     family = PICTURE_RUNS[algo]
-    settings: dict[str, Any] = {**SMALLEST[family], "encoder": encoder}
+    settings: dict[str, Any] = {**SMALLEST[family], "encoder": encoder, **arm}
     if algo == "bc":
         settings["dataset"] = str(request.getfixturevalue("picture_demos"))
     train = functools.partial(
@@ -369,7 +376,9 @@ def test_every_picture_encoder_trains_with_every_algorithm_that_reads_pictures(e
     tiny = dict(
         her="none", hidden_sizes=(16,), learning_starts=2, updates_per_step=1, batch_size=4, eval_episodes=1, eval_interval=10**6
     )
-    if algo == "bc" and PICTURE_ENCODERS[encoder].film_blocks is None:
+    spec, size = PICTURE_ENCODERS[encoder_name], SMALLEST[family]["image_size"]
+    fused = arm.get("fusion") == "conv"
+    if (algo == "bc" and spec.film_blocks is None) or (fused and spec.late_input is None):
         with pytest.raises(ConfigError, match="encoder"):
             train(total_steps=3, **{**tiny, **settings})
         assert not (tmp_path / "run").exists()
@@ -378,9 +387,12 @@ def test_every_picture_encoder_trains_with_every_algorithm_that_reads_pictures(e
     assert run.metrics["updates"] >= 1 and run.config.algo_settings.encoder == encoder
     loaded = taskrl.load(run.run_dir)
     encoder = (lambda agent: agent.q.state_input) if algo == "qtopt" else (lambda agent: agent.encoder)  # noqa: E731
-    spec, size = PICTURE_ENCODERS[encoder_name], SMALLEST[family]["image_size"]
-    built = encoder(run.agent).trunk if algo != "bc" else encoder(run.agent).blocks
-    named = spec.trunk(3, size, size, True) if algo != "bc" else torch.nn.ModuleList(b for b, _ in spec.film_blocks(3, False))
+    if fused:
+        built, named = encoder(run.agent).convs, spec.late_input(3, True)[0]
+    elif algo == "bc":
+        built, named = encoder(run.agent).blocks, torch.nn.ModuleList(b for b, _ in spec.film_blocks(3, False))
+    else:
+        built, named = encoder(run.agent).trunk, spec.trunk(3, size, size, True)
     assert [p.shape for p in built.parameters()] == [p.shape for p in named.parameters()]  # the named encoder was built
     for mine, saved in zip(encoder(run.agent).state_dict().values(), encoder(loaded).state_dict().values()):
         assert torch.equal(mine, saved)

@@ -111,13 +111,14 @@ class QTOptConfig:
         target_samples: candidate actions per row in the Bellman target's maximum (its CEM's samples per round).
         target_iterations: CEM rounds in the Bellman target's maximum.
         target_elites: elites of the Bellman target's CEM (its refit between rounds).
-        encoder: on envs with a camera, the registered picture encoder (`taskrl.encoders`) in every Q-network; the
-            action joins after it, so CEM encodes a picture once per state however many actions it scores.
+        encoder: on envs with a camera, the registered picture encoder (`taskrl.encoders`) in every Q-network; with
+            ``fusion=flat`` the action joins after it, with ``fusion=conv`` at the layer the encoder declares for a
+            late input (``conv``, ``resnet``); either way CEM encodes a picture once per state however many actions it
+            scores.
         image_features: the encoded picture's size (a linear layer, LayerNorm and tanh after the encoder).
         fusion: on envs with a camera, where the action meets the picture: ``flat`` (after the encoder's
             ``image_features``) or ``conv`` (QT-Opt's network: the action and the state vector embedded and added to
-            an intermediate conv feature map, then one more convolution; `taskrl.fused_q.PictureActionQ`; ``encoder``
-            does not apply).
+            the ``encoder``'s intermediate feature map, then one more convolution; `taskrl.fused_q.PictureActionQ`).
         augment_pad: on envs with a camera, DrQ's random shift in every update: pictures padded by this many
             pixels and cropped back at a random offset (0: none).
     """
@@ -150,8 +151,8 @@ class QTOptConfig:
         check_learning_settings(self)
         one_of(self.loss, ("huber", "mse", "cross_entropy"), "loss", "loss")
         one_of(self.twin, ("lagged", "independent"), "twin", "twin")
-        picture_encoder(self.encoder)
         one_of(self.fusion, FUSIONS, "fusion", "fusion")
+        picture_encoder(self.encoder, late_input=self.fusion == "conv")
         require(self.image_features >= 1, "image_features", f"must be >= 1 (got {self.image_features})")
         check_non_negative(self, "augment_pad")
         require(
@@ -213,7 +214,9 @@ class QTOptAgent(Agent):
         def q_net() -> StateActionQ:
             state_input = None
             if self.image_shape is not None and config.fusion == "conv":  # QT-Opt's network: the action in the convs
-                return PictureActionQ(input_dim - raw, self.image_shape, self.action_dim, config.hidden_sizes).to(self.device)
+                return PictureActionQ(input_dim - raw, self.image_shape, self.action_dim, config.hidden_sizes, config.encoder).to(
+                    self.device
+                )
             if self.image_shape is not None:  # every network, targets included, has its own encoder
                 state_input = ImageStateInput(input_dim - raw, self.image_shape, config.encoder, config.image_features)
             return StateActionQ(input_dim, self.action_dim, config.hidden_sizes, state_input).to(self.device)

@@ -28,10 +28,19 @@ def _film_blocks(channels: int, orthogonal: bool) -> list[tuple[nn.Module, int]]
     return [(conv, conv.out_channels) for conv in conv_blocks(channels, orthogonal)]
 
 
+def _early_layers(channels: int, orthogonal: bool) -> tuple[nn.Module, int]:
+    # the three stride-2 layers (H/8): a late input added there costs each candidate action a 1/8-size map
+    layers: list[nn.Module] = []
+    for conv in conv_blocks(channels, orthogonal)[:3]:
+        layers += [conv, nn.ReLU()]
+    return nn.Sequential(*layers), 32
+
+
 CONV = PictureEncoder(
     "conv",
     "four 3x3 convolutions of 32 channels, three of stride 2 (DrQ's depth at CPU cost)",
     trunk=lambda channels, height, width, orthogonal: conv_stack(channels, orthogonal),
     film_blocks=_film_blocks,
     film_activation="each",
+    late_input=_early_layers,
 )

@@ -26,11 +26,14 @@ def register_picture_encoder(spec: PictureEncoder, replace: bool = False) -> Pic
     return PICTURE_ENCODERS.register(spec, replace)
 
 
-def picture_encoder(name: str, film: bool = False) -> PictureEncoder:
+def picture_encoder(name: str, film: bool = False, late_input: bool = False) -> PictureEncoder:
     """The spec of ``name``; a `ConfigError` on ``encoder`` listing the registered names otherwise (with ``film``:
-    those behaviour cloning can FiLM-modulate)."""
+    those behaviour cloning can FiLM-modulate; with ``late_input``: those that declare a layer for a late input)."""
     spec = PICTURE_ENCODERS.lookup(name)
     if film and spec.film_blocks is None:
         fitting = ", ".join(e.name for e in PICTURE_ENCODERS.values() if e.film_blocks is not None)
         raise ConfigError("encoder", f"behaviour cloning FiLM-modulates every block; {name!r} has none; allowed: {fitting}")
+    if late_input and spec.late_input is None:
+        fitting = ", ".join(e.name for e in PICTURE_ENCODERS.values() if e.late_input is not None)
+        raise ConfigError("encoder", f"fusion=conv adds the action to a feature map; {name!r} declares none; allowed: {fitting}")
     return spec

@@ -40,10 +40,16 @@ def small_resnet(channels: int, orthogonal: bool = True) -> nn.Sequential:
     return nn.Sequential(*layers, nn.ReLU(), nn.Flatten())
 
 
+def _early_layers(channels: int, orthogonal: bool) -> tuple[nn.Module, int]:
+    # both stages (H/4, 32 channels): the trunk without its flatten
+    return small_resnet(channels, orthogonal)[:-1], 32
+
+
 RESNET = PictureEncoder(
     "resnet",
     "a small ResNet (IMPALA's shape): per stage a convolution, a stride-2 max-pool and two residual blocks",
     trunk=lambda channels, height, width, orthogonal: small_resnet(channels, orthogonal),
     film_blocks=resnet_blocks,
     film_activation="end",
+    late_input=_early_layers,
 )
