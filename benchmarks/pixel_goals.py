@@ -6,7 +6,7 @@ Two tasks (``--task``): ``reach`` (PixelReach against PointReach: the agent itse
 ``taskrl train STATES_PRESET --seed S --stop-at-success 0.9`` (the same task from positions), each its own
 process with one torch thread. A run directory that already holds a finished run is
 read instead of trained again, so runs made by hand with these commands (or a stopped benchmark) count.
-Extra arms (``--arm NAME=FLAGS``, e.g. ``--arm "shift 4=--augment-pad 4"``) run the pixel preset with other
+Extra arms (``--arm NAME=FLAGS``, e.g. ``--arm "shift 4=--shift 4"``) run the pixel preset with other
 flags. Raw per-evaluation curves: ``benchmarks/results/pixel_goals.json``; a RESULTS section.
 
     .venv/bin/python benchmarks/pixel_goals.py --seeds 0 1 2 --out /work/runs-bench/pixel-goals

@@ -426,3 +426,36 @@ def test_every_family_with_a_camera_shares_one_camera_setting_validated_in_one_p
             messages.add(refused.value.message.replace(str(size), "N"))
         family.settings(image_size=IMAGE_SIZES[0], **named).validate()
     assert len(messages) == 1, messages
+
+
+@pytest.mark.parametrize(
+    "family, algo, own",
+    [("grasp", "sac", 4), ("grasp", "qtopt", 4), ("tabletop", "bc", 2)],
+)
+def test_the_cameras_shift_is_the_one_the_agent_trains_with(family, algo, own, tmp_path):
+    """``--shift`` is the camera's (one setting for every algorithm that reads pictures); -1, its default, is the
+    algorithm's own (DrQ's 4, behaviour cloning's 2). A run directory written when the shift was each algorithm's
+    ``augment_pad`` loads with that shift on the camera. Mutation: `make_agent` not passing the camera's shift fails."""
+    import json
+
+    from taskrl.config import load, save
+    from taskrl.wiring.parts import make_agent, make_env
+
+    base = with_overrides(TrainConfig(), {"env": family, "algo": algo, "her": "none", "image_size": 16, "num_envs": 2})
+    env = make_env(base, "cpu")
+    try:
+        for shift, expected in ((-1, own), (0, 0), (3, 3)):
+            config = with_overrides(base, {"shift": shift})
+            assert make_agent(config, env, torch.device("cpu")).picture_shift == expected, shift
+    finally:
+        env.close()
+    for bad in (-2, 9):
+        with pytest.raises(ConfigError) as refused:
+            with_overrides(base, {"shift": bad}).env_settings.validate()
+        assert refused.value.field == "shift" and "-1" in refused.value.message
+    save(base, tmp_path / "config.json")
+    old = json.loads((tmp_path / "config.json").read_text())
+    old[base.env_section].pop("shift")
+    old[algo]["augment_pad"] = 1
+    (tmp_path / "config.json").write_text(json.dumps(old))
+    assert load(tmp_path / "config.json").env_settings.shift == 1

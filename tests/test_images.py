@@ -101,8 +101,10 @@ def test_every_update_shifts_the_pictures_of_both_states_unless_turned_off(monke
     batch = one_step(env, env.reset(seed=0), torch.zeros(4, 4))
     for pad in (4, 0):
         shifted.clear()
-        config = QTOptConfig(hidden_sizes=(8,), augment_pad=pad)
-        agent = QTOptAgent(("observation", "image"), 5 + 768, env.single_action_space, config, image_shape=(16, 16, 3))
+        config = QTOptConfig(hidden_sizes=(8,))
+        agent = QTOptAgent(
+            ("observation", "image"), 5 + 768, env.single_action_space, config, image_shape=(16, 16, 3), picture_shift=pad
+        )
         seen = {"online": [], "target": []}
         agent.q.state_input.register_forward_hook(lambda m, args, out, seen=seen: seen["online"].append(args[0].pictures))
         agent.q_target1.state_input.register_forward_hook(lambda m, args, out, seen=seen: seen["target"].append(args[0].pictures))

@@ -111,9 +111,10 @@ def test_collected_demonstrations_keep_the_pictures_of_their_states(reach_demos)
     assert kept.images.shape[0] == kept.num_steps < demos.num_steps
 
 
-def _pixel_agent(**settings) -> BCAgent:
+def _pixel_agent(picture_shift: int | None = None, **settings) -> BCAgent:
     conditioning = TaskConditioning(OneHotTaskEncoder(2), ConditioningConfig(architecture="film"))
-    inputs = AgentInputs(("observation", "image"), 2 + 32 * 32 * 3, gym.spaces.Box(-1.0, 1.0, (2,), np.float32), (32, 32, 3))
+    box = gym.spaces.Box(-1.0, 1.0, (2,), np.float32)
+    inputs = AgentInputs(("observation", "image"), 2 + 32 * 32 * 3, box, (32, 32, 3), picture_shift)
     config = BCConfig(hidden_sizes=(64, 64), embedding_noise=0.0, lr=1e-3, **settings)
     return BCAgent(inputs, config, "cpu", conditioning)
 
@@ -147,7 +148,7 @@ def test_every_pixel_bc_update_shifts_the_pictures(monkeypatch, reach_demos):
     demos = read_demonstrations(reach_demos)
     for pad in (2, 0):
         shifted.clear()
-        agent = _pixel_agent(augment_pad=pad)
+        agent = _pixel_agent(picture_shift=pad)
         received = []
         agent.encoder.register_forward_hook(lambda module, args, out, received=received: received.append(args[0]))
         batch = agent.use_dataset(demos).sample(8, torch.Generator().manual_seed(0))

@@ -166,7 +166,16 @@ def run_fields() -> list[dataclasses.Field]:
 
 
 def field_docs(cls: type) -> dict[str, str]:
-    """``{field: description}`` from the ``Attributes:`` section of a dataclass docstring."""
+    """``{field: description}`` from the ``Attributes:`` sections of a dataclass's docstring and of its bases'
+    (a family's settings inherit the camera's, `CameraSettings`); the class's own description wins."""
+    docs: dict[str, str] = {}
+    for base in reversed(cls.__mro__):
+        if base is not cls and dataclasses.is_dataclass(base):
+            docs.update(_own_field_docs(base))
+    return {**docs, **_own_field_docs(cls)}
+
+
+def _own_field_docs(cls: type) -> dict[str, str]:
     docs: dict[str, str] = {}
     lines = (cls.__doc__ or "").split("Attributes:", 1)[-1].splitlines()
     current: list[str] = []

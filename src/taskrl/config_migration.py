@@ -15,6 +15,26 @@ _LEGACY_EXPLORATION = ("epsilon_start", "epsilon_end", "epsilon_decay_steps")
 
 
 def migrate(data: dict[str, Any]) -> dict[str, Any]:
+    """A ``config.json`` of an earlier taskrl, in today's shape."""
+    return _shift_with_the_camera(_sections_from_flat(data))
+
+
+def _shift_with_the_camera(data: dict[str, Any]) -> dict[str, Any]:
+    """The picture shift was each algorithm's ``augment_pad``; it is the camera's ``shift`` now (`CameraSettings`)."""
+    algo = data.get("algo", "dqn")
+    if not isinstance(data.get(algo), dict) or "augment_pad" not in data[algo]:
+        return data
+    data = {**data, algo: dict(data[algo])}
+    pad = data[algo].pop("augment_pad")
+    family = env_family(data.get("env", "bitflip"))
+    if "shift" in {f.name for f in dataclasses.fields(family.settings)}:
+        section = dict(data.get(family.section, {}))
+        section.setdefault("shift", pad)
+        data[family.section] = section
+    return data
+
+
+def _sections_from_flat(data: dict[str, Any]) -> dict[str, Any]:
     """A ``config.json`` written before the registries, in today's shape (flat env settings and a
     loop-level exploration schedule become the sections' own settings; other algorithms' sections go)."""
     if not any(k in data for k in _LEGACY_ENV_KEYS + _LEGACY_EXPLORATION):

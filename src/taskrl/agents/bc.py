@@ -12,7 +12,8 @@
 
 From pixels (BC-Z's camera policy, at CPU scale): on an env with a camera the picture goes through a conv
 encoder whose every block is FiLM-modulated by the same context c ([`FiLMPictureEncoder`][taskrl.encoders.FiLMPictureEncoder],
-``--encoder conv|resnet``), each training picture randomly shifted (``--augment-pad``, BC-Z's random crop);
+``--encoder conv|resnet``), each training picture randomly shifted (the camera's ``--shift``, 2 pixels by default:
+BC-Z's random crop);
 its features join the state vector (the robot's own pose) before the policy network.
 
 With demo input and sentence embeddings, a fraction ``language_prompts`` of each batch is conditioned
@@ -46,7 +47,7 @@ from taskrl.agents.spec import AlgorithmSpec
 from taskrl.conditioning.demo_encoder import DemoEncoder
 from taskrl.conditioning.networks import ConditionedMLP, ConditioningConfig
 from taskrl.conditioning.task_encoders import LanguageTaskEncoder
-from taskrl.encoders import FiLMPictureEncoder, picture_encoder, picture_values, shift_pictures
+from taskrl.encoders import BC_SHIFT, FiLMPictureEncoder, picture_encoder, picture_values, shift_pictures
 from taskrl.errors import ConfigError, one_of, require
 from taskrl.types import PictureState
 
@@ -80,7 +81,6 @@ class BCConfig:
         encoder: on envs with a camera, the registered picture encoder (`taskrl.encoders`), FiLM-modulated by the
             task in every block (an encoder that declares its blocks: ``conv``, ``resnet``).
         image_features: the encoded picture's size.
-        augment_pad: on envs with a camera, the random shift of every training picture (pixels of padding; 0: none).
     """
 
     dataset: str = ""
@@ -100,7 +100,6 @@ class BCConfig:
     held_out_tasks: str = ""
     encoder: str = "conv"
     image_features: int = 64
-    augment_pad: int = 2
 
     def held_out(self) -> list[str]:
         """The held-out task names."""
@@ -117,7 +116,6 @@ class BCConfig:
         require(1 <= self.chunk <= 100, "chunk", f"must be in 1..100 (got {self.chunk})")
         picture_encoder(self.encoder, film=True)
         require(self.image_features >= 1, "image_features", f"must be >= 1 (got {self.image_features})")
-        require(self.augment_pad >= 0, "augment_pad", f"must be >= 0 (got {self.augment_pad})")
 
 
 class BCAgent(Agent):
@@ -145,6 +143,8 @@ class BCAgent(Agent):
 
     def __init__(self, inputs: Any, config: BCConfig, device: str | torch.device = "cpu", conditioning: Any = None) -> None:
         self.image_shape = getattr(inputs, "image_shape", None)
+        shift = getattr(inputs, "picture_shift", None)  # the camera's; None: BC-Z's crop at this scale
+        self.picture_shift = BC_SHIFT if shift is None else int(shift)
         if self.image_shape is not None and len(self.image_shape) != 3:
             raise ConfigError("env", "behaviour cloning reads one camera picture per state; this env gives goal pictures too")
         raw = picture_values(self.image_shape) if self.image_shape is not None else 0
@@ -340,8 +340,8 @@ class BCAgent(Agent):
         ``action_error`` (mean absolute error of the first action) and, with alignment, ``language_loss``."""
         cfg = self.config
         obs = batch.obs
-        if self.encoder is not None and cfg.augment_pad:  # BC-Z's random crop: every picture shifted at random
-            obs = shift_pictures(obs, cfg.augment_pad)
+        if self.encoder is not None and self.picture_shift:  # BC-Z's random crop: every picture shifted at random
+            obs = shift_pictures(obs, self.picture_shift)
         x = self.inputs(obs)
         task = batch.obs["task"].long().view(-1)
         context, language_loss = None, None

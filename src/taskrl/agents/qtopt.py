@@ -75,7 +75,7 @@ from taskrl.agents.parts import (
     td_target,
 )
 from taskrl.agents.spec import AlgorithmSpec
-from taskrl.encoders import ImageStateInput, picture_encoder, picture_values, shift_pictures
+from taskrl.encoders import DRQ_SHIFT, ImageStateInput, picture_encoder, picture_values, shift_pictures
 from taskrl.errors import one_of, require
 from taskrl.fused_q import FUSIONS, PictureActionQ
 from taskrl.nets import StateActionQ
@@ -119,8 +119,6 @@ class QTOptConfig:
         fusion: on envs with a camera, where the action meets the picture: ``flat`` (after the encoder's
             ``image_features``) or ``conv`` (QT-Opt's network: the action and the state vector embedded and added to
             the ``encoder``'s intermediate feature map, then one more convolution; `taskrl.fused_q.PictureActionQ`).
-        augment_pad: on envs with a camera, DrQ's random shift in every update: pictures padded by this many
-            pixels and cropped back at a random offset (0: none).
     """
 
     lr: float = 1e-3
@@ -144,7 +142,6 @@ class QTOptConfig:
     encoder: str = "conv"
     image_features: int = 50
     fusion: Literal["flat", "conv"] = "flat"
-    augment_pad: int = 4
 
     def validate(self) -> None:
         """Raise `ConfigError` naming the first bad setting."""
@@ -154,7 +151,6 @@ class QTOptConfig:
         one_of(self.fusion, FUSIONS, "fusion", "fusion")
         picture_encoder(self.encoder, late_input=self.fusion == "conv")
         require(self.image_features >= 1, "image_features", f"must be >= 1 (got {self.image_features})")
-        check_non_negative(self, "augment_pad")
         require(
             not (self.clip_target and self.loss == "cross_entropy"),
             "clip_target",
@@ -182,6 +178,7 @@ class QTOptAgent(Agent):
         config: hyperparameters, see `QTOptConfig`.
         device: torch device of the networks.
         image_shape: ``(H, W, C)`` of an ``image`` observation (the last of ``input_keys``), or None.
+        picture_shift: pixels of DrQ's random shift of the pictures in every update (0: none; None: DrQ's 4).
     """
 
     acting = ("q", "normalize")
@@ -203,8 +200,10 @@ class QTOptAgent(Agent):
         config: QTOptConfig,
         device: str | torch.device = "cpu",
         image_shape: tuple[int, ...] | None = None,
+        picture_shift: int | None = None,
     ) -> None:
         self.image_shape = tuple(image_shape) if image_shape is not None else None
+        self.picture_shift = DRQ_SHIFT if picture_shift is None else int(picture_shift)
         raw = picture_values(self.image_shape) if self.image_shape is not None else 0
         self.setup(config, device, input_keys, input_dim, picture_dim=raw)
         self.box = ActionBox(action_space, self.device)
@@ -353,8 +352,8 @@ class QTOptAgent(Agent):
     ) -> dict[str, torch.Tensor]:
         """The update itself (what ``--compile`` compiles): the target if not given, the regression, the target networks."""
         cfg = self.config
-        if self.image_shape is not None and cfg.augment_pad:  # DrQ: every picture shifted on its own
-            shift = lambda obs: shift_pictures(obs, cfg.augment_pad, generator)  # noqa: E731
+        if self.image_shape is not None and self.picture_shift:  # DrQ: every picture shifted on its own
+            shift = lambda obs: shift_pictures(obs, self.picture_shift, generator)  # noqa: E731
             batch = batch.replace(obs=shift(batch.obs), next_obs=shift(batch.next_obs))
         diagnostics: dict[str, torch.Tensor] = {}
         if target is None:
@@ -423,7 +422,7 @@ SPEC = AlgorithmSpec(
     description="QT-Opt: Q-learning over continuous actions with a CEM argmax and clipped double-Q targets",
     config=QTOptConfig,
     build=lambda inputs, config, device, conditioning: QTOptAgent(
-        inputs.keys, inputs.dim, inputs.action_space, config, device, inputs.image_shape
+        inputs.keys, inputs.dim, inputs.action_space, config, device, inputs.image_shape, inputs.picture_shift
     ),
     loop="off_policy",
     actions=("box",),

@@ -31,7 +31,7 @@ truncation still bootstraps. With rewards in {-1, 0}, targets may be clipped to 
 From pixels (DrQ, Kostrikov et al., 2021): on an env with a camera, one conv encoder f (``--encoder``) turns
 the picture into features shared by the actor and both critics; the critic loss trains it, the actor reads
 f(s) as a constant; the target critics read a Polyak-averaged copy of it; every update shifts every picture
-of s and s' at random (``--augment-pad``).
+of s and s' at random (the camera's ``--shift``, DrQ's 4 pixels by default).
 
 Multi-task SAC (Yu et al., 2019; Sodhani et al., 2021): given a
 [`TaskConditioning`][taskrl.conditioning.networks.TaskConditioning], the actor and both critics take the task
@@ -67,7 +67,7 @@ from taskrl.agents.parts import (
 )
 from taskrl.agents.spec import AlgorithmSpec
 from taskrl.conditioning.networks import TaskConditioning, network_for
-from taskrl.encoders import ImageStateInput, picture_encoder, picture_values, shift_pictures
+from taskrl.encoders import DRQ_SHIFT, ImageStateInput, picture_encoder, picture_values, shift_pictures
 from taskrl.errors import require
 from taskrl.replay.batch import Batch, Obs
 
@@ -97,7 +97,6 @@ class SACConfig:
         encoder: on envs with a camera, the registered picture encoder (`taskrl.encoders`) shared by the actor and
             the critics.
         image_features: the encoded picture's size (a linear layer, LayerNorm and tanh after the encoder).
-        augment_pad: on envs with a camera, DrQ's random shift in every update (pixels of padding; 0: none).
     """
 
     lr: float = 3e-4
@@ -117,14 +116,12 @@ class SACConfig:
     cql_samples: int = 10
     encoder: str = "conv"
     image_features: int = 50
-    augment_pad: int = 4
 
     def validate(self) -> None:
         """Raise `ConfigError` naming the first bad setting."""
         check_learning_settings(self)
         picture_encoder(self.encoder)
         require(self.image_features >= 1, "image_features", f"must be >= 1 (got {self.image_features})")
-        require(self.augment_pad >= 0, "augment_pad", f"must be >= 0 (got {self.augment_pad})")
         require(self.init_alpha > 0, "init_alpha", f"must be > 0 (got {self.init_alpha})")
         require(self.cql_alpha >= 0, "cql_alpha", f"must be >= 0 (got {self.cql_alpha})")
         require(self.cql_samples >= 1, "cql_samples", f"must be >= 1 (got {self.cql_samples})")
@@ -214,6 +211,7 @@ class SACAgent(Agent):
         conditioning: multi-task runs: the task encoder and architecture the actor and critics
             use; observations then carry the task index under ``conditioning.task_key``.
         image_shape: ``(H, W, C)`` of an ``image`` observation (the last of ``input_keys``), or None.
+        picture_shift: pixels of DrQ's random shift of the pictures in every update (0: none; None: DrQ's 4).
     """
 
     acting = ("actor", "normalize", "task_encoder", "encoder")
@@ -240,8 +238,10 @@ class SACAgent(Agent):
         device: str | torch.device = "cpu",
         conditioning: TaskConditioning | None = None,
         image_shape: tuple[int, ...] | None = None,
+        picture_shift: int | None = None,
     ) -> None:
         self.image_shape = tuple(image_shape) if image_shape is not None else None
+        self.picture_shift = DRQ_SHIFT if picture_shift is None else int(picture_shift)
         raw = picture_values(self.image_shape) if self.image_shape is not None else 0
         self.setup(config, device, input_keys, input_dim, conditioning, picture_dim=raw)
         self.box = ActionBox(action_space, self.device)
@@ -334,8 +334,8 @@ class SACAgent(Agent):
     def learn(self, batch: Batch, generator: torch.Generator | None = None) -> dict[str, torch.Tensor]:
         """The update itself (what ``--compile`` compiles): critics, actor, temperature, target critics."""
         cfg = self.config
-        if self.encoder is not None and cfg.augment_pad:  # DrQ: each state's pictures shifted at random
-            shift = lambda obs: shift_pictures(obs, cfg.augment_pad, generator)  # noqa: E731
+        if self.encoder is not None and self.picture_shift:  # DrQ: each state's pictures shifted at random
+            shift = lambda obs: shift_pictures(obs, self.picture_shift, generator)  # noqa: E731
             batch = batch.replace(obs=shift(batch.obs), next_obs=shift(batch.next_obs))
         self.inputs.update_statistics(batch.obs)
         target = self.bellman_target(batch, generator)
@@ -425,7 +425,7 @@ SPEC = AlgorithmSpec(
     description="soft actor-critic: twin critics, learned temperature (per task on multi-task envs)",
     config=SACConfig,
     build=lambda inputs, config, device, conditioning: SACAgent(
-        inputs.keys, inputs.dim, inputs.action_space, config, device, conditioning, inputs.image_shape
+        inputs.keys, inputs.dim, inputs.action_space, config, device, conditioning, inputs.image_shape, inputs.picture_shift
     ),
     loop="off_policy",
     actions=("box",),

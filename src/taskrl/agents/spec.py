@@ -19,12 +19,14 @@ class AgentInputs:
     """What an agent is built for: the observation keys its networks read, the numbers one observation holds under
     them, and the action space; on envs with a camera, the pictures' shape ``(H, W, C)`` (``(2, H, W, C)`` with a goal
     picture). Pictures reach the networks as stored, beside the vector of the other keys
-    ([`PictureState`][taskrl.types.PictureState])."""
+    ([`PictureState`][taskrl.types.PictureState]). ``picture_shift``: the camera's random shift of the pictures the
+    agent trains on, in pixels (`taskrl.envs.camera.CameraSettings.shift`); None: the algorithm's own."""
 
     keys: tuple[str, ...]
     dim: int
     action_space: gym.spaces.Space
     image_shape: tuple[int, ...] | None = None
+    picture_shift: int | None = None
 
 
 @dataclasses.dataclass(frozen=True)

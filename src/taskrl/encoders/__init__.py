@@ -12,11 +12,13 @@ from taskrl.encoders.conv import conv_stack
 from taskrl.encoders.keypoints import SpatialSoftmax, keypoint_stack
 from taskrl.encoders.registry import PICTURE_ENCODERS, picture_encoder, register_picture_encoder
 from taskrl.encoders.resnet import small_resnet
-from taskrl.encoders.shift import PICTURE_KEYS, picture_values, random_shift, shift_pictures
+from taskrl.encoders.shift import BC_SHIFT, DRQ_SHIFT, PICTURE_KEYS, picture_values, random_shift, shift_pictures
 from taskrl.encoders.spec import PictureEncoder
 from taskrl.encoders.state_input import FiLMPictureEncoder, ImageStateInput, stacked_channels
 
 __all__ = [
+    "BC_SHIFT",
+    "DRQ_SHIFT",
     "PICTURE_ENCODERS",
     "PICTURE_KEYS",
     "FiLMPictureEncoder",

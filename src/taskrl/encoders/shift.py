@@ -7,7 +7,12 @@ import math
 import torch
 from torch.nn import functional as F
 
-__all__ = ["PICTURE_KEYS", "picture_values", "random_shift", "shift_pictures"]
+__all__ = ["BC_SHIFT", "DRQ_SHIFT", "PICTURE_KEYS", "picture_values", "random_shift", "shift_pictures"]
+
+#: pixels of shift of the RL agents' pictures when the camera does not set one: DrQ's pad of 4 (Kostrikov et al. 2020)
+DRQ_SHIFT = 4
+#: pixels of shift of behaviour cloning's pictures when the camera does not set one (BC-Z's random crop, at 32x32)
+BC_SHIFT = 2
 
 #: the observation keys that hold pictures, in the order they are stacked for the encoder (the scene, then its goal)
 PICTURE_KEYS = ("image", "goal_image")

@@ -20,10 +20,21 @@ class CameraSettings:
     Attributes:
         image_size: the side of the camera's square pictures in pixels (16-512); the observation's ``image``, and its
             ``goal_image`` where the env gives goals as pictures.
+        shift: the random shift of every picture a learner trains on (DrQ's augmentation; BC-Z's random crop): padded
+            by this many pixels, replicating the border, and cropped back at a random offset (a scene and its goal
+            picture move together); 0: none; -1: the algorithm's own (4 for SAC and QT-Opt, as DrQ; 2 for behaviour
+            cloning). Acting and evaluation see the pictures unshifted.
     """
 
     image_size: int = 64
+    shift: int = -1
 
     def validate(self) -> None:
         low, high = IMAGE_SIZES
         require(low <= self.image_size <= high, "image_size", f"must be in {low}..{high} pixels (got {self.image_size})")
+        half = self.image_size // 2
+        require(
+            -1 <= self.shift <= half,
+            "shift",
+            f"must be -1 (the algorithm's own), 0 (none) or up to half the picture, {half} pixels (got {self.shift})",
+        )

@@ -34,12 +34,12 @@ PRESETS: dict[str, Preset] = {
     "pixelreach-sac-her": Preset(
         "SAC + hindsight relabelling on PixelReach: PointReach seen as a 32x32 picture, the goal given as a picture; "
         "random shifts of up to 2 pixels",
-        {**POINTREACH, **SAC, "env": "pixelreach", "augment_pad": 2, "total_steps": 100_000},
+        {**POINTREACH, **SAC, "env": "pixelreach", "shift": 2, "total_steps": 100_000},
     ),
     "pixelpush-sac-her": Preset(
         "SAC + hindsight relabelling on PixelPush: push a block to a goal shown as a picture (32x32 scene and goal "
         "pictures, the pusher's position), random shifts of up to 2 pixels",
-        {**PIXELPUSH, "augment_pad": 2},
+        {**PIXELPUSH, "shift": 2},
     ),
     "pixelpush-state-sac-her": Preset(
         "SAC + hindsight relabelling on PixelPush from positions (pusher, block, goal): the control without pictures",

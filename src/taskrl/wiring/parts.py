@@ -121,7 +121,8 @@ def make_agent(config: TrainConfig, env: Any, device: torch.device) -> Any:
     if image_shape is not None and "goal_image" in keys:  # two pictures, encoded together
         image_shape = (2, *image_shape)
     check_network_memory(config, input_dim, device)
-    inputs = AgentInputs(keys, input_dim, env.single_action_space, image_shape)
+    shift = getattr(config.env_settings, "shift", -1)  # the camera's (CameraSettings); -1: the algorithm's own
+    inputs = AgentInputs(keys, input_dim, env.single_action_space, image_shape, shift if shift >= 0 else None)
     return algorithm(config.algo).build(inputs, config.algo_settings, device, conditioning)
 
 
