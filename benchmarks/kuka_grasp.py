@@ -120,12 +120,38 @@ def _last_row(run_dir: Path) -> dict:
     return {k: float(v) for k, v in rows[-1].items() if v not in ("", None)} if rows else {}
 
 
+def random_on_evaluation_episodes(run_dir: Path, episodes: int, held_out: bool) -> dict:
+    """The authors' random policy on the very episodes ``taskrl eval RUN`` scores a run on (the run's evaluation
+    seed: the same objects and initial states), so that a gap between the splits can be told from the draw."""
+    import dataclasses
+
+    from taskrl.config import load
+    from taskrl.envs.registry import env_family
+    from taskrl.training.evaluation import evaluate
+    from taskrl.wiring.parts import EVAL_SEED_OFFSET, make_env
+
+    config = dataclasses.replace(load(run_dir / "config.json"), eval_episodes=episodes)
+    if held_out:
+        config = dataclasses.replace(config, env_settings=env_family(config.env).held_out(config.env_settings))
+    seed = config.seed + EVAL_SEED_OFFSET
+    env = make_env(config, "cpu", seed=seed, evaluation=True)
+    try:
+        return evaluate(env.scripted_action, env, seed)
+    finally:
+        env.close()
+
+
 def protocol(random_run: Path, runs: list[Path], supervised: list[Path], episodes: int) -> dict:
     """Each run evaluated greedily on training and test objects (``taskrl eval RUN`` and ``--held-out``), beside the
-    random policy's success while collecting (training objects)."""
+    random policy's success while collecting (training objects) and on the same evaluation episodes."""
     from taskrl.loading import evaluate_run
 
-    rows = []
+    same = {"kind": "random (on the evaluation episodes)", "seed": 0, "updates": 0}
+    for split, held_out in (("train", False), ("test", True)):
+        result = random_on_evaluation_episodes(runs[0], episodes, held_out)
+        same[split], same[f"{split}_length"] = result["success_rate"], result["eval_length"]
+    print(same, flush=True)
+    rows = [same]
     for kind, group in (("QT-Opt", runs), ("supervised on outcomes (gamma 0)", supervised)):
         for run_dir in group:
             config = json.loads((run_dir / "config.json").read_text())
@@ -134,7 +160,8 @@ def protocol(random_run: Path, runs: list[Path], supervised: list[Path], episode
             row["train_wall_seconds"] = last.get("wall_seconds")
             for split, held_out in (("train", False), ("test", True)):
                 start = time.perf_counter()
-                row[split] = evaluate_run(run_dir, episodes=episodes, held_out=held_out)["success_rate"]
+                result = evaluate_run(run_dir, episodes=episodes, held_out=held_out)
+                row[split], row[f"{split}_length"] = result["success_rate"], result["eval_length"]
                 row[f"{split}_eval_seconds"] = time.perf_counter() - start
             rows.append(row)
             print(row, flush=True)
