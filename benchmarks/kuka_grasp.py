@@ -130,7 +130,8 @@ def random_on_evaluation_episodes(run_dir: Path, episodes: int, held_out: bool) 
     from taskrl.training.evaluation import evaluate
     from taskrl.wiring.parts import EVAL_SEED_OFFSET, make_env
 
-    config = dataclasses.replace(load(run_dir / "config.json"), eval_episodes=episodes)
+    config = load(run_dir / "config.json")
+    config = dataclasses.replace(config, evaluation=dataclasses.replace(config.evaluation, eval_episodes=episodes))
     if held_out:
         config = dataclasses.replace(config, env_settings=env_family(config.env).held_out(config.env_settings))
     seed = config.seed + EVAL_SEED_OFFSET

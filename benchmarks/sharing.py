@@ -70,7 +70,7 @@ def one_run(job: tuple[str, str, int, dict]) -> dict:
         )
         rows = list(csv.DictReader(open(run.run_dir / "metrics.csv")))
     tasks = [k.split("/", 1)[1] for k in rows[-1] if k.startswith("success/")]
-    axis = "updates" if run.config.offline else "env_steps"
+    axis = "updates" if run.config.data.offline else "env_steps"
     curve = [{"at": int(float(r[axis])), **{t: float(r[f"success/{t}"]) for t in tasks}} for r in rows]
     shared = {t: float(rows[-1].get(f"shared/{t}") or 0.0) for t in tasks}
     low = split_names(getattr(run.config.env_settings, "low_data_tasks", ""))

@@ -136,7 +136,7 @@ def test_a_rule_is_checked_in_one_place_ppo_runs_with_gamma_one(capsys, tmp_path
     assert code == 0, err
     assert "her=future) is off" in err  # what switching to an on-policy algorithm changed, said
     saved = json.loads((tmp_path / "ppo" / "config.json").read_text())
-    assert saved["ppo"]["gamma"] == 1.0 and saved["her"] == "none"
+    assert saved["ppo"]["gamma"] == 1.0 and saved["replay"]["her"] == "none"
     code, _, err = run_cli(capsys, "train", "bitflip-her", "--algo", "ppo", "--her", "future", "--out", str(tmp_path / "x"))
     assert code == 2 and "--her ppo learns on-policy" in err  # asked for explicitly: refused, one line
 

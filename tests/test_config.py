@@ -155,6 +155,31 @@ def test_unknown_keys_in_a_saved_config_are_an_error():
         from_dict(data)
 
 
+def test_a_config_saved_with_flat_run_settings_loads_into_the_sections(tmp_path):
+    """Run directories written before the replay, evaluation, checkpoint and data settings became sections (their
+    settings flat on the run) load with every value in its section. Mutation: the migration skipping a section fails."""
+    config = with_overrides(
+        TrainConfig(),
+        {
+            "algo": "qtopt",
+            "env": "pointreach",
+            "buffer_size": 1234,
+            "her_k": 2,
+            "eval_interval": 777,
+            "save_replay": False,
+            "scripted_steps": 5,
+            "recent_fraction": 0.25,
+            "checkpoint_minutes": 3.0,
+        },
+    )
+    data = to_dict(config)
+    flat = {k: v for k, v in data.items() if k not in ("replay", "evaluation", "checkpoints", "data")}
+    for section in ("replay", "evaluation", "checkpoints", "data"):
+        flat.update(data[section])
+    (tmp_path / "config.json").write_text(json.dumps(flat))
+    assert load(tmp_path / "config.json") == config
+
+
 def test_a_config_saved_before_the_registries_still_loads(tmp_path):
     """Run directories written with flat env settings and a loop-level epsilon resume unchanged."""
     old = {

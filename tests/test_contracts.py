@@ -294,7 +294,7 @@ def test_two_settings_that_switch_on_two_run_modes_are_one_line_naming_both():
     collect = RunMode(
         name="collect_only",
         summary="a test's mode: collects, never updates",
-        applies=lambda config: config.scripted_exploration == 1.0,
+        applies=lambda config: config.data.scripted_exploration == 1.0,
         make_loop=lambda parts, books: None,
         loops=("off_policy",),
         selected_by="scripted_exploration",
@@ -303,7 +303,7 @@ def test_two_settings_that_switch_on_two_run_modes_are_one_line_naming_both():
     try:
         config = with_overrides(preset_config("grasp-qtopt-pixels"), {"scripted_exploration": 1.0})
         assert run_mode(config) is collect  # alone it is chosen
-        both = dataclasses.replace(config, offline=True)
+        both = dataclasses.replace(config, data=dataclasses.replace(config.data, offline=True))
         with pytest.raises(
             ConfigError,
             match=r"^scripted_exploration: --scripted-exploration selects the collect_only run mode and --offline the stored_data one",

@@ -132,9 +132,9 @@ def _local_loop(tmp_path, config, updaters: int, evaluated: bool = False, pool=L
         rows.append,
         lambda state: None,
         config.total_steps,
-        config.eval_interval,
-        config.checkpoint_interval,
-        config.stop_at_success,
+        config.evaluation.eval_interval,
+        config.checkpoints.checkpoint_interval,
+        config.evaluation.stop_at_success,
         parts.device,
     )
     sample = batch_sampler(parts.sampler, config.batch_size, parts.generator)

@@ -176,7 +176,10 @@ def test_the_reference_documents_every_setting_family_algorithm_and_preset():
     assert all(f"## `{name}`" in generated["reference/env_families.md"] for name in ENV_FAMILIES)
     assert all(f"## `{name}`" in generated["reference/algorithms.md"] for name in ALGORITHMS)
     assert all(f"| `{name}` |" in generated["reference/presets.md"] for name in PRESETS)
-    assert "| `--buffer-size` | int | `1_000_000` | replay capacity in transitions. |" in generated["reference/settings.md"]
+    assert (
+        "| `--replay.buffer-size` (`--buffer-size`) | int | `1_000_000` | replay capacity in transitions. |"
+        in generated["reference/settings.md"]
+    )
     assert "usage: taskrl eval" in generated["reference/commands.md"]
 
 

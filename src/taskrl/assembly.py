@@ -66,7 +66,7 @@ def _add_replay(parts: RunParts, plan: RunPlan, needs: int) -> None:
     """The replay (``buffer_size`` transitions, or fewer where the run can store no more), its relabeller and
     the sampler the sampling settings ask for."""
     config, env, device = parts.config, parts.env, parts.device
-    capacity = min(config.buffer_size, needs)
+    capacity = min(config.replay.buffer_size, needs)
     horizon = getattr(env, "horizon", None)
     check_replay_memory(
         EpisodeReplay.bytes_needed(
@@ -88,15 +88,15 @@ def sampler_pipeline(plan: RunPlan, env: BatchedEnv, parts: RunParts) -> Sampler
     config, replay = plan.config, parts.replay
     draw: Draw = UniformDraw(replay)
     stages: list[Stage] = []
-    if config.sampling == "task_balanced":
+    if config.replay.sampling == "task_balanced":
         parts.sharing = _task_sharing(plan, env, parts.agent, replay)
         if parts.sharing is not None:
             draw = parts.sharing
             stages.append(parts.sharing.to_task)
         else:
             draw = TaskBalancedSampler(replay, len(env.task_set))
-    if config.recent_fraction > 0:
-        draw = RecentMixSampler(replay, config.recent_fraction, config.recent_episodes, draw)
+    if config.replay.recent_fraction > 0:
+        draw = RecentMixSampler(replay, config.replay.recent_fraction, config.replay.recent_episodes, draw)
     if parts.relabel is not None:
         stages.append(hindsight_stage(parts.relabel, replay))
     return SamplerPipeline(replay, draw, stages)

@@ -1,15 +1,16 @@
-"""Typed run configuration: run-level settings plus one section for the env family and one for the
-algorithm, each validated by its own ``validate()``, saved with every run.
+"""Typed run configuration: run-level settings, the run's own sections (replay, evaluation, checkpoints, data,
+conditioning, cluster, data sharing), one section for the env family and one for the algorithm, each validated by
+its own ``validate()``, saved with every run.
 
 ``config.json`` reads::
 
-    {"env": "bitflip", "algo": "dqn", "total_steps": 60000, ..., "conditioning": {...},
-     "bitflip": {"n_bits": 15, ...}, "dqn": {"lr": 0.001, "epsilon_start": 0.5, ...}}
+    {"env": "bitflip", "algo": "dqn", "total_steps": 60000, ..., "replay": {"buffer_size": 1000000, "her": "future",
+     ...}, "evaluation": {"eval_interval": 5000, ...}, ..., "bitflip": {"n_bits": 15, ...}, "dqn": {"lr": 0.001, ...}}
 
-The sections are those of the registries (``taskrl.envs.registry``, ``taskrl.agents.registry``):
-a new family or algorithm brings its own. The CLI turns every run-level field and every field of
-the active sections into a flat ``--kebab-case`` flag (``--lr`` is the active algorithm's learning
-rate, ``--n-bits`` the bit-flipping section's length).
+The env and algorithm sections are those of the registries (``taskrl.envs.registry``, ``taskrl.agents.registry``):
+a new family or algorithm brings its own. The CLI turns every setting of the run and of the active sections into a
+``--kebab-case`` flag, in its section (``--algo.lr``, ``--evaluation.eval-interval``) and by its short name where no
+other setting has it (``--lr`` is the active algorithm's learning rate, ``--eval-interval`` the evaluation's).
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from taskrl.config_migration import migrate
 from taskrl.distributed.settings import DistributedConfig
 from taskrl.envs.registry import env_family
 from taskrl.errors import ConfigError, reason
+from taskrl.run_sections import CheckpointSettings, DataSettings, EvaluationSettings, ReplaySettings
 from taskrl.rundir import atomic_write_text
 from taskrl.setting_values import checked_value
 from taskrl.sharing.settings import SharingConfig
@@ -50,9 +52,6 @@ class TrainConfig:
         num_envs: environments stepped in parallel while collecting.
         seed: seed for network initialisation, environments and sampling.
         device: ``cpu``, ``cuda``, ``cuda:N`` or ``auto`` (CUDA when available).
-        buffer_size: replay capacity in transitions.
-        her: hindsight strategy (``none`` disables relabelling).
-        her_k: relabelled transitions per real one; the relabelled fraction is k/(k+1).
         batch_size: transitions per gradient update.
         learning_starts: environment steps collected before the first update.
         updates_per_step: gradient updates per environment step (fractions accumulate).
@@ -60,32 +59,8 @@ class TrainConfig:
             (compiled, one graph for all of them: less overhead per update at high update
             ratios); updates wait until that many are due. 1 = one at a time; 0 (``auto`` on the command
             line) = 4 where that is estimated faster with ``compile``, else 1.
-        sampling: ``uniform`` over stored transitions, or ``task_balanced`` (multi-task envs: the
-            same number of transitions of every task in each batch).
-        eval_interval: environment steps between evaluations.
-        eval_episodes: episodes per evaluation (greedy policy, fixed evaluation seeds); on
-            multi-task envs, episodes per task (Meta-World: over distinct goal positions, at most 50).
-        stop_at_success: stop once evaluation success reaches this (0 = train to total_steps).
-        checkpoint_interval: environment steps between checkpoints (also one after the first step
-            and one at the end).
-        checkpoint_minutes: also checkpoint after this many minutes of wall-clock since the last
-            checkpoint, so a killed run loses at most that much (0 = by env steps only).
         tensorboard_interval: environment steps between TensorBoard points of the training scalars
             (losses, Q, temperature; ``train/...``) between evaluations (0: at evaluations only).
-        save_replay: include the replay buffer in checkpoints so a resumed run loses no data.
-        recent_fraction: share of each batch drawn from the most recent ``recent_episodes`` episodes
-            (QT-Opt's on-policy buffer beside its store of all data); 0 = uniform over everything stored.
-        recent_episodes: the size of that window, in episodes.
-        offline_data: a run directory whose last checkpoint's replay preloads this run's replay
-            (QT-Opt's offline data, then online); its env must have the same spaces.
-        offline_updates: gradient updates on the preloaded data before collection starts.
-        scripted_exploration: share of training episodes acted by the env's scripted policy instead of the
-            agent (QT-Opt's first data came from a scripted grasp that succeeded 15-30% of the time); envs with
-            one have a ``scripted_action(obs)`` method (``grasp``). 0 = the agent acts in every episode.
-        scripted_steps: env steps during which ``scripted_exploration`` applies (0: the whole run).
-        offline: learn from stored data only, never stepping an env to collect (the env's
-            ``--dataset-quality`` datasets, or ``--offline-data``); ``total_steps``, ``eval_interval`` and
-            ``checkpoint_interval`` then count gradient updates; evaluation still runs in the env.
         mode: the run mode (how the run runs: ``off_policy``, ``on_policy``, ``dataset``, ``stored_data``,
             ``distributed``, or a registered one); ``auto`` derives it from the algorithm and the switches given
             (``--offline``, ``--distributed``). A mode named here must fit the run (one line says why not).
@@ -103,6 +78,10 @@ class TrainConfig:
             (measured 100x slower on a busy 2-core machine). 0 = torch's default.
         env_module: a Python module to import before the envs are built (one that registers your
             gymnasium ids). Resuming, evaluating and loading never import it unless you pass it again.
+        replay: what the replay keeps and how batches are drawn (`ReplaySettings`: size, hindsight, sampling).
+        evaluation: when and how the greedy policy is scored (`EvaluationSettings`).
+        checkpoints: when the run is saved, and what with (`CheckpointSettings`).
+        data: where the data comes from besides the agent's acting (`DataSettings`: stored data, scripted episodes).
         conditioning: how multi-task networks are told the task (task encoder, architecture).
         cluster: where the roles run: one process, or collectors and Bellman updaters as Ray actors.
         data_sharing: how tasks share data (multi-task envs whose tasks are reward functions).
@@ -116,33 +95,20 @@ class TrainConfig:
     num_envs: int = 32
     seed: int = 0
     device: str = "cpu"
-    buffer_size: int = 1_000_000
-    her: Literal["future", "final", "episode", "random", "none"] = "future"
-    her_k: int = 4
     batch_size: int = 256
     learning_starts: int = 1_000
     updates_per_step: float = 0.1
     updates_per_call: int = 0
-    sampling: Literal["uniform", "task_balanced"] = "uniform"
-    eval_interval: int = 5_000
-    eval_episodes: int = 100
-    stop_at_success: float = 0.0
-    checkpoint_interval: int = 50_000
-    checkpoint_minutes: float = 10.0
     tensorboard_interval: int = 1_000
-    save_replay: bool = True
-    recent_fraction: float = 0.0
-    recent_episodes: int = 1_000
-    offline_data: str = ""
-    offline_updates: int = 0
-    scripted_exploration: float = 0.0
-    scripted_steps: int = 0
-    offline: bool = False
     mode: str = "auto"
     max_hours: float = 0.0
     compile: Literal["auto", "off", "default", "reduce-overhead", "max-autotune"] = "auto"
     threads: int = 1
     env_module: str = ""
+    replay: ReplaySettings = dataclasses.field(default_factory=ReplaySettings)
+    evaluation: EvaluationSettings = dataclasses.field(default_factory=EvaluationSettings)
+    checkpoints: CheckpointSettings = dataclasses.field(default_factory=CheckpointSettings)
+    data: DataSettings = dataclasses.field(default_factory=DataSettings)
     conditioning: ConditioningConfig = dataclasses.field(default_factory=ConditioningConfig)
     cluster: DistributedConfig = dataclasses.field(default_factory=DistributedConfig)
     data_sharing: SharingConfig = dataclasses.field(default_factory=SharingConfig)
@@ -195,11 +161,10 @@ def _own_field_docs(cls: type) -> dict[str, str]:
 
 # ---------------------------------------------------------------------- saving and loading
 def to_dict(config: TrainConfig) -> dict[str, Any]:
-    """``config.json``'s content: run-level fields, ``conditioning``, and the two sections by name."""
+    """``config.json``'s content: run-level fields, the run's sections (replay, evaluation, ..., conditioning), and the
+    env's and the algorithm's sections by name."""
     data = {f.name: getattr(config, f.name) for f in run_fields()}
-    data["conditioning"] = dataclasses.asdict(config.conditioning)
-    data["cluster"] = dataclasses.asdict(config.cluster)
-    data["data_sharing"] = dataclasses.asdict(config.data_sharing)
+    data.update({name: dataclasses.asdict(value) for name, value in data.items() if dataclasses.is_dataclass(value)})
     data[config.env_section] = dataclasses.asdict(config.env_settings)
     data[config.algo] = dataclasses.asdict(config.algo_settings)
     return data

@@ -6,6 +6,7 @@ import dataclasses
 from typing import Any
 
 from taskrl.envs.registry import env_family
+from taskrl.run_sections import RUN_SECTIONS
 
 __all__ = ["migrate"]
 
@@ -16,7 +17,22 @@ _LEGACY_EXPLORATION = ("epsilon_start", "epsilon_end", "epsilon_decay_steps")
 
 def migrate(data: dict[str, Any]) -> dict[str, Any]:
     """A ``config.json`` of an earlier taskrl, in today's shape."""
-    return _shift_with_the_camera(_sections_from_flat(data))
+    return _shift_with_the_camera(_run_sections(_sections_from_flat(data)))
+
+
+def _run_sections(data: dict[str, Any]) -> dict[str, Any]:
+    """The replay's, evaluation's, checkpoints' and data settings sat flat on the run; they are sections now."""
+    flat = {name: {f.name for f in dataclasses.fields(cls)} for name, cls in RUN_SECTIONS.items()}
+    if not any(key in fields for key in data for fields in flat.values()):
+        return data
+    data = dict(data)
+    for name, fields in flat.items():
+        section = dict(data.get(name, {}))
+        for key in fields & set(data):
+            section.setdefault(key, data.pop(key))
+        if section:
+            data[name] = section
+    return data
 
 
 def _shift_with_the_camera(data: dict[str, Any]) -> dict[str, Any]:
@@ -57,7 +73,9 @@ def _sections_from_flat(data: dict[str, Any]) -> dict[str, Any]:
         elif algo == "td3":
             section.update(noise_std=end)  # the loop's level was TD3's noise std
     for name in [
-        k for k in data if isinstance(data[k], dict) and k not in ("conditioning", "cluster", "data_sharing", family.section)
+        k
+        for k in data
+        if isinstance(data[k], dict) and k not in ("conditioning", "cluster", "data_sharing", family.section, *RUN_SECTIONS)
     ]:
         if name != algo:
             data.pop(name)  # every algorithm's section was saved; only the run's own is kept

@@ -147,6 +147,10 @@ def load_policy(path: str | Path, device: str = "cpu") -> Policy:
         observation_space, action_space, TaskSet.from_pairs((t["name"], t["description"]) for t in tasks) if tasks else None
     )
     # acting needs no replay: relabelling and batch sampling are training settings, off here
-    agent = make_agent(dataclasses.replace(config, her="none", sampling="uniform"), spaces, resolve_device(device))
+    agent = make_agent(
+        dataclasses.replace(config, replay=dataclasses.replace(config.replay, her="none", sampling="uniform")),
+        spaces,
+        resolve_device(device),
+    )
     agent.load_parts(unflatten_state(tensors, meta["state"]))
     return Policy(agent, config, observation_space, action_space)

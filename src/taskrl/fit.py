@@ -28,7 +28,7 @@ def check_fit(config: TrainConfig, kind: str | None, actions: str | None, images
         raise ConfigError("algo", f"{c.algo!r} cannot read the camera pictures of {name!r}; allowed: {seeing}")
     if kind == "multitask" and not spec.multitask:
         raise ConfigError("algo", f"{c.algo!r} does not run on the multi-task env {name!r}; allowed: {fitting}")
-    if c.her != "none":
+    if c.replay.her != "none":
         require(
             spec.loop == "off_policy",
             "her",
@@ -47,7 +47,7 @@ def check_fit(config: TrainConfig, kind: str | None, actions: str | None, images
             next(iter(changed), "task_encoder"),
             f"applies to multi-task envs only (observations with a task index); {name!r} has no tasks",
         )
-    if c.sampling == "task_balanced":
+    if c.replay.sampling == "task_balanced":
         require(
             kind in (None, "multitask"),
             "sampling",
@@ -60,12 +60,12 @@ def check_run_needs(config: TrainConfig) -> None:
     modes), compiled updates, several updates per call."""
     c, spec = config, algorithm(config.algo)
     replay_settings = {
-        "recent_fraction": c.recent_fraction > 0,
-        "offline_data": bool(c.offline_data),
-        "offline_updates": c.offline_updates > 0,
-        "scripted_exploration": c.scripted_exploration > 0,
+        "recent_fraction": c.replay.recent_fraction > 0,
+        "offline_data": bool(c.data.offline_data),
+        "offline_updates": c.data.offline_updates > 0,
+        "scripted_exploration": c.data.scripted_exploration > 0,
         "distributed": c.cluster.distributed,
-        "offline": c.offline,
+        "offline": c.data.offline,
         "sharing": c.data_sharing.sharing != "none",
     }
     for name, used in replay_settings.items():
@@ -84,13 +84,13 @@ def check_run_needs(config: TrainConfig) -> None:
             f"applies to the off-policy updates of {compiling}, not {c.algo}; use 1",
         )
         require(
-            not c.cluster.distributed and not c.offline,
+            not c.cluster.distributed and not c.data.offline,
             "updates_per_call",
             "applies to the off-policy loop in one process (not --distributed or --offline); use 1",
         )
     if spec.loop == "off_policy":
         require(
-            c.buffer_size >= c.batch_size,
+            c.replay.buffer_size >= c.batch_size,
             "buffer_size",
-            f"must hold at least one batch (batch_size={c.batch_size}; got {c.buffer_size})",
+            f"must hold at least one batch (batch_size={c.batch_size}; got {c.replay.buffer_size})",
         )

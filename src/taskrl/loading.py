@@ -168,7 +168,7 @@ def evaluate_run(
     if video:  # MuJoCo renders off-screen through EGL without a display; read when MuJoCo is first imported
         os.environ.setdefault("MUJOCO_GL", "egl")
     config, source = _saved_config(run_dir, env, env_module)
-    config = dataclasses.replace(config, eval_episodes=episodes)
+    config = dataclasses.replace(config, evaluation=dataclasses.replace(config.evaluation, eval_episodes=episodes))
     if held_out:
         family = env_family(config.env)
         if family.held_out is None:

@@ -89,7 +89,7 @@ def with_overrides(config: TrainConfig, overrides: dict[str, Any], notes: list[s
     if family.kind in ("goal", "plain") and conditioned:  # the preset's task conditioning has no tasks here
         notes.append(f"--env {env}: has no tasks, so the preset's task conditioning ({_listed(conditioned)}) is off")
         conditioning = ConditioningConfig()
-    algo_settings, her = config.algo_settings, config.her
+    algo_settings, her = config.algo_settings, config.replay.her
     if algo != config.algo:
         algo_settings = _switch_algorithm(config.algo_settings, config.algo, algo, notes)
         if algorithm(algo).loop != "off_policy" and her != "none" and "her" not in overrides:
@@ -98,7 +98,13 @@ def with_overrides(config: TrainConfig, overrides: dict[str, Any], notes: list[s
             her = "none"
     data = to_dict(
         dataclasses.replace(
-            config, env=env, algo=algo, her=her, env_settings=env_settings, algo_settings=algo_settings, conditioning=conditioning
+            config,
+            env=env,
+            algo=algo,
+            replay=dataclasses.replace(config.replay, her=her),
+            env_settings=env_settings,
+            algo_settings=algo_settings,
+            conditioning=conditioning,
         )
     )
     names = setting_names(env, algo)

@@ -99,10 +99,19 @@ def _settings_page() -> str:
     from taskrl.conditioning.networks import ConditioningConfig
     from taskrl.config import TrainConfig
     from taskrl.distributed.settings import DistributedConfig
+    from taskrl.run_sections import CheckpointSettings, DataSettings, EvaluationSettings, ReplaySettings
     from taskrl.sharing.settings import SharingConfig
 
     sections = (
         ("Run", "Every run has these, whatever its env and algorithm.", TrainConfig),
+        ("Replay (`replay`)", "What the replay keeps and how batches are drawn (off-policy runs).", ReplaySettings),
+        ("Evaluation (`evaluation`)", "When and how the greedy policy is scored.", EvaluationSettings),
+        ("Checkpoints (`checkpoints`)", "When the run is saved, and what with.", CheckpointSettings),
+        (
+            "Where the data comes from (`data`)",
+            "Stored data and scripted episodes, besides the agent's own acting.",
+            DataSettings,
+        ),
         ("Task conditioning (`conditioning`)", "How multi-task networks are told the task.", ConditioningConfig),
         ("Where the roles run (`cluster`)", "One process, or collectors and Bellman updaters as Ray actors.", DistributedConfig),
         (
@@ -118,12 +127,14 @@ def _settings_page() -> str:
         "nests them by section. A section's setting has a dotted flag (`--algo.lr`, `--env.n-bits`, `--algo.cem.samples`, "
         "`--data-sharing.share-fraction`; in Python `taskrl.train(..., **{'algo.lr': 1e-3})`) and also answers to its short "
         "name (`--lr`, `lr=1e-3`) wherever no other section of the run has a setting of that name; a short name two "
-        "sections share is refused with one line naming both dotted flags. The env family's and the algorithm's own settings are on the "
+        "sections share is refused with one line naming both dotted flags (a setting of the run's own sections, replay to "
+        "data, keeps its short name as a run-level one does). The env family's and the algorithm's own settings are on the "
         "[env families](env_families.md) and [algorithms](algorithms.md) pages. `taskrl train PRESET --help` lists the "
         "ones that apply to a preset with its values.",
     ]
     for title, text, cls in sections:
-        skip = ("conditioning", "cluster", "data_sharing", "env_settings", "algo_settings") if cls is TrainConfig else ()
+        nested = ("replay", "evaluation", "checkpoints", "data", "conditioning", "cluster", "data_sharing")
+        skip = (*nested, "env_settings", "algo_settings") if cls is TrainConfig else ()
         section = "" if cls is TrainConfig else title.split("`")[1]
         out += ["", f"## {title}", "", text, "", settings_table(cls, skip, section)]
     return "\n".join(out) + "\n"

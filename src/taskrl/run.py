@@ -145,12 +145,12 @@ def train(
         # A new run checkpoints after its first step (a kill before checkpoint_interval still resumes);
         # a resumed run loads its checkpoint before anything of it is rewritten.
         try:
-            if resume is None and config.offline_data:
-                preload_replay(parts, config.offline_data)
+            if resume is None and config.data.offline_data:
+                preload_replay(parts, config.data.offline_data)
             if resume is None and dataset_steps(config, parts.env):
                 preload_datasets(parts)
             state = (
-                LoopState(next_checkpoint=0, next_eval=0 if mode.evaluate_first else config.eval_interval)
+                LoopState(next_checkpoint=0, next_eval=0 if mode.evaluate_first else config.evaluation.eval_interval)
                 if resume is None
                 else restore_checked(parts, run_dir, saved, config)
             )
@@ -191,12 +191,12 @@ def train(
                 on_log,
                 checkpointer(parts, run_dir, mode.axis),
                 config.total_steps,
-                config.eval_interval,
-                config.checkpoint_interval,
-                config.stop_at_success,
+                config.evaluation.eval_interval,
+                config.checkpoints.checkpoint_interval,
+                config.evaluation.stop_at_success,
                 parts.device,
                 stop,
-                checkpoint_seconds=60.0 * config.checkpoint_minutes,
+                checkpoint_seconds=60.0 * config.checkpoints.checkpoint_minutes,
                 axis=axis,
             )
             books.heartbeat = reporter.heartbeat

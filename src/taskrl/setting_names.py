@@ -12,6 +12,7 @@ from taskrl.config import TrainConfig, field_docs, run_fields
 from taskrl.distributed.settings import DistributedConfig
 from taskrl.envs.registry import env_family
 from taskrl.errors import ConfigError
+from taskrl.run_sections import RUN_SECTIONS
 from taskrl.sharing.settings import SharingConfig
 
 __all__ = ["Leaf", "SettingNames", "dotted_name", "field_help", "leaf_fields", "setting_help", "setting_names"]
@@ -68,7 +69,8 @@ class SettingNames:
     Attributes:
         paths: name -> path in ``config.json``: every dotted name (``algo.lr``; the section's own name
             works too, ``qtopt.lr``) and every short name (``lr``) that is not ambiguous. A run-level
-            setting keeps its short name whatever a section has.
+            setting, or one of the run's own sections (`RUN_SECTIONS`: ``replay.sampling``), keeps its short name
+            whatever an env or algorithm section has.
         ambiguous: short name -> the dotted names it could mean, for short names two sections share.
     """
 
@@ -97,7 +99,7 @@ def setting_names(env: str = "bitflip", algo: str = "dqn") -> SettingNames:
         by_short.setdefault(path[-1], []).append(path)
     ambiguous = {}
     for short, owners in by_short.items():
-        run_level = [p for p in owners if len(p) == 1]
+        run_level = [p for p in owners if len(p) == 1 or p[0] in RUN_SECTIONS]  # the run's own settings
         if run_level or len(owners) == 1:
             paths[short] = (run_level or owners)[0]
         else:
@@ -121,7 +123,7 @@ def leaf_fields(env: str = "bitflip", algo: str = "dqn") -> list[Leaf]:
 def field_help(env: str = "bitflip", algo: str = "dqn") -> dict[str, str]:
     """``{setting: description}`` for the CLI, from the dataclasses' docstrings."""
     docs = field_docs(TrainConfig)
-    classes = [ConditioningConfig, DistributedConfig, SharingConfig, env_family(env).settings]
+    classes = [*RUN_SECTIONS.values(), ConditioningConfig, DistributedConfig, SharingConfig, env_family(env).settings]
     stack = [algorithm(algo).config]
     while stack:  # the algorithm's section and the sections nested in it (QT-Opt's cem)
         cls = stack.pop()

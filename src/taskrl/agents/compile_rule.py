@@ -113,10 +113,10 @@ class CompileChoice:
 
 def planned_updates(config: Any) -> int:
     """The gradient updates a run's settings plan."""
-    if config.offline:
+    if config.data.offline:
         return int(config.total_steps)
     collected = max(0, config.total_steps - config.learning_starts)
-    return int(config.offline_updates + config.updates_per_step * collected)
+    return int(config.data.offline_updates + config.updates_per_step * collected)
 
 
 def nearest_measured(algo: str, hidden_sizes: tuple[int, ...], batch_size: int) -> MeasuredUpdate:

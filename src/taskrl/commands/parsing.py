@@ -91,6 +91,10 @@ def add_config_flags(parser: argparse.ArgumentParser, env: str, algo: str, base:
             docs[path] += " Choices: " + "; ".join(f"{e.name} ({e.summary})" for e in registry.values())
     family = ENV_FAMILIES[env]
     titles = {
+        "replay": "the replay (what it keeps, how batches are drawn)",
+        "evaluation": "evaluation (when, how many episodes)",
+        "checkpoints": "checkpoints (when, with the replay or not)",
+        "data": "where the data comes from (stored data, scripted episodes)",
         "conditioning": "task conditioning (multi-task networks)",
         "cluster": "where the roles run (--distributed)",
         "data_sharing": "data sharing between tasks",

@@ -95,7 +95,7 @@ def distributed_loop(parts: RunParts, books: Bookkeeping, pool: PoolFactory = ra
     limiter = UpdateToDataLimiter(
         c.updates_per_step,
         c.learning_starts,
-        c.offline_updates,
+        c.data.offline_updates,
         lead_steps=CALLS_PER_COLLECTOR * cluster.collectors * each * cluster.collector_steps,
         enabled=cluster.limit_updates,
     )
@@ -128,7 +128,7 @@ def start_cluster(parts: RunParts) -> None:
 def fits_a_cluster(config: TrainConfig) -> None:
     """What acts in the one-process loop only, and Bellman updaters only for algorithms that split their update."""
     require(
-        config.scripted_exploration == 0,
+        config.data.scripted_exploration == 0,
         "scripted_exploration",
         "acts in the one-process loop only (not with --distributed)",
     )

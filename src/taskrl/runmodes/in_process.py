@@ -20,10 +20,10 @@ def off_policy_loop(parts: RunParts, books: Bookkeeping) -> OffPolicyLoop:
         batch_size=c.batch_size,
         learning_starts=c.learning_starts,
         updates_per_step=c.updates_per_step,
-        offline_updates=c.offline_updates,
+        offline_updates=c.data.offline_updates,
         updates_per_call=c.updates_per_call,
-        scripted_exploration=c.scripted_exploration,
-        scripted_steps=c.scripted_steps,
+        scripted_exploration=c.data.scripted_exploration,
+        scripted_steps=c.data.scripted_steps,
     )
     return OffPolicyLoop(parts.env, parts.agent, parts.replay, parts.sampler, schedule, books, parts.generator)
 

@@ -67,7 +67,7 @@ def needs_stored_data(config: TrainConfig) -> None:
     """An ``--offline`` run learns from data only: another run's replay or the env's datasets."""
     datasets = bool(getattr(config.env_settings, "dataset_quality", ""))
     require(
-        bool(config.offline_data) or datasets,
+        bool(config.data.offline_data) or datasets,
         "offline",
         "learning from stored data only needs data: --offline-data RUN_DIR, or --dataset-quality TASK=QUALITY,...",
     )
@@ -76,7 +76,7 @@ def needs_stored_data(config: TrainConfig) -> None:
 STORED_DATA = RunMode(
     name="stored_data",
     summary="--offline: an off-policy algorithm on stored data only (datasets, another run's replay)",
-    applies=lambda config: config.offline,
+    applies=lambda config: config.data.offline,
     selected_by="offline",
     make_loop=stored_data_loop,
     loops=("off_policy",),

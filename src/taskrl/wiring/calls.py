@@ -111,7 +111,7 @@ def resolve_config(
 def settle_compile(config: TrainConfig, notes: list[str]) -> TrainConfig:
     """``config`` with ``compile`` and ``updates_per_call`` settled where they are ``auto``; why goes first in ``notes``."""
     spec = algorithm(config.algo)
-    many = spec.loop == "off_policy" and not config.cluster.distributed and not config.offline
+    many = spec.loop == "off_policy" and not config.cluster.distributed and not config.data.offline
     pictures = config.env in ENV_FAMILIES and ENV_FAMILIES.lookup(config.env).images
     choice = choose_compile(config, spec.compiles, many, pictures, cached_calls(config) if spec.compiles else set())
     if choice.reason:  # the run's first line
@@ -130,7 +130,7 @@ def remember_compiled_graphs(config: TrainConfig, agent: Any) -> None:
 def budget_warnings(config: TrainConfig) -> list[str]:
     """Budgets that make a run do less than its settings suggest (said before training, not refused)."""
     c, out = config, []
-    if algorithm(c.algo).loop == "off_policy" and not c.offline:  # an offline run's total_steps are updates
+    if algorithm(c.algo).loop == "off_policy" and not c.data.offline:  # an offline run's total_steps are updates
         if c.learning_starts >= c.total_steps:
             out.append(
                 f"learning_starts={c.learning_starts:,} >= total_steps={c.total_steps:,}: the run collects "

@@ -72,7 +72,7 @@ def checkpointer(parts: RunParts, run_dir: Path, axis: str) -> Callable[[LoopSta
             "agent": parts.agent.state_dict(),
             "loop": {**dataclasses.asdict(state), "generator": parts.generator.get_state()},
         }
-        if parts.config.save_replay and parts.replay is not None:
+        if parts.config.checkpoints.save_replay and parts.replay is not None:
             saved["replay"] = parts.replay.state_dict()
         save_checkpoint(run_dir / "checkpoints", saved, state.progress(axis))
 

@@ -63,7 +63,7 @@ def env_request(
         seed=seed,
         device=device,
         evaluation=evaluation,
-        eval_episodes=config.eval_episodes,
+        eval_episodes=config.evaluation.eval_episodes,
         run_seed=config.seed,
         source=source,
     )
@@ -147,7 +147,7 @@ def make_evaluator(
     def run() -> dict[str, float]:
         if not multitask:
             return evaluate(policy, eval_env, seed, details=details)
-        result = evaluate_per_task(policy, eval_env, config.eval_episodes, seed, success=criterion)
+        result = evaluate_per_task(policy, eval_env, config.evaluation.eval_episodes, seed, success=criterion)
         last.clear(), last.update(result)
         tasks = result["tasks"].values()
         return {
@@ -161,12 +161,12 @@ def make_evaluator(
 
 
 def make_relabeler(config: TrainConfig, env: BatchedEnv) -> HindsightRelabeler | None:
-    if config.her == "none":
+    if config.replay.her == "none":
         return None
     return HindsightRelabeler(
         env.compute_reward,
-        config.her,
-        config.her_k,
+        config.replay.her,
+        config.replay.her_k,
         terminated_fn=getattr(env, "compute_terminated", None),
         goal_picture_fn=getattr(env, "goal_picture", None),
     )

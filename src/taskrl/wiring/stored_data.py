@@ -85,8 +85,8 @@ def replay_needs(config: TrainConfig, env: BatchedEnv, own_steps: Callable[[Trai
     """Transitions a run can store: its datasets and ``own_steps`` (what the run mode collects itself, the last
     step of every copy past ``total_steps`` included); with ``--offline-data``, everything up to ``buffer_size``
     (the other run's data too). The episodes running at the end are stored cut (their steps are counted)."""
-    if config.offline_data:
-        return config.buffer_size
+    if config.data.offline_data:
+        return config.replay.buffer_size
     return max(dataset_steps(config, env) + own_steps(config, env), 1)
 
 

@@ -108,10 +108,10 @@ def _metaworld_family(benchmark: str | Sequence[str], description: str, name: st
             f"must be a multiple of the {tasks} tasks of {label} (one or more copies per task; got {run.num_envs})",
         )
         require(
-            run.eval_episodes <= METAWORLD_NUM_GOALS,
+            run.evaluation.eval_episodes <= METAWORLD_NUM_GOALS,
             "eval_episodes",
             f"Meta-World has {METAWORLD_NUM_GOALS} goal positions per task: at most {METAWORLD_NUM_GOALS} "
-            f"episodes per task (got {run.eval_episodes})",
+            f"episodes per task (got {run.evaluation.eval_episodes})",
         )
 
     def tasks_env(settings: MetaWorldSettings, request: EnvRequest, names: Sequence[str]) -> MetaWorldMultiTaskEnv:
