@@ -207,19 +207,21 @@ def main() -> None:
         random_rows = {r["objects"]: r for r in json.loads(args.random_test.read_text())} if args.random_test.exists() else {}
         grasps = int(found["collected"].get("replay_episodes", 0))
         lines = [
-            "| policy | seed | updates | training objects | test objects |",
-            "|---|---|---|---|---|",
+            "| policy | seed | updates | training objects | test objects | steps per episode (training / test) |",
+            "|---|---|---|---|---|---|",
             f"| random (the data: its own grasps while collecting) | 0 | 0 | "
             f"{_interval(found['collected'].get('train_success', float('nan')), grasps)} ({grasps:,} grasps) | "
             + (
                 f"{_interval(random_rows['test']['success'], random_rows['test']['episodes'])} ({random_rows['test']['episodes']} grasps) |"
                 if "test" in random_rows
                 else "not measured |"
-            ),
+            )
+            + " - |",
         ]
         for r in found["rows"]:
             lines.append(
-                f"| {r['kind']} | {r['seed']} | {r['updates']:,} | {_interval(r['train'], args.episodes)} | {_interval(r['test'], args.episodes)} |"
+                f"| {r['kind']} | {r['seed']} | {r['updates']:,} | {_interval(r['train'], args.episodes)} | "
+                f"{_interval(r['test'], args.episodes)} | {r['train_length']:.1f} / {r['test_length']:.1f} |"
             )
         text = "\n".join(lines)
         print(text)
