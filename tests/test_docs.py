@@ -104,9 +104,10 @@ def test_the_new_sharing_strategy_guide_runs(tmp_path):
         code
         + "\nimport taskrl\nfrom taskrl.sharing import register_sharing_strategy\n"
         + "register_sharing_strategy(ANY_SUCCESS)\n"
-        + "run = taskrl.train('grid-sharing-dqn', out='run', sharing='any-success', total_steps=800, learning_starts=200,"
-        + " eval_interval=10**6, eval_episodes=1, tensorboard=False)\n"
+        + "run = taskrl.train('grid-sharing-dqn', out='run', sharing='any-success', min_goals=2, total_steps=800,"
+        + " learning_starts=200, eval_interval=10**6, eval_episodes=1, tensorboard=False)\n"
         + "assert run.metrics['updates'] > 0 and run.config.data_sharing.sharing == 'any-success', run.metrics\n"
+        + "from taskrl.config import load\nassert load(run.run_dir / 'config.json').data_sharing.strategy_settings.min_goals == 2\n"
     )
     done = subprocess.run([sys.executable, str(script)], cwd=tmp_path, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-2000:]

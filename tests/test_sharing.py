@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import json
 import math
 
 import pytest
@@ -21,6 +22,7 @@ from taskrl.plan import validate
 from taskrl.replay import EpisodeReplay, Episodes, HindsightRelabeler
 from taskrl.replay.batch import Batch
 from taskrl.sharing import SHARING_STRATEGIES, SharingConfig, TaskSharing, collect_task_datasets
+from taskrl.sharing.builtin import ConservativeSettings, HIPISettings, RandomSettings
 from taskrl.sharing.datasets import random_actions
 
 ENVS = [GridTasks, PointTasks]
@@ -181,7 +183,12 @@ def test_mtopt_shares_successes_and_failures_half_and_half_per_task():
 
 def test_random_draws_from_k_other_tasks_per_batch():
     env, replay = filled_replay(GridTasks)
-    sharing = TaskSharing(replay, env, env.num_tasks, SharingConfig(sharing="random", share_tasks=2, share_fraction=1.0))
+    sharing = TaskSharing(
+        replay,
+        env,
+        env.num_tasks,
+        SharingConfig(sharing="random", share_fraction=1.0, strategy_settings=RandomSettings(share_tasks=2)),
+    )
     batch = sharing(600, torch.Generator().manual_seed(0))
     source = replay.observation_at("task", batch.episode, 0)
     for j in range(env.num_tasks):
@@ -195,7 +202,9 @@ def test_hipi_weights_are_the_posterior_with_its_partition_term():
     log Z_j = log sum_e exp(R_j(e)/T), in float64 (the hindsight inverse-RL posterior over trajectories)."""
     env, replay = filled_replay(PointTasks, steps=400)
     temperature = 0.5
-    sharing = TaskSharing(replay, env, env.num_tasks, SharingConfig(sharing="hipi", hipi_temperature=temperature))
+    sharing = TaskSharing(
+        replay, env, env.num_tasks, SharingConfig(sharing="hipi", strategy_settings=HIPISettings(hipi_temperature=temperature))
+    )
     source = replay.first_observations("task").long()
     weights = sharing.shared_weights(source, None)
     stored = replay.stored_episodes()
@@ -237,7 +246,11 @@ def test_conservative_keeps_shared_rows_above_the_own_percentile():
     env, replay = filled_replay(PointTasks)
     q = lambda obs, action: obs["observation"][:, 1]  # noqa: E731  # Q = height
     sharing = TaskSharing(
-        replay, env, env.num_tasks, SharingConfig(sharing="conservative", conservative_percentile=90), q_value=q
+        replay,
+        env,
+        env.num_tasks,
+        SharingConfig(sharing="conservative", strategy_settings=ConservativeSettings(conservative_percentile=90)),
+        q_value=q,
     )
     batch = sharing(600, torch.Generator().manual_seed(1))
     source = replay.observation_at("task", batch.episode, 0)
@@ -376,6 +389,32 @@ def test_cql_penalty_lowers_sac_q_away_from_the_data():
             agent.update(batch, torch.Generator().manual_seed(0))
         gaps[alpha] = float((agent.q_value(obs, away) - agent.q_value(obs, data_action)).mean())
     assert gaps[1.0] < gaps[0.0] - 0.5
+
+
+def test_a_strategys_own_settings_are_flags_while_it_is_chosen_and_travel_with_the_run(tmp_path, capsys):
+    """``--sharing random --share-tasks 2`` reaches the saved run and its sampler; the knob of a strategy not chosen is
+    one line naming that strategy; a bad value names the knob. Mutation: `from_dict` leaving the strategy's section
+    at its defaults fails."""
+    from taskrl.cli import main
+    from taskrl.config import load
+
+    out = tmp_path / "run"
+    argv = ["train", "grid-sharing-dqn", "--sharing", "random", "--share-tasks", "2", "--total-steps", "300"]
+    assert main([*argv, "--learning-starts", "100", "--eval-interval", "1000000", "--out", str(out), "--no-progress"]) == 0
+    saved = json.loads((out / "config.json").read_text())["data_sharing"]
+    assert saved == {"sharing": "random", "share_fraction": 0.5, "random": {"share_tasks": 2}}
+    assert load(out / "config.json").data_sharing.strategy_settings.share_tasks == 2
+    capsys.readouterr()
+    assert main(["train", "grid-sharing-dqn", "--share-tasks", "2", "--total-steps", "10"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--sharing random" in err[0], err
+    base = with_overrides(TrainConfig(), {"env": "gridtasks", "her": "none", "sampling": "task_balanced"})
+    with pytest.raises(ConfigError) as error:
+        with_overrides(base, {"sharing": "all", "hipi_temperature": 2.0})
+    assert error.value.field == "hipi_temperature" and "--sharing hipi" in error.value.message
+    with pytest.raises(ConfigError) as error:
+        validate(with_overrides(base, {"sharing": "hipi", "hipi_temperature": 0.0}))
+    assert error.value.field == "hipi_temperature"
 
 
 def test_bad_sharing_settings_are_one_line_errors():

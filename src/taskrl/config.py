@@ -30,11 +30,14 @@ from taskrl.errors import ConfigError, reason
 from taskrl.run_sections import CheckpointSettings, DataSettings, EvaluationSettings, ReplaySettings
 from taskrl.rundir import atomic_write_text
 from taskrl.setting_values import checked_value
+from taskrl.sharing.registry import sharing_strategy
 from taskrl.sharing.settings import SharingConfig
 
 __all__ = ["ConfigError", "TrainConfig", "field_docs", "from_dict", "load", "run_fields", "save", "to_dict"]
 
 _SECTIONS = ("env_settings", "algo_settings")
+#: settings fields that hold the section of a registered piece chosen by name (saved under that name)
+_CHOSEN = (*_SECTIONS, "strategy_settings")
 
 
 @dataclasses.dataclass
@@ -165,6 +168,10 @@ def to_dict(config: TrainConfig) -> dict[str, Any]:
     env's and the algorithm's sections by name."""
     data = {f.name: getattr(config, f.name) for f in run_fields()}
     data.update({name: dataclasses.asdict(value) for name, value in data.items() if dataclasses.is_dataclass(value)})
+    sharing = data["data_sharing"]
+    own = sharing.pop("strategy_settings")
+    if own is not None:  # the chosen strategy's settings, under its name
+        sharing[config.data_sharing.sharing] = own
     data[config.env_section] = dataclasses.asdict(config.env_settings)
     data[config.algo] = dataclasses.asdict(config.algo_settings)
     return data
@@ -174,7 +181,7 @@ def _build(cls: type, data: dict[str, Any], where: str) -> Any:
     if not isinstance(data, dict):
         raise ConfigError(where.rsplit(".", 1)[-1], f"{where} must be a mapping of settings, got {data!r}")
     hints = typing.get_type_hints(cls)
-    names = {f.name for f in dataclasses.fields(cls)} - set(_SECTIONS)
+    names = {f.name for f in dataclasses.fields(cls)} - set(_CHOSEN)
     unknown = sorted(set(data) - names)
     if unknown:
         raise ConfigError(unknown[0], f"unknown setting in {where}; allowed: {', '.join(sorted(names))}")
@@ -185,6 +192,16 @@ def _build(cls: type, data: dict[str, Any], where: str) -> Any:
     return cls(**kwargs)
 
 
+def _strategy_section(data_sharing: Any) -> tuple[Any, Any, dict | None]:
+    """``(data_sharing without the chosen strategy's settings, that strategy, its settings or None)``."""
+    if not isinstance(data_sharing, dict):
+        return data_sharing, None, None  # _build names the defect
+    section = dict(data_sharing)
+    strategy = sharing_strategy(checked_value("sharing", section.get("sharing", "none"), str))
+    own = section.pop(strategy.name, {}) if strategy.settings is not None else None
+    return section, strategy, own
+
+
 def from_dict(data: dict[str, Any]) -> TrainConfig:
     """Rebuild a config from `to_dict` output (e.g. a run's ``config.json``)."""
     data = migrate(dict(data))
@@ -192,7 +209,10 @@ def from_dict(data: dict[str, Any]) -> TrainConfig:
     family, spec = env_family(env), algorithm(algo)
     sections = {family.section, algo}
     top = {k: v for k, v in data.items() if k not in sections}
+    top["data_sharing"], strategy, own = _strategy_section(top.get("data_sharing", {}))
     config = _build(TrainConfig, top, "config")
+    if own is not None:
+        config.data_sharing.strategy_settings = _build(strategy.settings, own, f"config.data_sharing.{strategy.name}")
     config.env_settings = _build(family.settings, data.get(family.section, {}), f"config.{family.section}")
     config.algo_settings = _build(spec.config, data.get(algo, {}), f"config.{algo}")
     return config

@@ -17,7 +17,25 @@ _LEGACY_EXPLORATION = ("epsilon_start", "epsilon_end", "epsilon_decay_steps")
 
 def migrate(data: dict[str, Any]) -> dict[str, Any]:
     """A ``config.json`` of an earlier taskrl, in today's shape."""
-    return _shift_with_the_camera(_run_sections(_sections_from_flat(data)))
+    return _strategy_settings(_shift_with_the_camera(_run_sections(_sections_from_flat(data))))
+
+
+#: the built-in strategies' settings, when ``data_sharing`` held them all
+_SHARING_KNOBS = {"share_tasks": "random", "hipi_temperature": "hipi", "conservative_percentile": "conservative"}
+
+
+def _strategy_settings(data: dict[str, Any]) -> dict[str, Any]:
+    """``data_sharing`` held every built-in strategy's settings; it holds the chosen strategy's, under its name."""
+    sharing = data.get("data_sharing")
+    if not isinstance(sharing, dict) or not any(k in sharing for k in _SHARING_KNOBS):
+        return data
+    sharing = dict(sharing)
+    knobs = {k: sharing.pop(k) for k in _SHARING_KNOBS if k in sharing}
+    chosen = sharing.get("sharing", "none")
+    own = {k: v for k, v in knobs.items() if _SHARING_KNOBS[k] == chosen}
+    if own:
+        sharing[chosen] = {**own, **sharing.get(chosen, {})}
+    return {**data, "data_sharing": sharing}
 
 
 def _run_sections(data: dict[str, Any]) -> dict[str, Any]:

@@ -11,6 +11,7 @@ from taskrl.config import TrainConfig, from_dict, to_dict
 from taskrl.envs.registry import ENV_FAMILIES, env_family
 from taskrl.setting_names import setting_names
 from taskrl.setting_values import changed_fields
+from taskrl.sharing.settings import SharingConfig
 
 __all__ = ["SHARED_ALGO_SETTINGS", "with_overrides"]
 
@@ -63,6 +64,19 @@ def _selected_family(config: TrainConfig, overrides: dict[str, Any]) -> str:
     return config.env
 
 
+def _selected_sharing(config: TrainConfig, overrides: dict[str, Any], notes: list[str]) -> SharingConfig:
+    """The data-sharing section for the strategy the overrides name (its own settings from their defaults when the
+    strategy changes)."""
+    current = config.data_sharing
+    name = next((overrides[k] for k in ("sharing", "data_sharing.sharing") if k in overrides), current.sharing)
+    if name == current.sharing:
+        return current
+    changed = changed_fields(current.strategy_settings) if current.strategy_settings is not None else {}
+    if changed:
+        notes.append(f"--sharing {name}: {current.sharing}'s {_listed(changed)} do{'es' if len(changed) == 1 else ''} not apply")
+    return SharingConfig(sharing=name, share_fraction=current.share_fraction)
+
+
 def with_overrides(config: TrainConfig, overrides: dict[str, Any], notes: list[str] | None = None) -> TrainConfig:
     """A copy of ``config`` with settings replaced by name (``{"n_bits": 30, "lr": 1e-3}``).
 
@@ -96,18 +110,20 @@ def with_overrides(config: TrainConfig, overrides: dict[str, Any], notes: list[s
             how = "offline" if algorithm(algo).loop == "offline" else "on-policy"
             notes.append(f"--algo {algo}: learns {how}, so the preset's hindsight relabelling (her={her}) is off")
             her = "none"
+    data_sharing = _selected_sharing(config, overrides, notes)
     data = to_dict(
         dataclasses.replace(
             config,
             env=env,
             algo=algo,
             replay=dataclasses.replace(config.replay, her=her),
+            data_sharing=data_sharing,
             env_settings=env_settings,
             algo_settings=algo_settings,
             conditioning=conditioning,
         )
     )
-    names = setting_names(env, algo)
+    names = setting_names(env, algo, data_sharing.sharing)
     overrides.pop("env", None), overrides.pop("algo", None)
     for name, value in overrides.items():
         node = data

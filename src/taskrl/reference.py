@@ -100,6 +100,7 @@ def _settings_page() -> str:
     from taskrl.config import TrainConfig
     from taskrl.distributed.settings import DistributedConfig
     from taskrl.run_sections import CheckpointSettings, DataSettings, EvaluationSettings, ReplaySettings
+    from taskrl.sharing.registry import SHARING_STRATEGIES
     from taskrl.sharing.settings import SharingConfig
 
     sections = (
@@ -134,9 +135,15 @@ def _settings_page() -> str:
     ]
     for title, text, cls in sections:
         nested = ("replay", "evaluation", "checkpoints", "data", "conditioning", "cluster", "data_sharing")
-        skip = (*nested, "env_settings", "algo_settings") if cls is TrainConfig else ()
+        skip = (*nested, "env_settings", "algo_settings") if cls is TrainConfig else ("strategy_settings",)
         section = "" if cls is TrainConfig else title.split("`")[1]
         out += ["", f"## {title}", "", text, "", settings_table(cls, skip, section)]
+    for strategy in SHARING_STRATEGIES.values():
+        if strategy.settings is not None:
+            section = f"data_sharing.{strategy.name}"
+            text = f"Flags while the run shares with `--sharing {strategy.name}` ({strategy.summary})."
+            table = settings_table(strategy.settings, (), section)
+            out += ["", f"### `{strategy.name}` sharing (`{section}`)", "", text, "", table]
     return "\n".join(out) + "\n"
 
 

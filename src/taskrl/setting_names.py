@@ -13,17 +13,44 @@ from taskrl.distributed.settings import DistributedConfig
 from taskrl.envs.registry import env_family
 from taskrl.errors import ConfigError
 from taskrl.run_sections import RUN_SECTIONS
+from taskrl.sharing.registry import SHARING_STRATEGIES, sharing_strategy
 from taskrl.sharing.settings import SharingConfig
 
-__all__ = ["Leaf", "SettingNames", "dotted_name", "field_help", "leaf_fields", "setting_help", "setting_names"]
+__all__ = [
+    "Leaf",
+    "SettingNames",
+    "dotted_name",
+    "field_help",
+    "leaf_fields",
+    "setting_help",
+    "setting_names",
+    "strategy_owning",
+]
 
 Leaf = tuple[tuple[str, ...], dataclasses.Field, type]
+#: fields holding the section of a piece chosen by name: their settings are the chosen piece's (added by name)
+_CHOSEN = ("strategy_settings",)
+
+
+def _strategy_class(sharing: str) -> type | None:
+    return sharing_strategy(sharing).settings
+
+
+def strategy_owning(name: str) -> str | None:
+    """The registered sharing strategy whose own settings have a field ``name`` (short or dotted), if one does."""
+    short = name.rsplit(".", 1)[-1].replace("-", "_")
+    for strategy in SHARING_STRATEGIES.values():
+        if strategy.settings is not None and short in {f.name for f in dataclasses.fields(strategy.settings)}:
+            return strategy.name
+    return None
 
 
 def _leaves(cls: type, prefix: tuple[str, ...]) -> list[Leaf]:
     hints = typing.get_type_hints(cls)
     out = []
     for f in dataclasses.fields(cls):
+        if f.name in _CHOSEN:
+            continue
         tp = hints[f.name]
         if dataclasses.is_dataclass(tp):
             out += _leaves(tp, prefix + (f.name,))
@@ -36,6 +63,8 @@ def _leaves_with_help(cls: type, prefix: tuple[str, ...]) -> dict[tuple[str, ...
     hints, docs = typing.get_type_hints(cls), field_docs(cls)
     out: dict[tuple[str, ...], str] = {}
     for f in dataclasses.fields(cls):
+        if f.name in _CHOSEN:
+            continue
         if dataclasses.is_dataclass(hints[f.name]):
             out.update(_leaves_with_help(hints[f.name], prefix + (f.name,)))
         else:
@@ -43,11 +72,13 @@ def _leaves_with_help(cls: type, prefix: tuple[str, ...]) -> dict[tuple[str, ...
     return out
 
 
-def setting_help(env: str = "bitflip", algo: str = "dqn") -> dict[tuple[str, ...], str]:
-    """``{path: description}`` of every setting of a run on ``env`` with ``algo`` (paths as `leaf_fields`)."""
-    family = env_family(env)
+def setting_help(env: str = "bitflip", algo: str = "dqn", sharing: str = "none") -> dict[tuple[str, ...], str]:
+    """``{path: description}`` of every setting of a run on ``env`` with ``algo`` and the ``sharing`` strategy (paths
+    as `leaf_fields`)."""
+    family, own = env_family(env), _strategy_class(sharing)
     return {
         **_leaves_with_help(TrainConfig, ()),
+        **(_leaves_with_help(own, ("data_sharing", sharing)) if own is not None else {}),
         **_leaves_with_help(family.settings, (family.section,)),
         **_leaves_with_help(algorithm(algo).config, (algo,)),
     }
@@ -83,13 +114,16 @@ class SettingNames:
             return self.paths[name]
         if name in self.ambiguous:
             raise ConfigError(name, f"is a setting of several sections here: say {' or '.join(self.ambiguous[name])}")
+        owner = strategy_owning(name)
+        if owner is not None:
+            raise ConfigError(name, f"is a setting of the {owner} sharing strategy: choose it with --sharing {owner}")
         short = sorted(n for n in self.paths if "." not in n)
         raise ConfigError(name, f"unknown setting for env {env!r} and algo {algo!r}; allowed: {', '.join(short)}")
 
 
-def setting_names(env: str = "bitflip", algo: str = "dqn") -> SettingNames:
-    """The names settings answer to on a run of ``env`` with ``algo``, see `SettingNames`."""
-    leaves = [path for path, _, _ in leaf_fields(env, algo)]
+def setting_names(env: str = "bitflip", algo: str = "dqn", sharing: str = "none") -> SettingNames:
+    """The names settings answer to on a run of ``env`` with ``algo`` and the ``sharing`` strategy, see `SettingNames`."""
+    leaves = [path for path, _, _ in leaf_fields(env, algo, sharing)]
     paths: dict[str, tuple[str, ...]] = {}
     by_short: dict[str, list[tuple[str, ...]]] = {}
     for path in leaves:
@@ -107,23 +141,29 @@ def setting_names(env: str = "bitflip", algo: str = "dqn") -> SettingNames:
     return SettingNames(paths, ambiguous)
 
 
-def leaf_fields(env: str = "bitflip", algo: str = "dqn") -> list[Leaf]:
-    """The settings of a run on ``env`` with ``algo``: ``(path, field, type)`` of every run-level
-    field, every field of the conditioning section, of the env family's and of the algorithm's
-    section (nested sections flattened). Paths are those of ``config.json``."""
+def leaf_fields(env: str = "bitflip", algo: str = "dqn", sharing: str = "none") -> list[Leaf]:
+    """The settings of a run on ``env`` with ``algo`` and the ``sharing`` strategy: ``(path, field, type)`` of every
+    run-level field, every field of the run's sections, of the sharing strategy's own settings
+    (``data_sharing.NAME``), of the env family's and of the algorithm's section (nested sections flattened). Paths are
+    those of ``config.json``."""
     hints = typing.get_type_hints(TrainConfig)
     top: list[Leaf] = []
     for f in run_fields():
         tp = hints[f.name]
         top += _leaves(tp, (f.name,)) if dataclasses.is_dataclass(tp) else [((f.name,), f, tp)]
+    own = _strategy_class(sharing)
+    if own is not None:
+        top += _leaves(own, ("data_sharing", sharing))
     family = env_family(env)
     return top + _leaves(family.settings, (family.section,)) + _leaves(algorithm(algo).config, (algo,))
 
 
-def field_help(env: str = "bitflip", algo: str = "dqn") -> dict[str, str]:
+def field_help(env: str = "bitflip", algo: str = "dqn", sharing: str = "none") -> dict[str, str]:
     """``{setting: description}`` for the CLI, from the dataclasses' docstrings."""
     docs = field_docs(TrainConfig)
     classes = [*RUN_SECTIONS.values(), ConditioningConfig, DistributedConfig, SharingConfig, env_family(env).settings]
+    if _strategy_class(sharing) is not None:
+        classes.append(_strategy_class(sharing))
     stack = [algorithm(algo).config]
     while stack:  # the algorithm's section and the sections nested in it (QT-Opt's cem)
         cls = stack.pop()

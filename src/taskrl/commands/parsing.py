@@ -64,7 +64,9 @@ def terminal_text(markup: str) -> str:
     return re.sub(r"``?([^`]+)``?", r"\1", text)
 
 
-def add_config_flags(parser: argparse.ArgumentParser, env: str, algo: str, base: Any = None) -> dict[str, list[str]]:
+def add_config_flags(
+    parser: argparse.ArgumentParser, env: str, algo: str, base: Any = None, sharing: str = "none"
+) -> dict[str, list[str]]:
     """One flag per setting, in sections (``--algo.lr``, ``--env.n-bits``, ``--algo.cem.samples``,
     ``--data-sharing.share-fraction``), each also under its short name (``--lr``) where no other setting
     has it; the ``dest`` is the dotted name [`taskrl.overrides.with_overrides`][taskrl.overrides.with_overrides] reads. Returns the
@@ -77,8 +79,8 @@ def add_config_flags(parser: argparse.ArgumentParser, env: str, algo: str, base:
     from taskrl.setting_names import dotted_name, leaf_fields, setting_help, setting_names
     from taskrl.sharing.registry import SHARING_STRATEGIES
 
-    docs = setting_help(env, algo)
-    names = setting_names(env, algo)
+    docs = setting_help(env, algo, sharing)
+    names = setting_names(env, algo, sharing)
     values = to_dict(base) if base is not None and base.env == env and base.algo == algo else {}
     docs[("env",)] += " Choices: " + "; ".join(f"{f.name} ({f.description})" for f in ENV_FAMILIES.values())
     docs[("algo",)] += " Choices: " + "; ".join(f"{a.name} ({a.description})" for a in ALGORITHMS.values())
@@ -102,7 +104,7 @@ def add_config_flags(parser: argparse.ArgumentParser, env: str, algo: str, base:
         algo: f"algorithm '{algo}' (--algo.* flags, {algo} section)",
     }
     groups: dict[str, Any] = {}
-    for path, _field, tp in leaf_fields(env, algo):
+    for path, _field, tp in leaf_fields(env, algo, sharing):
         section = path[0] if len(path) > 1 else "run"
         if section not in groups:  # one block per section of config.json, so --help reads as the reference does
             groups[section] = parser.add_argument_group(f"settings: {titles.get(section, 'run')}")
@@ -166,18 +168,21 @@ def config_file(argv: Sequence[str]) -> tuple[dict[str, Any], Any]:
     return {k: tuple(v) if isinstance(v, list) else v for k, v in data.items()}, None
 
 
-def active_sections(argv: Sequence[str], file_base: Any = None, file_settings: dict | None = None) -> tuple[str, str, Any]:
-    """``(env, algo)`` whose settings the flags address: ``--env`` / ``--algo`` (``--env-id`` or
-    ``--task-file`` alone select their family), else the preset's, else the resumed run's."""
+def active_sections(argv: Sequence[str], file_base: Any = None, file_settings: dict | None = None) -> tuple[str, str, str, Any]:
+    """``(env, algo, sharing, base)``: the env family, algorithm and sharing strategy whose settings the flags address
+    (``--env`` / ``--algo`` / ``--sharing``; ``--env-id`` or ``--task-file`` alone select their family), else the
+    preset's, else the resumed run's; and the config the flags start from."""
     from taskrl.agents.registry import ALGORITHMS
     from taskrl.config import TrainConfig
     from taskrl.envs.registry import ENV_FAMILIES
     from taskrl.presets import PRESETS, preset_config
+    from taskrl.sharing.registry import SHARING_STRATEGIES
 
     peek = Parser(add_help=False)
     peek.add_argument("preset", nargs="?")
     peek.add_argument("--env")
     peek.add_argument("--algo")
+    peek.add_argument("--sharing", "--data-sharing.sharing", dest="sharing")
     peek.add_argument("--resume")
     selectors = {f.selected_by: f.name for f in ENV_FAMILIES.values() if f.selected_by}
     for setting in selectors:
@@ -188,7 +193,12 @@ def active_sections(argv: Sequence[str], file_base: Any = None, file_settings: d
         from taskrl.wiring.calls import import_env_module
 
         import_env_module(known.env_module)
-    for flag, value, allowed in (("--env", known.env, ENV_FAMILIES), ("--algo", known.algo, ALGORITHMS)):
+    named = (
+        ("--env", known.env, ENV_FAMILIES),
+        ("--algo", known.algo, ALGORITHMS),
+        ("--sharing", known.sharing, SHARING_STRATEGIES),
+    )
+    for flag, value, allowed in named:
         if value is not None and value not in allowed:
             hint = " (a gymnasium id goes to --env-id)" if flag == "--env" else ""
             raise UsageError(f"argument {flag}: invalid choice: {value!r} (choose from {', '.join(map(repr, allowed))}){hint}")
@@ -214,7 +224,8 @@ def active_sections(argv: Sequence[str], file_base: Any = None, file_settings: d
     if env is None:
         given = [name for setting, name in selectors.items() if getattr(known, setting) is not None]
         env = given[0] if given and given[0] != base.env else base.env
-    return env, known.algo or base.algo, base
+    sharing = known.sharing or (file_settings or {}).get("sharing") or base.data_sharing.sharing
+    return env, known.algo or base.algo, sharing, base
 
 
 def parse(
@@ -227,6 +238,11 @@ def parse(
         spelled = bad.split("=")[0].replace("--no-", "--")
         if ambiguous and spelled in ambiguous:
             raise UsageError(f"{spelled} is a setting of several sections here: say {' or '.join(ambiguous[spelled])}")
+        from taskrl.setting_names import strategy_owning
+
+        owner = strategy_owning(spelled.lstrip("-"))
+        if owner is not None:
+            raise UsageError(f"{spelled} is a setting of the {owner} sharing strategy: choose it with --sharing {owner}")
         close = difflib.get_close_matches(bad.split("=")[0], flags, n=1)
         hint = f" (did you mean {close[0]}?)" if close else ""
         raise UsageError(f"unknown option {bad!r}{hint}; allowed: {', '.join(flags)}")

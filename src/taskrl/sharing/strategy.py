@@ -10,7 +10,6 @@ import torch
 
 from taskrl.errors import require
 from taskrl.replay.storage import EpisodeReplay
-from taskrl.sharing.settings import SharingConfig
 
 __all__ = ["Keep", "Sampler", "SharingStrategy", "Weights"]
 
@@ -20,7 +19,7 @@ class Sampler(Protocol):
     ([`TaskSharing`][taskrl.sharing.strategies.TaskSharing])."""
 
     replay: EpisodeReplay
-    settings: SharingConfig
+    settings: Any  # the run's SharingConfig; the strategy's own settings are its ``strategy_settings``
     num_tasks: int
     tasks: torch.Tensor  # [T] task indices
     scores: Any  # EpisodeScores (success and return of every stored episode under every task), when needed
@@ -52,6 +51,9 @@ class SharingStrategy:
         zero_reward: shared rows get reward 0 and no termination instead of the task's reward (UDS).
         needs_scores: every stored episode's success and return under every task (``sampler.scores``).
         needs_q_value: the agent's ``q_value(obs, action)`` (``sampler.q_value``); the algorithm must have one.
+        settings: its own settings, a dataclass with a ``validate()`` (None: it has none): the command line's flags
+            while it is the run's ``--sharing`` (``--data-sharing.NAME.FIELD``, or the field's short name), the hooks
+            read them as ``sampler.settings.strategy_settings``.
     """
 
     name: str
@@ -62,6 +64,7 @@ class SharingStrategy:
     zero_reward: bool = False
     needs_scores: bool = False
     needs_q_value: bool = False
+    settings: type | None = None
 
     def check(self, sampling: str, family: Any, algorithm: Any, env_label: str, rewarded_envs: str, ranked_algos: str) -> None:
         """What this strategy needs of the run, as the env ``family`` (an ``EnvFamily``: its ``task_rewards``) and the
