@@ -111,6 +111,33 @@ def outcome_labelled(source: Path, out: Path) -> dict:
     return {"episodes": count, "steps": int(lengths.sum()), "success": float(outcome.float().mean())}
 
 
+def greedy_actions(run_dir: Path, episodes: int, steps: int = 5) -> dict:
+    """What a trained run's greedy policy does where the data's policy moved down: over the first ``steps`` steps of
+    ``episodes`` evaluation episodes (training objects, the run's evaluation seed), the mean ``dz`` and the share of
+    actions with ``dz <= -0.9`` (the random policy's data: ``dz = -1`` in 9 steps of 10)."""
+    import dataclasses
+
+    from taskrl.config import load
+    from taskrl.loading import load as load_agent
+    from taskrl.wiring.parts import EVAL_SEED_OFFSET, make_env
+
+    agent = load_agent(run_dir)
+    config = load(run_dir / "config.json")
+    config = dataclasses.replace(config, evaluation=dataclasses.replace(config.evaluation, eval_episodes=episodes))
+    seed = config.seed + EVAL_SEED_OFFSET
+    env = make_env(config, "cpu", seed=seed, evaluation=True)
+    try:
+        obs, dz = env.reset(seed=seed), []
+        for _ in range(steps):
+            action = agent.act(obs)
+            dz.append(action[:, 2])
+            obs, *_ = env.step(action)
+    finally:
+        env.close()
+    dz = torch.cat(dz)
+    return {"run": str(run_dir), "mean_dz": float(dz.mean()), "down_share": float((dz <= -0.9).float().mean())}
+
+
 def _last_row(run_dir: Path) -> dict:
     """The last row of a run's ``metrics.csv`` (numbers as floats)."""
     import csv
@@ -159,6 +186,7 @@ def protocol(random_run: Path, runs: list[Path], supervised: list[Path], episode
             last = _last_row(run_dir)  # what the run did (a time limit may stop it before total_steps)
             row = {"run": str(run_dir), "kind": kind, "seed": config["seed"], "updates": int(last.get("updates", 0))}
             row["train_wall_seconds"] = last.get("wall_seconds")
+            row.update({k: v for k, v in greedy_actions(run_dir, episodes).items() if k != "run"})
             for split, held_out in (("train", False), ("test", True)):
                 start = time.perf_counter()
                 result = evaluate_run(run_dir, episodes=episodes, held_out=held_out)
@@ -207,8 +235,9 @@ def main() -> None:
         random_rows = {r["objects"]: r for r in json.loads(args.random_test.read_text())} if args.random_test.exists() else {}
         grasps = int(found["collected"].get("replay_episodes", 0))
         lines = [
-            "| policy | seed | updates | training objects | test objects | steps per episode (training / test) |",
-            "|---|---|---|---|---|---|",
+            "| policy | seed | updates | training objects | test objects | steps per episode (training / test) "
+            "| greedy dz: mean / share at -1 |",
+            "|---|---|---|---|---|---|---|",
             f"| random (the data: its own grasps while collecting) | 0 | 0 | "
             f"{_interval(found['collected'].get('train_success', float('nan')), grasps)} ({grasps:,} grasps) | "
             + (
@@ -216,12 +245,13 @@ def main() -> None:
                 if "test" in random_rows
                 else "not measured |"
             )
-            + " - |",
+            + " - | - |",
         ]
         for r in found["rows"]:
             lines.append(
                 f"| {r['kind']} | {r['seed']} | {r['updates']:,} | {_interval(r['train'], args.episodes)} | "
-                f"{_interval(r['test'], args.episodes)} | {r['train_length']:.1f} / {r['test_length']:.1f} |"
+                f"{_interval(r['test'], args.episodes)} | {r['train_length']:.1f} / {r['test_length']:.1f} | "
+                + (f"{r['mean_dz']:.2f} / {r['down_share']:.2f} |" if "mean_dz" in r else "- |")
             )
         text = "\n".join(lines)
         print(text)
