@@ -169,29 +169,56 @@ def random_on_evaluation_episodes(run_dir: Path, episodes: int, held_out: bool) 
         env.close()
 
 
-def protocol(random_run: Path, runs: list[Path], supervised: list[Path], episodes: int) -> dict:
-    """Each run evaluated greedily on training and test objects (``taskrl eval RUN`` and ``--held-out``), beside the
-    random policy's success while collecting (training objects) and on the same evaluation episodes."""
+def _evaluation_job(job: tuple) -> tuple[tuple, dict]:
+    """One measurement of the protocol, in a process of its own: ``("random", run, held_out)``, ``("actions", run)`` or
+    ``("greedy", run, held_out)``."""
     from taskrl.loading import evaluate_run
 
+    torch.set_num_threads(1)
+    kind, run_dir, *held_out = job
+    start = time.perf_counter()
+    if kind == "random":
+        result = random_on_evaluation_episodes(run_dir, EPISODES[0], held_out[0])
+    elif kind == "actions":
+        result = greedy_actions(run_dir, EPISODES[0])
+    else:
+        result = evaluate_run(run_dir, episodes=EPISODES[0], held_out=held_out[0])
+    return job, {**result, "seconds": time.perf_counter() - start}
+
+
+EPISODES = [50]  # the protocol's episodes per evaluation, set before the workers start
+
+
+def protocol(random_run: Path, runs: list[Path], supervised: list[Path], episodes: int, workers: int = 2) -> dict:
+    """Each run evaluated greedily on training and test objects (``taskrl eval RUN`` and ``--held-out``), beside the
+    random policy's success while collecting (training objects) and on the same evaluation episodes; the
+    evaluations run ``workers`` at a time (one process each: an evaluation env simulates in one process)."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    EPISODES[0] = episodes
+    groups = (("QT-Opt", runs), ("supervised on outcomes (gamma 0)", supervised))
+    jobs = [("random", runs[0], False), ("random", runs[0], True)]
+    for _, group in groups:
+        for run_dir in group:
+            jobs += [("actions", run_dir), ("greedy", run_dir, False), ("greedy", run_dir, True)]
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        done = dict(pool.map(_evaluation_job, jobs))
     same = {"kind": "random (on the evaluation episodes)", "seed": 0, "updates": 0}
     for split, held_out in (("train", False), ("test", True)):
-        result = random_on_evaluation_episodes(runs[0], episodes, held_out)
+        result = done[("random", runs[0], held_out)]
         same[split], same[f"{split}_length"] = result["success_rate"], result["eval_length"]
-    print(same, flush=True)
     rows = [same]
-    for kind, group in (("QT-Opt", runs), ("supervised on outcomes (gamma 0)", supervised)):
+    for kind, group in groups:
         for run_dir in group:
             config = json.loads((run_dir / "config.json").read_text())
             last = _last_row(run_dir)  # what the run did (a time limit may stop it before total_steps)
             row = {"run": str(run_dir), "kind": kind, "seed": config["seed"], "updates": int(last.get("updates", 0))}
             row["train_wall_seconds"] = last.get("wall_seconds")
-            row.update({k: v for k, v in greedy_actions(run_dir, episodes).items() if k != "run"})
+            row.update({k: v for k, v in done[("actions", run_dir)].items() if k in ("mean_dz", "down_share")})
             for split, held_out in (("train", False), ("test", True)):
-                start = time.perf_counter()
-                result = evaluate_run(run_dir, episodes=episodes, held_out=held_out)
+                result = done[("greedy", run_dir, held_out)]
                 row[split], row[f"{split}_length"] = result["success_rate"], result["eval_length"]
-                row[f"{split}_eval_seconds"] = time.perf_counter() - start
+                row[f"{split}_eval_seconds"] = result["seconds"]
             rows.append(row)
             print(row, flush=True)
     return {"collected": _last_row(random_run), "rows": rows, "episodes": episodes}
@@ -218,6 +245,7 @@ def main() -> None:
     proto.add_argument("--runs", type=Path, nargs="+", required=True, help="QT-Opt runs trained on its data")
     proto.add_argument("--supervised", type=Path, nargs="*", default=[], help="the supervised control's runs")
     proto.add_argument("--episodes", type=int, default=50)
+    proto.add_argument("--workers", type=int, default=2, help="evaluations at a time (one process each)")
     proto.add_argument("--random-test", type=Path, default=RESULTS / "kuka_grasp_random.json")
     proto.add_argument("--note", default="", help="a line on how the runs were made (commands, commit, times)")
     proto.add_argument("--write", action="store_true")
@@ -231,7 +259,7 @@ def main() -> None:
     if args.what == "outcomes":
         print(outcome_labelled(args.source, args.out))
     elif args.what == "protocol":
-        found = protocol(args.random, args.runs, args.supervised, args.episodes)
+        found = protocol(args.random, args.runs, args.supervised, args.episodes, args.workers)
         random_rows = {r["objects"]: r for r in json.loads(args.random_test.read_text())} if args.random_test.exists() else {}
         grasps = int(found["collected"].get("replay_episodes", 0))
         lines = [
