@@ -6,6 +6,7 @@ import dataclasses
 from typing import Any
 
 from taskrl.errors import require
+from taskrl.sharing.registry import sharing_strategy
 
 __all__ = ["SharingConfig"]
 
@@ -33,8 +34,6 @@ class SharingConfig:
 
     def __post_init__(self) -> None:
         if self.strategy_settings is None:
-            from taskrl.sharing.registry import sharing_strategy  # the registry's strategies import nothing of this
-
             own = sharing_strategy(self.sharing).settings
             self.strategy_settings = own() if own is not None else None
 
