@@ -111,21 +111,31 @@ def outcome_labelled(source: Path, out: Path) -> dict:
     return {"episodes": count, "steps": int(lengths.sum()), "success": float(outcome.float().mean())}
 
 
+def _evaluation_env(run_dir: Path, episodes: int, held_out: bool = False):
+    """``(env, seed)``: the evaluation env ``taskrl eval RUN`` (``--held-out``) scores a run on, ``episodes`` copies at
+    the run's evaluation seed (the same objects and initial states)."""
+    import dataclasses
+
+    from taskrl.config import load
+    from taskrl.envs.registry import env_family
+    from taskrl.wiring.parts import EVAL_SEED_OFFSET, make_env
+
+    config = load(run_dir / "config.json")
+    config = dataclasses.replace(config, evaluation=dataclasses.replace(config.evaluation, eval_episodes=episodes))
+    if held_out:
+        config = dataclasses.replace(config, env_settings=env_family(config.env).held_out(config.env_settings))
+    seed = config.seed + EVAL_SEED_OFFSET
+    return make_env(config, "cpu", seed=seed, evaluation=True), seed
+
+
 def greedy_actions(run_dir: Path, episodes: int, steps: int = 5) -> dict:
     """What a trained run's greedy policy does where the data's policy moved down: over the first ``steps`` steps of
     ``episodes`` evaluation episodes (training objects, the run's evaluation seed), the mean ``dz`` and the share of
     actions with ``dz <= -0.9`` (the random policy's data: ``dz = -1`` in 9 steps of 10)."""
-    import dataclasses
-
-    from taskrl.config import load
     from taskrl.loading import load as load_agent
-    from taskrl.wiring.parts import EVAL_SEED_OFFSET, make_env
 
     agent = load_agent(run_dir)
-    config = load(run_dir / "config.json")
-    config = dataclasses.replace(config, evaluation=dataclasses.replace(config.evaluation, eval_episodes=episodes))
-    seed = config.seed + EVAL_SEED_OFFSET
-    env = make_env(config, "cpu", seed=seed, evaluation=True)
+    env, seed = _evaluation_env(run_dir, episodes)
     try:
         obs, dz = env.reset(seed=seed), []
         for _ in range(steps):
@@ -150,19 +160,9 @@ def _last_row(run_dir: Path) -> dict:
 def random_on_evaluation_episodes(run_dir: Path, episodes: int, held_out: bool) -> dict:
     """The authors' random policy on the very episodes ``taskrl eval RUN`` scores a run on (the run's evaluation
     seed: the same objects and initial states), so that a gap between the splits can be told from the draw."""
-    import dataclasses
-
-    from taskrl.config import load
-    from taskrl.envs.registry import env_family
     from taskrl.training.evaluation import evaluate
-    from taskrl.wiring.parts import EVAL_SEED_OFFSET, make_env
 
-    config = load(run_dir / "config.json")
-    config = dataclasses.replace(config, evaluation=dataclasses.replace(config.evaluation, eval_episodes=episodes))
-    if held_out:
-        config = dataclasses.replace(config, env_settings=env_family(config.env).held_out(config.env_settings))
-    seed = config.seed + EVAL_SEED_OFFSET
-    env = make_env(config, "cpu", seed=seed, evaluation=True)
+    env, seed = _evaluation_env(run_dir, episodes, held_out)
     try:
         return evaluate(env.scripted_action, env, seed)
     finally:

@@ -388,7 +388,7 @@ def test_every_picture_encoder_trains_with_every_algorithm_that_reads_pictures(e
     loaded = taskrl.load(run.run_dir)
     encoder = (lambda agent: agent.q.state_input) if algo == "qtopt" else (lambda agent: agent.encoder)  # noqa: E731
     if fused:
-        built, named = encoder(run.agent).convs, spec.late_input(3, True)[0]
+        built, named = encoder(run.agent).convs, spec.late_input(3, True)
     elif algo == "bc":
         built, named = encoder(run.agent).blocks, torch.nn.ModuleList(b for b, _ in spec.film_blocks(3, False))
     else:

@@ -44,8 +44,8 @@ class _EarlyPicture(nn.Module):
         self.image_shape = tuple(int(n) for n in image_shape)
         *_, h, w, c = self.image_shape
         self.pictures = self.image_shape[0] if len(self.image_shape) == 4 else 1
-        self.convs, self.channels = picture_encoder(encoder, late_input=True).late_input(c * self.pictures, True)
-        with torch.no_grad():
+        self.convs = picture_encoder(encoder, late_input=True).late_input(c * self.pictures, True)
+        with torch.no_grad():  # [E, h, w]: the late input's width and the map it is tiled over
             self.map_shape = tuple(self.convs(torch.zeros(1, c * self.pictures, h, w)).shape[1:])
 
     def forward(self, state: PictureState) -> tuple[torch.Tensor, torch.Tensor]:
@@ -73,7 +73,7 @@ class PictureActionQ(nn.Module):
     ) -> None:
         super().__init__()
         self.state_input = _EarlyPicture(image_shape, encoder)  # what a state costs once (CEM reuses it)
-        width = self.state_input.channels
+        width = self.state_input.map_shape[0]
         self.embed = nn.Sequential(nn.Linear(vector_dim + action_dim, 64), nn.ReLU(), nn.Linear(64, width))
         self.late = nn.Sequential(conv3x3(width, LATE, 2), nn.ReLU(), nn.Flatten())
         with torch.no_grad():

@@ -162,8 +162,9 @@ def field_help(env: str = "bitflip", algo: str = "dqn", sharing: str = "none") -
     """``{setting: description}`` for the CLI, from the dataclasses' docstrings."""
     docs = field_docs(TrainConfig)
     classes = [*RUN_SECTIONS.values(), ConditioningConfig, DistributedConfig, SharingConfig, env_family(env).settings]
-    if _strategy_class(sharing) is not None:
-        classes.append(_strategy_class(sharing))
+    own = _strategy_class(sharing)
+    if own is not None:
+        classes.append(own)
     stack = [algorithm(algo).config]
     while stack:  # the algorithm's section and the sections nested in it (QT-Opt's cem)
         cls = stack.pop()

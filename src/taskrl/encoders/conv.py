@@ -28,12 +28,12 @@ def _film_blocks(channels: int, orthogonal: bool) -> list[tuple[nn.Module, int]]
     return [(conv, conv.out_channels) for conv in conv_blocks(channels, orthogonal)]
 
 
-def _early_layers(channels: int, orthogonal: bool) -> tuple[nn.Module, int]:
+def _early_layers(channels: int, orthogonal: bool) -> nn.Module:
     # the three stride-2 layers (H/8): a late input added there costs each candidate action a 1/8-size map
     layers: list[nn.Module] = []
     for conv in conv_blocks(channels, orthogonal)[:3]:
         layers += [conv, nn.ReLU()]
-    return nn.Sequential(*layers), 32
+    return nn.Sequential(*layers)
 
 
 CONV = PictureEncoder(

@@ -40,9 +40,9 @@ def small_resnet(channels: int, orthogonal: bool = True) -> nn.Sequential:
     return nn.Sequential(*layers, nn.ReLU(), nn.Flatten())
 
 
-def _early_layers(channels: int, orthogonal: bool) -> tuple[nn.Module, int]:
+def _early_layers(channels: int, orthogonal: bool) -> nn.Module:
     # both stages (H/4, 32 channels): the trunk without its flatten
-    return small_resnet(channels, orthogonal)[:-1], 32
+    return small_resnet(channels, orthogonal)[:-1]
 
 
 RESNET = PictureEncoder(

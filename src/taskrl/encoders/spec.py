@@ -29,10 +29,10 @@ class PictureEncoder:
         film_blocks: ``(channels, orthogonal) -> [(block, output channels)]``: the blocks behaviour cloning FiLM-modulates
             one by one (BC-Z conditions every block on the task); None: behaviour cloning refuses this encoder.
         film_activation: where the FiLM encoder applies ReLU: after ``each`` block, or once at the ``end``.
-        late_input: ``(channels, orthogonal) -> (early, early channels)``: the layers up to the declared layer where a
-            Q-function adds its *late input* (the action and the state vector embedded and tiled over that feature
-            map, as QT-Opt's network does; QT-Opt's ``--fusion conv``), mapping ``[B, channels, H, W]`` to
-            ``[B, early channels, h, w]``, ReLU applied; None: this encoder takes no late input.
+        late_input: ``(channels, orthogonal) -> early``: the layers up to the declared layer where a Q-function adds
+            its *late input* (the action and the state vector embedded and tiled over that feature map, as QT-Opt's
+            network does; QT-Opt's ``--fusion conv``), mapping ``[B, channels, H, W]`` to ``[B, E, h, w]``, ReLU
+            applied; None: this encoder takes no late input.
     """
 
     name: str
@@ -41,4 +41,4 @@ class PictureEncoder:
     head: bool = True
     film_blocks: Callable[[int, bool], list[tuple[nn.Module, int]]] | None = None
     film_activation: Literal["each", "end"] = "each"
-    late_input: Callable[[int, bool], tuple[nn.Module, int]] | None = None
+    late_input: Callable[[int, bool], nn.Module] | None = None
