@@ -286,6 +286,26 @@ def test_state_round_trip_into_a_different_capacity_keeps_the_newest_episodes():
         assert torch.equal(larger.episodes().obs[key], replay.episodes().obs[key])
 
 
+def test_a_replay_far_from_full_saves_its_written_rows_not_its_capacity(tmp_path):
+    from taskrl.checkpoint import load_checkpoint, save_checkpoint
+
+    replay = make_replay(num_envs=1, horizon=4, capacity=1_000)
+    fill(replay, 1, [[4, 3, 2]], horizon=4)  # 9 transitions, 12 observations
+    state = replay.state_dict()
+    assert {state[f"obs/{k}"].shape[0] for k in SPACE.spaces} == {12}
+    assert state["steps/reward"].shape[0] == 9
+    save_checkpoint(tmp_path, {"replay": state}, 9)
+    restored = make_replay(num_envs=1, horizon=4, capacity=1_000)
+    restored.load_state_dict(load_checkpoint(tmp_path, ("replay",))["replay"])
+    assert restored.num_transitions == 9 and restored.length[restored.stored_episodes()].tolist() == [4, 3, 2]
+    for key in SPACE.spaces:
+        assert torch.equal(restored.episodes().obs[key], replay.episodes().obs[key])
+
+    wrapped = make_replay(num_envs=1, horizon=4, capacity=10)
+    fill(wrapped, 1, [[4, 3, 2, 1, 4, 2]], horizon=4)
+    assert wrapped.state_dict()["steps/reward"].shape[0] == 10  # wrapped: every row is in use
+
+
 def test_checkpoints_of_the_horizon_row_layout_still_load():
     """A replay saved before capacity counted transitions: ``[episodes, horizon (+ 1)]`` rows."""
     lengths = torch.tensor([2, 3, 1])

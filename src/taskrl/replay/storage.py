@@ -348,9 +348,15 @@ class EpisodeReplay:
 
     # ---------------------------------------------------------------- checkpointing
     def state_dict(self) -> dict[str, torch.Tensor]:
-        """Stored episodes, as the rings are (no copy; a run stores its running ones first, `cut_running`)."""
-        state = {f"obs/{k}": v for k, v in self.obs.items()}
-        state.update({f"steps/{k}": v for k, v in self.steps.items()})
+        """Stored episodes, as the rings are (no copy; a run stores its running ones first, `cut_running`).
+
+        A ring that has not wrapped yet is given up to its last written row only: a replay far from full
+        saves what it holds, not its capacity (the rows past it were never written)."""
+        obs_end, step_end = self._obs_tail + self._obs_count, self._step_tail + self._step_count
+        obs_rows = max(obs_end, 1) if obs_end <= self.obs_rows else self.obs_rows
+        step_rows = max(step_end, 1) if step_end <= self.capacity else self.capacity
+        state = {f"obs/{k}": v[:obs_rows] for k, v in self.obs.items()}
+        state.update({f"steps/{k}": v[:step_rows] for k, v in self.steps.items()})
         state["episode_step_start"] = self.episode_step_start
         state["episode_obs_start"] = self.episode_obs_start
         state["length"] = self.length
