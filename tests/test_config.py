@@ -226,3 +226,32 @@ def test_a_config_saved_before_the_registries_still_loads(tmp_path):
     assert (q.random_action_prob, q.random_action_prob_end, q.random_action_decay_steps) == (0.3, 0.1, 20000)
     assert q.noise_std == 0.2 and q.cem.samples == 32
     validate(c)
+
+
+def test_importing_the_config_loads_no_torch_and_a_run_imports_only_the_pieces_it_names(tmp_path):
+    """The registries import each built-in piece's file when a run first names it (`taskrl.registry.Declared`)."""
+    import json
+    import subprocess
+    import sys
+
+    from taskrl.config import TrainConfig, save
+
+    save(TrainConfig(env="bitflip", algo="dqn"), tmp_path / "config.json")
+    script = (
+        "import json, sys, taskrl.config as c\n"
+        "print(json.dumps([m for m in ('torch', 'taskrl.agents.dqn', 'taskrl.envs.bitflip') if m in sys.modules]))\n"
+        f"c.load({str(tmp_path / 'config.json')!r})\n"
+        "print(json.dumps([m for m in sys.modules if m.startswith(('taskrl.envs.', 'taskrl.agents.'))]))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True).stdout.splitlines()
+    assert json.loads(out[0]) == []
+    loaded = set(json.loads(out[1]))
+    assert {"taskrl.agents.dqn", "taskrl.envs.bitflip"} <= loaded
+    other_pieces = {
+        "taskrl.agents.sac",
+        "taskrl.agents.bc",
+        "taskrl.envs.meta_world",
+        "taskrl.envs.kuka_grasp",
+        "taskrl.envs.fetch",
+    }
+    assert not loaded & other_pieces

@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from taskrl.agents.registry import algorithm
-from taskrl.conditioning.networks import ConditioningConfig
+from taskrl.conditioning.settings import ConditioningConfig
 from taskrl.config_migration import migrate
 from taskrl.distributed.settings import DistributedConfig
 from taskrl.envs.registry import env_family

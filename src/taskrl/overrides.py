@@ -6,7 +6,7 @@ import dataclasses
 from typing import Any
 
 from taskrl.agents.registry import algorithm
-from taskrl.conditioning.networks import ConditioningConfig
+from taskrl.conditioning.settings import ConditioningConfig
 from taskrl.config import TrainConfig, from_dict, to_dict
 from taskrl.envs.registry import ENV_FAMILIES, env_family
 from taskrl.setting_names import setting_names

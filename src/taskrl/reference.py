@@ -96,7 +96,7 @@ def undocumented_settings() -> list[str]:
 
 
 def _settings_page() -> str:
-    from taskrl.conditioning.networks import ConditioningConfig
+    from taskrl.conditioning.settings import ConditioningConfig
     from taskrl.config import TrainConfig
     from taskrl.distributed.settings import DistributedConfig
     from taskrl.run_sections import CheckpointSettings, DataSettings, EvaluationSettings, ReplaySettings

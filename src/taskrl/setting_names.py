@@ -7,7 +7,7 @@ import dataclasses
 import typing
 
 from taskrl.agents.registry import algorithm
-from taskrl.conditioning.networks import ConditioningConfig
+from taskrl.conditioning.settings import ConditioningConfig
 from taskrl.config import TrainConfig, field_docs, run_fields
 from taskrl.distributed.settings import DistributedConfig
 from taskrl.envs.registry import env_family

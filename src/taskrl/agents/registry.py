@@ -6,13 +6,20 @@ Each algorithm's file declares its ``SPEC``; adding one is that file plus one li
 
 from __future__ import annotations
 
-from taskrl.agents import bc, dqn, ppo, qtopt, sac, td3
-from taskrl.agents.spec import AlgorithmSpec
-from taskrl.registry import Registry
+from typing import TYPE_CHECKING
+
+from taskrl.registry import Declared, Registry
+
+if TYPE_CHECKING:
+    from taskrl.agents.spec import AlgorithmSpec
 
 __all__ = ["ALGORITHMS", "algorithm", "register_algorithm"]
 
-BUILT_IN: tuple[AlgorithmSpec, ...] = (dqn.SPEC, qtopt.SPEC, sac.SPEC, td3.SPEC, ppo.SPEC, bc.SPEC)
+# each algorithm's file declares its SPEC; it is imported when a run (or --help) first names it
+BUILT_IN: tuple[Declared, ...] = tuple(
+    Declared(name, f"taskrl.agents.{module}", "SPEC")
+    for name, module in (("dqn", "dqn"), ("qtopt", "qtopt"), ("sac", "sac"), ("td3", "td3"), ("ppo", "ppo"), ("bc", "bc"))
+)
 
 #: name -> spec, in registration order.
 ALGORITHMS: Registry[AlgorithmSpec] = Registry("algo", BUILT_IN)

@@ -9,17 +9,24 @@
 See ``docs/conditioning.md`` for the equations.
 """
 
-from taskrl.conditioning.care import CAREEncoder, ParallelLinear
-from taskrl.conditioning.film import FiLM, FiLMMLP
-from taskrl.conditioning.language import EMBEDDING_DIM, MODEL_NAME, sentence_embeddings
-from taskrl.conditioning.task_encoders import (
-    TASK_ENCODERS,
-    LanguageTaskEncoder,
-    LearnedTaskEmbedding,
-    OneHotTaskEncoder,
-    TaskEncoder,
-    make_task_encoder,
-)
+from taskrl.lazy_exports import lazy_exports
+
+_EXPORTS = {
+    "CAREEncoder": "taskrl.conditioning.care",
+    "ParallelLinear": "taskrl.conditioning.care",
+    "FiLM": "taskrl.conditioning.film",
+    "FiLMMLP": "taskrl.conditioning.film",
+    "EMBEDDING_DIM": "taskrl.conditioning.language",
+    "MODEL_NAME": "taskrl.conditioning.language",
+    "sentence_embeddings": "taskrl.conditioning.language",
+    "TASK_ENCODERS": "taskrl.conditioning.settings",
+    "LanguageTaskEncoder": "taskrl.conditioning.task_encoders",
+    "LearnedTaskEmbedding": "taskrl.conditioning.task_encoders",
+    "OneHotTaskEncoder": "taskrl.conditioning.task_encoders",
+    "TaskEncoder": "taskrl.conditioning.task_encoders",
+    "make_task_encoder": "taskrl.conditioning.task_encoders",
+}
+__getattr__ = lazy_exports(__name__, _EXPORTS)
 
 __all__ = [
     "CAREEncoder",

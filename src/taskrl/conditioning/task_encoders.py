@@ -21,6 +21,8 @@ from pathlib import Path
 import torch
 from torch import nn
 
+from taskrl.conditioning.settings import TASK_ENCODERS
+
 __all__ = [
     "TASK_ENCODERS",
     "LanguageTaskEncoder",
@@ -141,9 +143,6 @@ class LanguageTaskEncoder(TaskEncoder):
         if self.training and self.noise_std > 0:
             e = e + self.noise_std * torch.randn_like(e)
         return self.projection(e) if self.projection is not None else e
-
-
-TASK_ENCODERS = ("onehot", "embedding", "language")
 
 
 def make_task_encoder(

@@ -4,18 +4,31 @@
 environments (``bitflip.FAMILY``, ``meta_world.FAMILIES``, ...).
 """
 
-from taskrl.envs.base import BatchedEnv, GoalEnvMixin, is_goal_env
-from taskrl.envs.bitflip import BitFlip
-from taskrl.envs.gymnasium_adapter import GymnasiumGoalEnv, GymnasiumVectorEnv
-from taskrl.envs.gymnasium_env import BitFlipGymEnv, PointReachGymEnv
-from taskrl.envs.meta_world import MetaWorldMultiTaskEnv, metaworld_task_set
-from taskrl.envs.multitask_point import MultiTaskPointReach, MultiTaskPointReachGymEnv
-from taskrl.envs.point_reach import PointReach
-from taskrl.envs.spec import EnvFamily, EnvRequest, env_kind
-from taskrl.envs.task_sets import TaskSetEnv
+from taskrl.lazy_exports import lazy_exports
 from taskrl.registration import register_gymnasium_envs
 
 register_gymnasium_envs()
+
+_EXPORTS = {
+    "BatchedEnv": "taskrl.envs.base",
+    "GoalEnvMixin": "taskrl.envs.base",
+    "is_goal_env": "taskrl.envs.base",
+    "BitFlip": "taskrl.envs.bitflip",
+    "GymnasiumGoalEnv": "taskrl.envs.gymnasium_adapter",
+    "GymnasiumVectorEnv": "taskrl.envs.gymnasium_adapter",
+    "BitFlipGymEnv": "taskrl.envs.gymnasium_env",
+    "PointReachGymEnv": "taskrl.envs.gymnasium_env",
+    "MetaWorldMultiTaskEnv": "taskrl.envs.meta_world",
+    "metaworld_task_set": "taskrl.envs.meta_world",
+    "MultiTaskPointReach": "taskrl.envs.multitask_point",
+    "MultiTaskPointReachGymEnv": "taskrl.envs.multitask_point",
+    "PointReach": "taskrl.envs.point_reach",
+    "EnvFamily": "taskrl.envs.spec",
+    "EnvRequest": "taskrl.envs.spec",
+    "env_kind": "taskrl.envs.spec",
+    "TaskSetEnv": "taskrl.envs.task_sets",
+}
+__getattr__ = lazy_exports(__name__, _EXPORTS)
 
 __all__ = [
     "BatchedEnv",

@@ -7,45 +7,37 @@ gymnasium environment needs no family at all (``--env-id``, the ``gym`` family).
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from taskrl.envs import (
-    bitflip,
-    fetch,
-    grasp,
-    grid_tasks,
-    gymnasium_family,
-    kuka_grasp,
-    meta_world,
-    multitask_point,
-    pixel_push,
-    pixel_reach,
-    point_reach,
-    point_tasks,
-    tabletop,
-    task_sets,
-)
-from taskrl.envs.spec import EnvFamily
 from taskrl.errors import ConfigError
-from taskrl.registry import Registry
+from taskrl.registry import Declared, Registry
+
+if TYPE_CHECKING:
+    from taskrl.envs.spec import EnvFamily
 
 __all__ = ["ENV_FAMILIES", "env_family", "family_for_source", "register_env_family"]
 
-BUILT_IN: tuple[EnvFamily, ...] = (
-    bitflip.FAMILY,
-    point_reach.FAMILY,
-    pixel_reach.FAMILY,
-    pixel_push.FAMILY,
-    *fetch.FAMILIES,
-    multitask_point.FAMILY,
-    tabletop.FAMILY,
-    grid_tasks.FAMILY,
-    point_tasks.FAMILY,
-    grasp.FAMILY,
-    kuka_grasp.FAMILY,
-    *meta_world.FAMILIES,
-    gymnasium_family.FAMILY,
-    task_sets.FAMILY,
+
+def _declared(module: str, attribute: str, *names: str) -> tuple[Declared, ...]:
+    return tuple(Declared(name, f"taskrl.envs.{module}", attribute) for name in names)
+
+
+# each family's file declares it; it is imported when a run (or --help) first names it
+BUILT_IN: tuple[Declared, ...] = (
+    *_declared("bitflip", "FAMILY", "bitflip"),
+    *_declared("point_reach", "FAMILY", "pointreach"),
+    *_declared("pixel_reach", "FAMILY", "pixelreach"),
+    *_declared("pixel_push", "FAMILY", "pixelpush"),
+    *_declared("fetch", "FAMILIES", "fetchreach", "fetchpush", "fetchpickandplace", "fetchslide"),
+    *_declared("multitask_point", "FAMILY", "pointreach-mt"),
+    *_declared("tabletop", "FAMILY", "tabletop"),
+    *_declared("grid_tasks", "FAMILY", "gridtasks"),
+    *_declared("point_tasks", "FAMILY", "pointtasks"),
+    *_declared("grasp", "FAMILY", "grasp"),
+    *_declared("kuka_grasp", "FAMILY", "kukagrasp"),
+    *_declared("meta_world", "FAMILIES", "mt1", "mt10", "mt50", "ml45"),
+    *_declared("gymnasium_family", "FAMILY", "gym"),
+    *_declared("task_sets", "FAMILY", "tasks"),
 )
 
 #: name -> family, in registration order.

@@ -10,11 +10,18 @@
 See ``docs/sharing.md`` for the equations and the results.
 """
 
-from taskrl.sharing.datasets import collect_task_datasets
-from taskrl.sharing.registry import SHARING_STRATEGIES, register_sharing_strategy
-from taskrl.sharing.settings import SharingConfig
-from taskrl.sharing.strategies import EpisodeScores, TaskSharing
-from taskrl.sharing.strategy import SharingStrategy
+from taskrl.lazy_exports import lazy_exports
+
+_EXPORTS = {
+    "collect_task_datasets": "taskrl.sharing.datasets",
+    "SHARING_STRATEGIES": "taskrl.sharing.registry",
+    "register_sharing_strategy": "taskrl.sharing.registry",
+    "SharingConfig": "taskrl.sharing.settings",
+    "EpisodeScores": "taskrl.sharing.strategies",
+    "TaskSharing": "taskrl.sharing.strategies",
+    "SharingStrategy": "taskrl.sharing.strategy",
+}
+__getattr__ = lazy_exports(__name__, _EXPORTS)
 
 __all__ = [
     "EpisodeScores",

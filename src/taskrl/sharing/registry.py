@@ -6,13 +6,23 @@ A new strategy is a file declaring one (its weights, filter or relabelling) and 
 
 from __future__ import annotations
 
-from taskrl.registry import Registry
-from taskrl.sharing import builtin, mtopt
-from taskrl.sharing.strategy import SharingStrategy
+from typing import TYPE_CHECKING
+
+from taskrl.registry import Declared, Registry
+
+if TYPE_CHECKING:
+    from taskrl.sharing.strategy import SharingStrategy
 
 __all__ = ["SHARING_STRATEGIES", "register_sharing_strategy", "sharing_strategy"]
 
-BUILT_IN: tuple[SharingStrategy, ...] = (*builtin.BUILT_IN, mtopt.MTOPT)
+# each strategy's file declares it; it is imported when a run (or --help) first names it
+BUILT_IN: tuple[Declared, ...] = (
+    *(
+        Declared(name, "taskrl.sharing.builtin", "BUILT_IN")
+        for name in ("none", "all", "random", "success", "hipi", "conservative", "zero-reward")
+    ),
+    Declared("mtopt", "taskrl.sharing.mtopt", "MTOPT"),
+)
 
 #: name -> strategy, in registration order.
 SHARING_STRATEGIES: Registry[SharingStrategy] = Registry("sharing", BUILT_IN)
