@@ -247,6 +247,12 @@ def main() -> None:
     proto.add_argument("--episodes", type=int, default=50)
     proto.add_argument("--workers", type=int, default=2, help="evaluations at a time (one process each)")
     proto.add_argument("--random-test", type=Path, default=RESULTS / "kuka_grasp_random.json")
+    proto.add_argument(
+        "--earlier",
+        type=Path,
+        help="an earlier protocol's JSON: its trained rows join the table, marked (the same evaluation episodes)",
+    )
+    proto.add_argument("--earlier-label", default="earlier", help="how the earlier rows are marked")
     proto.add_argument("--note", default="", help="a line on how the runs were made (commands, commit, times)")
     proto.add_argument("--write", action="store_true")
     outcomes = sub.add_parser("outcomes", help="the supervised control's data: a run's grasps labelled by their outcome")
@@ -260,6 +266,9 @@ def main() -> None:
         print(outcome_labelled(args.source, args.out))
     elif args.what == "protocol":
         found = protocol(args.random, args.runs, args.supervised, args.episodes, args.workers)
+        if args.earlier:  # read before --write replaces it (it may be the same file)
+            earlier = [r for r in json.loads(args.earlier.read_text())["rows"] if r.get("updates", 0) > 0]
+            found["rows"] += [{**r, "kind": f"{r['kind']} ({args.earlier_label})"} for r in earlier]
         random_rows = {r["objects"]: r for r in json.loads(args.random_test.read_text())} if args.random_test.exists() else {}
         grasps = int(found["collected"].get("replay_episodes", 0))
         lines = [

@@ -302,11 +302,12 @@ def test_k_batches_drawn_together_are_k_task_balanced_batches():
 
 def _settled(preset: str, **settings):
     from taskrl.overrides import with_overrides
+    from taskrl.plan import resolve
     from taskrl.presets import preset_config
     from taskrl.wiring.calls import settle_compile
 
     notes: list[str] = []
-    config = settle_compile(with_overrides(preset_config(preset), settings), notes)
+    config = settle_compile(resolve(with_overrides(preset_config(preset), settings)), notes)
     return config, notes
 
 

@@ -38,13 +38,13 @@ def build_parts(plan: RunPlan, source: Any = None) -> RunParts:
     if mode.trainer_env == "spaces" and family.spec is not None and source is None:
         env = family.spec(config.env_settings, env_request(config, device))
     elif mode.trainer_env == "one":
-        env = make_env(config, device, num_envs=1, source=source)
+        env = make_env(config, device, num_envs=1, source=source, family=family)
     else:
-        env = make_env(config, device, source=source)
+        env = make_env(config, device, source=source, family=family)
     eval_env = None
     try:
-        eval_env = make_env(config, device, evaluation=True, source=source)
-        agent = make_agent(config, env, device)
+        eval_env = make_env(config, device, evaluation=True, source=source, family=family)
+        agent = make_agent(config, env, device, plan.algorithm)
         if config.compile not in ("off", "auto"):  # auto is settled before building (`resolve_compile`)
             agent.compile(config.compile)
         generator = torch.Generator(device=device)

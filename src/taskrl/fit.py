@@ -4,18 +4,31 @@ declares) and again once the env is built (with what it is): the same rules both
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from taskrl.agents.registry import ALGORITHMS, algorithm
 from taskrl.config import TrainConfig
 from taskrl.errors import ConfigError, require
 from taskrl.setting_values import changed_fields
 
+if TYPE_CHECKING:
+    from taskrl.agents.spec import AlgorithmSpec
+
 __all__ = ["check_fit", "check_run_needs"]
 
 
-def check_fit(config: TrainConfig, kind: str | None, actions: str | None, images: bool = False, env_label: str = "") -> None:
+def check_fit(
+    config: TrainConfig,
+    kind: str | None,
+    actions: str | None,
+    images: bool = False,
+    env_label: str = "",
+    spec: AlgorithmSpec | None = None,
+) -> None:
     """The rules between the env (its ``kind``: ``goal``, ``multitask``, ``plain`` or None when unknown; its
-    ``actions``: ``discrete`` or ``box``; whether it has a camera) and the algorithm, in one `ConfigError` line."""
-    c, spec = config, algorithm(config.algo)
+    ``actions``: ``discrete`` or ``box``; whether it has a camera) and the algorithm (``spec``, default looked up
+    by ``config.algo``), in one `ConfigError` line."""
+    c, spec = config, spec or algorithm(config.algo)
     name = env_label or c.env
     fitting = ", ".join(
         a.name for a in ALGORITHMS.values() if (actions is None or actions in a.actions) and (kind != "multitask" or a.multitask)

@@ -84,7 +84,7 @@ def resolve(config: TrainConfig) -> RunPlan:
         mode.check(c)
     c.env_settings.validate()
     c.algo_settings.validate()
-    check_fit(c, family.kind, family.actions, family.images, label)
+    check_fit(c, family.kind, family.actions, family.images, label, spec=spec)
     require(
         c.data.scripted_exploration == 0 or family.scripted is not False,
         "scripted_exploration",

@@ -139,7 +139,7 @@ def train(
         if source is not None and resume is None and family.persist is not None:  # record the object in the run
             config = with_overrides(config, family.persist(source, run_dir))
         plan = resolve(config)
-        plan = dataclasses.replace(plan, config=settle_compile(plan.config, notes))
+        plan = dataclasses.replace(plan, config=settle_compile(plan, notes))
         config, mode = plan.config, plan.mode
         parts = build_parts(plan, source)
         # A new run checkpoints after its first step (a kill before checkpoint_interval still resumes);
@@ -176,7 +176,9 @@ def train(
         logger = RunLogger(run_dir, tensorboard=tensorboard, resume_from_step=at if resume else None, axis=axis, wandb=tracking)
         rows: list[dict[str, Any]] = []
         title = run_title(run_dir, preset if resume is None else None, config)
-        evaluator, last_eval = make_evaluator(config, parts.eval_env, parts.agent, config.seed + EVAL_SEED_OFFSET)
+        evaluator, last_eval = make_evaluator(
+            config, parts.eval_env, parts.agent, config.seed + EVAL_SEED_OFFSET, family=parts.family
+        )
         stop = StopRequest(config.max_hours)
         with ConsoleReporter(title, config.total_steps, at, enabled=progress, log_every=log_every, axis=axis) as reporter:
 

@@ -8,7 +8,7 @@ import datetime
 import importlib
 import json
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from rich.console import Console
 
@@ -21,6 +21,9 @@ from taskrl.errors import ConfigError
 from taskrl.overrides import with_overrides
 from taskrl.presets import preset_config
 from taskrl.rundir import atomic_write_text
+
+if TYPE_CHECKING:
+    from taskrl.plan import RunPlan
 
 __all__ = [
     "budget_warnings",
@@ -108,11 +111,12 @@ def resolve_config(
     return config
 
 
-def settle_compile(config: TrainConfig, notes: list[str]) -> TrainConfig:
-    """``config`` with ``compile`` and ``updates_per_call`` settled where they are ``auto``; why goes first in ``notes``."""
-    spec = algorithm(config.algo)
+def settle_compile(plan: RunPlan, notes: list[str]) -> TrainConfig:
+    """The plan's config with ``compile`` and ``updates_per_call`` settled where they are ``auto``; why goes first
+    in ``notes``."""
+    config, spec = plan.config, plan.algorithm
     many = spec.loop == "off_policy" and not config.cluster.distributed and not config.data.offline
-    pictures = config.env in ENV_FAMILIES and ENV_FAMILIES.lookup(config.env).images
+    pictures = plan.family.images
     choice = choose_compile(config, spec.compiles, many, pictures, cached_calls(config) if spec.compiles else set())
     if choice.reason:  # the run's first line
         notes.insert(0, choice.reason)

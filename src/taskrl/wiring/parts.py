@@ -10,7 +10,7 @@ import gymnasium as gym
 import torch
 
 from taskrl.agents.registry import algorithm
-from taskrl.agents.spec import AgentInputs
+from taskrl.agents.spec import AgentInputs, AlgorithmSpec
 from taskrl.conditioning.networks import make_conditioning
 from taskrl.config import TrainConfig
 from taskrl.envs.base import BatchedEnv
@@ -76,6 +76,7 @@ def make_env(
     seed: int | None = None,
     evaluation: bool = False,
     source: Any = None,
+    family: EnvFamily | None = None,
 ) -> BatchedEnv:
     """The run's training env (or, with ``evaluation``, its evaluation env), built by its env family.
 
@@ -86,20 +87,26 @@ def make_env(
         seed: the env's seed (default the run's, or its evaluation seed).
         evaluation: the evaluation env (one copy per episode, or fixed tasks per copy).
         source: the Python object (factory, TaskSet) the run's family builds from, if any.
+        family: the run's env family, where a plan resolved it (default: looked up by ``config.env``, as a
+            process that reads a saved config does).
     """
     request = env_request(config, torch.device(device), source, evaluation, seed)
     if num_envs is not None:
         request = dataclasses.replace(request, num_envs=num_envs)
-    return env_family(config.env).make(config.env_settings, request)
+    return (family or env_family(config.env)).make(config.env_settings, request)
 
 
-def make_agent(config: TrainConfig, env: Any, device: torch.device) -> Any:
-    """The agent of ``config.algo`` for ``env``'s spaces (an env, or an object with its spaces).
+def make_agent(config: TrainConfig, env: Any, device: torch.device, spec: AlgorithmSpec | None = None) -> Any:
+    """The agent of ``config.algo`` for ``env``'s spaces (an env, or an object with its spaces); ``spec``: the
+    algorithm where a plan resolved it (default: looked up by ``config.algo``).
 
     The env is checked against the algorithm with the same rules as before building
     ([`taskrl.fit.check_fit`][taskrl.fit.check_fit]), now with the env's real kind and action space.
     """
-    check_fit(config, env_kind(env), action_kind(env.single_action_space), "image" in env.single_observation_space.spaces)
+    spec = spec or algorithm(config.algo)
+    check_fit(
+        config, env_kind(env), action_kind(env.single_action_space), "image" in env.single_observation_space.spaces, spec=spec
+    )
     if action_kind(env.single_action_space) is None:
         raise ConfigError("env", f"actions must be Box or Discrete; {config.env!r} has {env.single_action_space}")
     space = env.single_observation_space
@@ -123,11 +130,17 @@ def make_agent(config: TrainConfig, env: Any, device: torch.device) -> Any:
     check_network_memory(config, input_dim, device)
     shift = getattr(config.env_settings, "shift", -1)  # the camera's (CameraSettings); -1: the algorithm's own
     inputs = AgentInputs(keys, input_dim, env.single_action_space, image_shape, shift if shift >= 0 else None)
-    return algorithm(config.algo).build(inputs, config.algo_settings, device, conditioning)
+    return spec.build(inputs, config.algo_settings, device, conditioning)
 
 
 def make_evaluator(
-    config: TrainConfig, eval_env: BatchedEnv, agent: Any, seed: int, stochastic: bool = False, details: bool = False
+    config: TrainConfig,
+    eval_env: BatchedEnv,
+    agent: Any,
+    seed: int,
+    stochastic: bool = False,
+    details: bool = False,
+    family: EnvFamily | None = None,
 ):
     """``() -> metrics`` for the loop, and a holder of the last full result (per-task for multi-task envs).
 
@@ -140,7 +153,7 @@ def make_evaluator(
     last: dict[str, Any] = {}
     multitask = env_kind(eval_env) == "multitask"
     # once, not at every evaluation (a task set's criterion reads its task file)
-    criterion = env_family(config.env).success_criterion(config.env_settings) if multitask else None
+    criterion = (family or env_family(config.env)).success_criterion(config.env_settings) if multitask else None
 
     policy = ActingPolicy(agent, explore=stochastic)  # greedy unless asked to explore
 

@@ -11,7 +11,7 @@ from typing import Any
 from taskrl.checkpoint import load_checkpoint
 from taskrl.config import TrainConfig
 from taskrl.envs.base import BatchedEnv
-from taskrl.envs.registry import ENV_FAMILIES, env_family
+from taskrl.envs.registry import ENV_FAMILIES
 from taskrl.envs.reward_tasks import parse_qualities
 from taskrl.errors import ConfigError, reason, require
 from taskrl.replay import EpisodeReplay
@@ -63,9 +63,7 @@ def preload_datasets(parts: RunParts) -> int:
     seed = config.seed + DATASET_SEED_OFFSET  # the datasets' own stream, never the training env's
     request = env_request(config, parts.device, parts.source, evaluation=True, seed=seed)
     # the family's evaluation env: fixed tasks per copy, _dataset_copies of each
-    maker = env_family(config.env).make(
-        settings, dataclasses.replace(request, eval_episodes=_dataset_copies(settings.dataset_steps))
-    )
+    maker = parts.family.make(settings, dataclasses.replace(request, eval_episodes=_dataset_copies(settings.dataset_steps)))
     try:
         require(
             callable(getattr(maker, "expert_action", None)) and getattr(maker, "slot_tasks", None) is not None,
