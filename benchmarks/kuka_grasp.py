@@ -189,6 +189,30 @@ def _evaluation_job(job: tuple) -> tuple[tuple, dict]:
 EPISODES = [50]  # the protocol's episodes per evaluation, set before the workers start
 
 
+def wider_search_job(job: tuple) -> tuple[tuple, dict]:
+    """``(run, held_out, samples, iterations, elites)``: the run's greedy policy acting with a wider CEM search than
+    it trained with, on the very episodes ``taskrl eval RUN`` scores it on (one process)."""
+    import dataclasses
+
+    from taskrl.agents.cem import CrossEntropyMethod
+    from taskrl.loading import load as load_agent
+    from taskrl.training.evaluation import ActingPolicy, evaluate
+
+    torch.set_num_threads(1)
+    run_dir, held_out, samples, iterations, elites = job
+    agent = load_agent(run_dir)
+    agent.cem = CrossEntropyMethod(
+        dataclasses.replace(agent.cem.config, samples=samples, iterations=iterations, elites=elites, first_samples=0)
+    )
+    env, seed = _evaluation_env(run_dir, EPISODES[0], held_out)
+    start = time.perf_counter()
+    try:
+        result = evaluate(ActingPolicy(agent, explore=False), env, seed)
+    finally:
+        env.close()
+    return job, {**result, "seconds": time.perf_counter() - start}
+
+
 def protocol(random_run: Path, runs: list[Path], supervised: list[Path], episodes: int, workers: int = 2) -> dict:
     """Each run evaluated greedily on training and test objects (``taskrl eval RUN`` and ``--held-out``), beside the
     random policy's success while collecting (training objects) and on the same evaluation episodes; the
@@ -255,6 +279,13 @@ def main() -> None:
     proto.add_argument("--earlier-label", default="earlier", help="how the earlier rows are marked")
     proto.add_argument("--note", default="", help="a line on how the runs were made (commands, commit, times)")
     proto.add_argument("--write", action="store_true")
+    wider = sub.add_parser("search", help="trained runs acting with a wider CEM search, on their evaluation episodes")
+    wider.add_argument("--runs", type=Path, nargs="+", required=True)
+    wider.add_argument("--samples", type=int, default=256)
+    wider.add_argument("--iterations", type=int, default=3)
+    wider.add_argument("--elites", type=int, default=24)
+    wider.add_argument("--episodes", type=int, default=50)
+    wider.add_argument("--workers", type=int, default=2)
     outcomes = sub.add_parser("outcomes", help="the supervised control's data: a run's grasps labelled by their outcome")
     outcomes.add_argument("source", type=Path)
     outcomes.add_argument("out", type=Path)
@@ -264,6 +295,19 @@ def main() -> None:
 
     if args.what == "outcomes":
         print(outcome_labelled(args.source, args.out))
+    elif args.what == "search":
+        from concurrent.futures import ProcessPoolExecutor
+
+        EPISODES[0] = args.episodes
+        jobs = [(run, held, args.samples, args.iterations, args.elites) for run in args.runs for held in (False, True)]
+        with ProcessPoolExecutor(max_workers=args.workers, initializer=EPISODES.__setitem__, initargs=(0, args.episodes)) as pool:
+            for (run, held, *_), result in pool.map(wider_search_job, jobs):
+                split = "test" if held else "train"
+                print(
+                    json.dumps(
+                        {"run": str(run), "split": split, **{k: result[k] for k in ("success_rate", "eval_length", "seconds")}}
+                    )
+                )
     elif args.what == "protocol":
         found = protocol(args.random, args.runs, args.supervised, args.episodes, args.workers)
         if args.earlier:  # read before --write replaces it (it may be the same file)
