@@ -136,12 +136,24 @@ def organise(text: str) -> str:
     for anchor, name, _ in chapters:
         if not grouped[anchor]:
             continue
-        contents.append(f"- [{name}](#{anchor}): " + "; ".join(t for t, _ in grouped[anchor]))
+        contents.append(_contents_line(name, anchor, [t for t, _ in grouped[anchor]]))
         out += ["", f'<a id="{anchor}"></a>', "", f"## {name}", ""]
         for title, body in grouped[anchor]:
             out += [f"### {title}", "", show_figures(body.strip("\n")), ""]
     summary = ["## Summary", "", SUMMARY.read_text().strip("\n"), ""] if SUMMARY.exists() else []
     return HEAD + "\n" + "\n".join([*summary, *contents]) + "\n" + "\n".join(out).rstrip("\n") + "\n"
+
+
+def _contents_line(name: str, anchor: str, titles: list[str]) -> str:
+    """A chapter's line of the contents: its section titles, as many as fit the longest line, then how many more."""
+    head, shown = f"- [{name}](#{anchor}): ", []
+    for k, title in enumerate(titles):
+        rest = len(titles) - k - 1
+        tail = f"; and {rest} more" if rest else ""
+        if len(head + "; ".join([*shown, title]) + tail) > LONGEST_LINE - 20:
+            return head + "; ".join(shown) + f"; and {len(titles) - k} more"
+        shown.append(title)
+    return head + "; ".join(shown)
 
 
 def problems(text: str) -> list[str]:
