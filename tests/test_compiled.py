@@ -307,7 +307,8 @@ def _settled(preset: str, **settings):
     from taskrl.wiring.calls import settle_compile
 
     notes: list[str] = []
-    config = settle_compile(resolve(with_overrides(preset_config(preset), settings)), notes)
+    plan = resolve(with_overrides(preset_config(preset), settings))
+    config = settle_compile(plan.config, plan.algorithm, plan.family, notes)
     return config, notes
 
 

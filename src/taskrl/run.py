@@ -139,7 +139,7 @@ def train(
         if source is not None and resume is None and family.persist is not None:  # record the object in the run
             config = with_overrides(config, family.persist(source, run_dir))
         plan = resolve(config)
-        plan = dataclasses.replace(plan, config=settle_compile(plan, notes))
+        plan = dataclasses.replace(plan, config=settle_compile(plan.config, plan.algorithm, plan.family, notes))
         config, mode = plan.config, plan.mode
         parts = build_parts(plan, source)
         # A new run checkpoints after its first step (a kill before checkpoint_interval still resumes);

@@ -23,7 +23,8 @@ from taskrl.presets import preset_config
 from taskrl.rundir import atomic_write_text
 
 if TYPE_CHECKING:
-    from taskrl.plan import RunPlan
+    from taskrl.agents.spec import AlgorithmSpec
+    from taskrl.envs.spec import EnvFamily
 
 __all__ = [
     "budget_warnings",
@@ -111,12 +112,11 @@ def resolve_config(
     return config
 
 
-def settle_compile(plan: RunPlan, notes: list[str]) -> TrainConfig:
-    """The plan's config with ``compile`` and ``updates_per_call`` settled where they are ``auto``; why goes first
-    in ``notes``."""
-    config, spec = plan.config, plan.algorithm
+def settle_compile(config: TrainConfig, spec: AlgorithmSpec, family: EnvFamily, notes: list[str]) -> TrainConfig:
+    """``config`` with ``compile`` and ``updates_per_call`` settled where they are ``auto``, for its resolved algorithm
+    and env family (a `RunPlan`'s); why goes first in ``notes``."""
     many = spec.loop == "off_policy" and not config.cluster.distributed and not config.data.offline
-    pictures = plan.family.images
+    pictures = family.images
     choice = choose_compile(config, spec.compiles, many, pictures, cached_calls(config) if spec.compiles else set())
     if choice.reason:  # the run's first line
         notes.insert(0, choice.reason)
