@@ -190,8 +190,8 @@ EPISODES = [50]  # the protocol's episodes per evaluation, set before the worker
 
 
 def wider_search_job(job: tuple) -> tuple[tuple, dict]:
-    """``(run, held_out, samples, iterations, elites)``: the run's greedy policy acting with a wider CEM search than
-    it trained with, on the very episodes ``taskrl eval RUN`` scores it on (one process)."""
+    """``(run, held_out, samples, iterations, elites, episodes)``: the run's greedy policy acting with a wider CEM
+    search than it trained with, on the very episodes ``taskrl eval RUN`` scores it on (one process)."""
     import dataclasses
 
     from taskrl.agents.cem import CrossEntropyMethod
@@ -199,12 +199,12 @@ def wider_search_job(job: tuple) -> tuple[tuple, dict]:
     from taskrl.training.evaluation import ActingPolicy, evaluate
 
     torch.set_num_threads(1)
-    run_dir, held_out, samples, iterations, elites = job
+    run_dir, held_out, samples, iterations, elites, episodes = job
     agent = load_agent(run_dir)
     agent.cem = CrossEntropyMethod(
         dataclasses.replace(agent.cem.config, samples=samples, iterations=iterations, elites=elites, first_samples=0)
     )
-    env, seed = _evaluation_env(run_dir, EPISODES[0], held_out)
+    env, seed = _evaluation_env(run_dir, episodes, held_out)
     start = time.perf_counter()
     try:
         result = evaluate(ActingPolicy(agent, explore=False), env, seed)
@@ -298,9 +298,9 @@ def main() -> None:
     elif args.what == "search":
         from concurrent.futures import ProcessPoolExecutor
 
-        EPISODES[0] = args.episodes
-        jobs = [(run, held, args.samples, args.iterations, args.elites) for run in args.runs for held in (False, True)]
-        with ProcessPoolExecutor(max_workers=args.workers, initializer=EPISODES.__setitem__, initargs=(0, args.episodes)) as pool:
+        wider_search = (args.samples, args.iterations, args.elites, args.episodes)
+        jobs = [(run, held, *wider_search) for run in args.runs for held in (False, True)]
+        with ProcessPoolExecutor(max_workers=args.workers) as pool:
             for (run, held, *_), result in pool.map(wider_search_job, jobs):
                 split = "test" if held else "train"
                 print(

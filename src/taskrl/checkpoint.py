@@ -30,7 +30,8 @@ _TENSOR, _ITEMS = "__tensor__", "__items__"
 def flatten_state(tree: Any, prefix: str = "", copy: bool = True) -> tuple[dict[str, torch.Tensor], Any]:
     """Split ``tree`` into ``(tensors, skeleton)``; non-string dict keys are kept exactly.
 
-    ``copy=False`` keeps CPU tensors that own their storage, or are a contiguous prefix of it, as they are (no copy of a large replay),
+    ``copy=False`` keeps contiguous CPU tensors that start their storage (all of it or a prefix) as they are (no copy
+    of a large replay),
     for a caller that writes them out at once: the result then aliases the live state.
     """
     tensors: dict[str, torch.Tensor] = {}
@@ -38,9 +39,8 @@ def flatten_state(tree: Any, prefix: str = "", copy: bool = True) -> tuple[dict[
     def walk(node: Any, path: str) -> Any:
         if isinstance(node, torch.Tensor):
             tensor = node.detach()
-            owns_storage = tensor.untyped_storage().nbytes() == tensor.numel() * tensor.element_size()
-            prefix = tensor.storage_offset() == 0
-            if copy or tensor.is_cuda or not tensor.is_contiguous() or not (owns_storage or prefix):
+            prefix = tensor.storage_offset() == 0  # the whole storage, or its first rows (a replay's written ones)
+            if copy or tensor.is_cuda or not tensor.is_contiguous() or not prefix:
                 tensor = tensor.cpu().contiguous().clone()  # a view or a device tensor: its own copy
             tensors[path] = tensor
             return {_TENSOR: path}

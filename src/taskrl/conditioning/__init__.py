@@ -28,18 +28,4 @@ _EXPORTS = {
 }
 __getattr__ = lazy_exports(__name__, _EXPORTS)
 
-__all__ = [
-    "CAREEncoder",
-    "EMBEDDING_DIM",
-    "FiLM",
-    "FiLMMLP",
-    "LanguageTaskEncoder",
-    "LearnedTaskEmbedding",
-    "MODEL_NAME",
-    "OneHotTaskEncoder",
-    "ParallelLinear",
-    "TASK_ENCODERS",
-    "TaskEncoder",
-    "make_task_encoder",
-    "sentence_embeddings",
-]
+__all__ = [*_EXPORTS]

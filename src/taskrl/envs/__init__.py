@@ -30,23 +30,4 @@ _EXPORTS = {
 }
 __getattr__ = lazy_exports(__name__, _EXPORTS)
 
-__all__ = [
-    "BatchedEnv",
-    "BitFlip",
-    "BitFlipGymEnv",
-    "EnvFamily",
-    "EnvRequest",
-    "GoalEnvMixin",
-    "GymnasiumGoalEnv",
-    "GymnasiumVectorEnv",
-    "MetaWorldMultiTaskEnv",
-    "MultiTaskPointReach",
-    "MultiTaskPointReachGymEnv",
-    "PointReach",
-    "PointReachGymEnv",
-    "TaskSetEnv",
-    "env_kind",
-    "is_goal_env",
-    "metaworld_task_set",
-    "register_gymnasium_envs",
-]
+__all__ = ["register_gymnasium_envs", *_EXPORTS]

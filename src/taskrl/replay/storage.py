@@ -352,9 +352,8 @@ class EpisodeReplay:
 
         A ring that has not wrapped yet is given up to its last written row only: a replay far from full
         saves what it holds, not its capacity (the rows past it were never written)."""
-        obs_end, step_end = self._obs_tail + self._obs_count, self._step_tail + self._step_count
-        obs_rows = max(obs_end, 1) if obs_end <= self.obs_rows else self.obs_rows
-        step_rows = max(step_end, 1) if step_end <= self.capacity else self.capacity
+        obs_rows = max(min(self._obs_tail + self._obs_count, self.obs_rows), 1)  # past the ring's end: it wrapped
+        step_rows = max(min(self._step_tail + self._step_count, self.capacity), 1)
         state = {f"obs/{k}": v[:obs_rows] for k, v in self.obs.items()}
         state.update({f"steps/{k}": v[:step_rows] for k, v in self.steps.items()})
         state["episode_step_start"] = self.episode_step_start

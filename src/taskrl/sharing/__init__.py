@@ -23,12 +23,4 @@ _EXPORTS = {
 }
 __getattr__ = lazy_exports(__name__, _EXPORTS)
 
-__all__ = [
-    "EpisodeScores",
-    "SHARING_STRATEGIES",
-    "SharingConfig",
-    "SharingStrategy",
-    "TaskSharing",
-    "collect_task_datasets",
-    "register_sharing_strategy",
-]
+__all__ = [*_EXPORTS]
