@@ -250,3 +250,27 @@ def test_eval_writes_a_video_of_a_metaworld_task(tmp_path):
     video = Path(json.loads(evaluated.stdout)["videos"][0])
     frames = [frame for frame in imageio.get_reader(video)]
     assert video.name == "episode_000_reach.mp4" and len(frames) == 21 and frames[10].std() > 10  # a scene, not black
+
+
+def test_a_run_started_from_another_runs_agent_begins_where_it_ended_and_refuses_one_that_does_not_fit(
+    bitflip_run, tmp_path, capsys
+):
+    trained = float(metrics(bitflip_run)[-1]["success_rate"])
+    no_update = ["--total-steps", "8", "--learning-starts", "100000", "--eval-episodes", "50", "--no-progress"]
+    tiny = [*TINY[:2], *TINY[-1:], *no_update]
+    assert main(["train", "bitflip-her", *tiny, "--out", str(tmp_path / "started"), "--init-from", str(bitflip_run)]) == 0
+    last = int(metrics(bitflip_run)[-1]["env_steps"])
+    assert f"the agent starts from {bitflip_run}'s last checkpoint ({last:,} env steps" in capsys.readouterr().err
+    assert main(["train", "bitflip-her", *tiny, "--out", str(tmp_path / "fresh")]) == 0
+    started, fresh = (float(metrics(tmp_path / name)[0]["success_rate"]) for name in ("started", "fresh"))
+    assert trained >= 0.8 and started >= 0.8 and fresh <= 0.3  # before any update of its own: the trained agent
+    assert int(metrics(tmp_path / "started")[-1]["updates"]) == 0  # counters start at 0
+    for bad, why in (
+        (["--n-bits", "7"], "does not fit this run's networks"),  # another input size
+        (["--init-from", str(tmp_path / "nothing")], "holds no run to start from"),
+    ):
+        args = ["train", "bitflip-her", *no_update, "--init-from", str(bitflip_run), *bad, "--out", str(tmp_path / "bad")]
+        assert main(args) == 2
+        said = [line for line in capsys.readouterr().err.splitlines() if "error:" in line]
+        assert len(said) == 1 and "--init-from" in said[0] and why in said[0]
+        assert not (tmp_path / "bad").exists()  # nothing of a refused run stays behind

@@ -51,7 +51,7 @@ from taskrl.wiring.calls import (
     run_title,
     settle_compile,
 )
-from taskrl.wiring.checkpoints import checkpointer, restore_checked
+from taskrl.wiring.checkpoints import checkpointer, restore_checked, start_from_run
 from taskrl.wiring.parts import EVAL_SEED_OFFSET, RunParts, make_agent, make_env, make_evaluator
 from taskrl.wiring.stored_data import dataset_steps, preload_datasets, preload_replay
 
@@ -145,6 +145,8 @@ def train(
         # A new run checkpoints after its first step (a kill before checkpoint_interval still resumes);
         # a resumed run loads its checkpoint before anything of it is rewritten.
         try:
+            if resume is None and config.checkpoints.init_from:
+                notes.append(start_from_run(parts, config.checkpoints.init_from))
             if resume is None and config.data.offline_data:
                 preload_replay(parts, config.data.offline_data)
             if resume is None and dataset_steps(config, parts.env):

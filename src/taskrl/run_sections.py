@@ -99,11 +99,16 @@ class CheckpointSettings:
         checkpoint_minutes: also checkpoint after this many minutes of wall-clock since the last
             checkpoint, so a killed run loses at most that much (0 = by env steps only).
         save_replay: include the replay buffer in checkpoints so a resumed run loses no data.
+        init_from: a run directory whose last checkpoint's agent (networks, targets, optimiser, input
+            statistics) this new run starts from instead of a fresh one: QT-Opt's online phase after an
+            ``--offline`` run, or fine-tuning. Same algorithm, env and network sizes as that run; its replay is
+            not taken (``--offline-data`` does that). Counters start at 0.
     """
 
     checkpoint_interval: int = 50_000
     checkpoint_minutes: float = 10.0
     save_replay: bool = True
+    init_from: str = ""
 
     def validate(self) -> None:
         """Raise `ConfigError` naming the first bad setting."""

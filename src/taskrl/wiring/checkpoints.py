@@ -8,13 +8,13 @@ from pathlib import Path
 from typing import Any
 
 from taskrl import config as config_io
-from taskrl.checkpoint import load_checkpoint, save_checkpoint
+from taskrl.checkpoint import checkpoint_at, load_checkpoint, read_checkpoint, save_checkpoint
 from taskrl.config import TrainConfig
 from taskrl.errors import ConfigError, reason
 from taskrl.training.bookkeeping import LoopState
 from taskrl.wiring.parts import RunParts
 
-__all__ = ["checkpointer", "load_agent_state", "restore", "restore_checked"]
+__all__ = ["checkpointer", "load_agent_state", "restore", "restore_checked", "start_from_run"]
 
 
 def load_agent_state(agent: Any, state: dict[str, Any], where: Path) -> None:
@@ -26,6 +26,40 @@ def load_agent_state(agent: Any, state: dict[str, Any], where: Path) -> None:
         raise ConfigError(
             "checkpoint", f"{where} does not fit the run's config.json (another run's settings?): {reason(error, 160)}"
         ) from None
+
+
+def start_from_run(parts: RunParts, run_dir: str | Path) -> str:
+    """Load the agent of another run's last checkpoint into a new run's agent (``--init-from``); a note saying
+    which. Anything that keeps it from fitting (no run there, another algorithm or env, other network sizes) is one
+    `ConfigError` for ``init_from``."""
+    run_dir, config = Path(run_dir), parts.config
+    try:
+        other = config_io.load(run_dir / "config.json")
+        folder = checkpoint_at(run_dir / "checkpoints")
+        saved = read_checkpoint(folder, ("agent", "loop"), parts.device)
+        state, loop = saved["agent"], saved.get("loop", {})
+    except (OSError, KeyError, ValueError) as error:
+        raise ConfigError("init_from", f"{run_dir} holds no run to start from ({reason(error, 160)})") from None
+    if (other.algo, other.env) != (config.algo, config.env):
+        raise ConfigError(
+            "init_from",
+            f"{run_dir} trained {other.algo} on {other.env}, this run is {config.algo} on {config.env}; "
+            "start from a run of the same algorithm and env",
+        )
+    try:
+        parts.agent.load_state_dict(state)
+    except (KeyError, RuntimeError, ValueError) as error:
+        raise ConfigError(
+            "init_from", f"the agent of {run_dir} does not fit this run's networks (other sizes?): {_first_cause(error)}"
+        ) from None
+    trained = f"{loop.get('env_steps', 0):,} env steps, {loop.get('updates', 0):,} updates"
+    return f"the agent starts from {run_dir}'s last checkpoint ({trained}); this run counts from 0"
+
+
+def _first_cause(error: BaseException) -> str:
+    """The first line of ``error`` that says something (torch's ``load_state_dict`` opens with a heading line)."""
+    lines = [line.strip() for line in str(error).splitlines() if line.strip() and not line.strip().endswith(":")]
+    return lines[0][:200] if lines else reason(error)
 
 
 def restore(parts: RunParts, run_dir: Path) -> LoopState:
