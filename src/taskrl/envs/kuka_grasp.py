@@ -31,6 +31,13 @@ Where this env differs from the authors' code, and why:
   ``settle="rest"`` (default) stops an object's drop once it is at rest (speed under 1 cm/s and 0.1 rad/s,
   checked every 10 steps, at most 500); ``settle="definition"`` keeps the 500 steps. ``benchmarks/kuka_grasp.py
   settle`` compares the settled object positions of both from the same drops.
+- **A missed grasp stops lifting.** Theirs always simulates the 1,000 steps of the close-and-lift;
+  ``lift="decided"`` (default) stops it once it has failed for certain (`KukaGraspEnv.lift_failed`, checked every
+  10 steps): both fingers shut (nothing between them) and no object touching the arm, so no object can rise any
+  more. A grasp that holds something lifts the full 1,000 steps (an object above 0.2 m midway can still fall, so
+  success is read at the end, as theirs). ``lift="definition"`` keeps the 1,000 steps always; both report the lift
+  step at which the failure was certain (``info["lift_failed_at"]``, 0 when it never was), and
+  ``benchmarks/kuka_grasp.py lift`` checks it against the full lift's outcomes.
 - ``height_hack=True`` gives their easier variant: three actions ``(dx, dy, dyaw)`` and the gripper always
   moving down (the grasp then fires after about 3 steps). The benchmark's training config removes it; so does
   the default here.
@@ -71,6 +78,9 @@ MOVE = 0.06  # metres per unit of dx, dy, dz
 TURN = 0.25  # radians per unit of dyaw
 GRASP_HEIGHT = 0.1  # the grasp fires at or below this gripper height
 LIFT_STEPS = 1000  # simulation steps of the close-and-lift
+LIFT_CHECK = 10  # lift steps between checks for a certain failure (this project's, ``lift="decided"``)
+FINGERS_SHUT = 0.01  # radians: a finger joint this near 0 has nothing between it and the other (this project's)
+FINGER_JOINTS = (8, 11)
 SUCCESS_HEIGHT = 0.2  # an object above this after the lift is a success
 DROP_SPREAD = 0.3  # objects drop at x in 0.4 + [0, 0.3], y in [-0.15, 0.15], yaw pi/2 + [0, 0.3 pi]
 DROP_HEIGHT = 0.15
@@ -139,6 +149,8 @@ class KukaGraspSettings(CameraSettings):
         num_objects: objects in the tray.
         height_hack: the easier variant: the gripper always moves down, actions ``(dx, dy, dyaw)``.
         settle: ``rest`` (each dropped object until at rest, at most 500 steps) or ``definition`` (500 steps each).
+        lift: ``decided`` (the close-and-lift stops once it has failed for certain: fingers shut on nothing) or
+            ``definition`` (its 1,000 steps always).
         image_size: the side of the picture (rendered at twice this and resized).
         vector_strategy: ``async`` (one process per copy: every core simulates) or ``sync`` (one process).
     """
@@ -148,12 +160,14 @@ class KukaGraspSettings(CameraSettings):
     num_objects: int = 5
     height_hack: bool = False
     settle: Literal["rest", "definition"] = "rest"
+    lift: Literal["decided", "definition"] = "decided"
     image_size: int = 64
     vector_strategy: Literal["sync", "async"] = "async"
 
     def validate(self) -> None:
         one_of(self.objects, OBJECT_SPLITS, "objects", "split")
         one_of(self.settle, ("rest", "definition"), "settle", "settling")
+        one_of(self.lift, ("decided", "definition"), "lift", "lift")
         one_of(self.vector_strategy, VECTOR_STRATEGIES, "vector_strategy", "strategy")
         require(self.redraw_every >= 1, "redraw_every", f"must be >= 1 episode (got {self.redraw_every})")
         require(1 <= self.num_objects <= 20, "num_objects", f"must be in 1-20 (got {self.num_objects})")
@@ -337,19 +351,33 @@ class KukaGraspEnv(gym.Env):
             if self._step >= STEPS:  # the authors' loop stops at the episode's end
                 break
         attempted = self.gripper_position()[2] <= GRASP_HEIGHT
+        info: dict[str, Any] = {"attempted": attempted}
         if attempted:
-            self._close_and_lift()
+            info.update(self._close_and_lift())
         success = attempted and bool((self.object_positions()[:, 2] > SUCCESS_HEIGHT).any())
         terminated = attempted or self._step >= STEPS
-        info = {"is_success": success, "attempted": attempted}
+        info["is_success"] = success
         return self._observation(), float(success), terminated, False, info
 
-    def _close_and_lift(self) -> None:
-        fingers = 0.3
-        for _ in range(LIFT_STEPS):
+    def _close_and_lift(self) -> dict[str, Any]:
+        """Close the fingers while lifting; with ``lift="decided"`` stop once the grasp has failed for certain. The lift
+        step at which it had (0: never)."""
+        fingers, failed_at = 0.3, 0
+        for step in range(1, LIFT_STEPS + 1):
             self._command(0.0, 0.0, 0.001, 0.0, fingers)
             self._sim.stepSimulation()
             fingers = max(fingers - 0.003, 0.0)
+            if not failed_at and step % LIFT_CHECK == 0 and self.lift_failed():
+                failed_at = step
+                if self.settings.lift == "decided":
+                    break
+        return {"lift_failed_at": failed_at}
+
+    def lift_failed(self) -> bool:
+        """Whether the close-and-lift can no longer lift anything: both fingers shut (nothing between them) and no object
+        touching the arm. Nothing rises without the gripper, so no object can reach the success height after this."""
+        shut = all(abs(self._sim.getJointState(self._arm, j)[0]) < FINGERS_SHUT for j in FINGER_JOINTS)
+        return shut and not any(self._sim.getContactPoints(self._arm, uid) for uid in self._objects)
 
     def _observation(self) -> dict[str, np.ndarray]:
         size = self.settings.image_size
