@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import taskrl
-from helpers import cli, metrics
+from helpers import cli, metrics, small_run
 from taskrl.checkpoint import latest_checkpoint
 from taskrl.cli import main
 from taskrl.errors import ConfigError
@@ -274,3 +274,15 @@ def test_a_run_started_from_another_runs_agent_begins_where_it_ended_and_refuses
         said = [line for line in capsys.readouterr().err.splitlines() if "error:" in line]
         assert len(said) == 1 and "--init-from" in said[0] and why in said[0]
         assert not (tmp_path / "bad").exists()  # nothing of a refused run stays behind
+
+
+def test_an_offline_run_leaves_its_stored_data_out_of_its_checkpoints_and_says_where_the_data_are(tmp_path):
+    quick = dict(eval_interval=10**6, eval_episodes=2, tensorboard=False, threads=1)
+    small_run("bitflip-her", tmp_path / "source", n_bits=6, total_steps=600, learning_starts=10**6, **quick)
+    offline = dict(n_bits=6, offline=True, offline_data=str(tmp_path / "source"), total_steps=20, **quick)
+    run = small_run("bitflip-her", tmp_path / "offline", **offline)
+    assert run.metrics["replay_transitions"] > 0
+    assert not list((run.run_dir / "checkpoints").glob("*/replay.*"))  # the source's data, unchanged, not copied
+    with pytest.raises(ConfigError) as error:  # an offline run is no data source: it names the one it read
+        small_run("bitflip-her", tmp_path / "chained", **{**offline, "offline_data": str(tmp_path / "offline")})
+    assert error.value.field == "offline_data" and f"use --offline-data {tmp_path / 'source'}" in error.value.message

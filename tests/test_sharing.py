@@ -13,6 +13,7 @@ import taskrl
 from helpers import small_run
 from taskrl.agents.dqn import DQNAgent, DQNConfig
 from taskrl.agents.sac import SACAgent, SACConfig
+from taskrl.checkpoint import latest_checkpoint
 from taskrl.config import TrainConfig
 from taskrl.envs.grid_tasks import GRID_TASKS, GridTasks
 from taskrl.envs.point_tasks import POINT_TASKS, PointTasks
@@ -471,9 +472,12 @@ def test_offline_run_learns_from_datasets_without_stepping_an_env(tmp_path):
     assert (run.run_dir / "checkpoints").exists()
     assert math.isfinite(float(rows[-1]["cql_gap"]))
     assert 0.0 < float(rows[-1]["shared_fraction"]) <= 0.5  # conservative shares some, not all
-    # and resumes
+    # its checkpoints leave the (unchanging) datasets out, and a resumed run reads them again
+    saved = sorted(p.name for p in latest_checkpoint(run.run_dir / "checkpoints").iterdir())
+    assert saved == ["agent.json", "agent.safetensors", "loop.json", "loop.safetensors"]
     more = taskrl.train(resume=run.run_dir, total_steps=600, tensorboard=False)
     assert more.metrics["updates"] == 600
+    assert more.metrics["replay_transitions"] == run.metrics["replay_transitions"] > 0
 
 
 @pytest.mark.slow

@@ -147,15 +147,17 @@ def train(
         try:
             if resume is None and config.checkpoints.init_from:
                 notes.append(start_from_run(parts, config.checkpoints.init_from))
-            if resume is None and config.data.offline_data:
-                preload_replay(parts, config.data.offline_data)
-            if resume is None and dataset_steps(config, parts.env):
-                preload_datasets(parts)
             state = (
                 LoopState(next_checkpoint=0, next_eval=0 if mode.evaluate_first else config.evaluation.eval_interval)
                 if resume is None
                 else restore_checked(parts, run_dir, saved, config)
             )
+            # the stored data: a new run's, or a resumed --offline run's (its checkpoints leave the unchanging data out)
+            if parts.replay is not None and parts.replay.num_episodes == 0:
+                if config.data.offline_data:
+                    preload_replay(parts, config.data.offline_data)
+                if dataset_steps(config, parts.env):
+                    preload_datasets(parts)
         except BaseException:
             parts.close()
             raise

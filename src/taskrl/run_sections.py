@@ -98,7 +98,8 @@ class CheckpointSettings:
             and one at the end).
         checkpoint_minutes: also checkpoint after this many minutes of wall-clock since the last
             checkpoint, so a killed run loses at most that much (0 = by env steps only).
-        save_replay: include the replay buffer in checkpoints so a resumed run loses no data.
+        save_replay: include the replay buffer in checkpoints so a resumed run loses no data. An ``--offline`` run
+            leaves it out (its replay is the stored data, unchanged) and reads the data again when resumed.
         init_from: a run directory whose last checkpoint's agent (networks, targets, optimiser, input
             statistics) this new run starts from instead of a fresh one: QT-Opt's online phase after an
             ``--offline`` run, or fine-tuning. Same algorithm, env and network sizes as that run; its replay is

@@ -106,7 +106,8 @@ def checkpointer(parts: RunParts, run_dir: Path, axis: str) -> Callable[[LoopSta
             "agent": parts.agent.state_dict(),
             "loop": {**dataclasses.asdict(state), "generator": parts.generator.get_state()},
         }
-        if parts.config.checkpoints.save_replay and parts.replay is not None:
+        # an --offline run's replay is its stored data, unchanged: read again from there on resume, not copied here
+        if parts.config.checkpoints.save_replay and parts.replay is not None and not parts.config.data.offline:
             saved["replay"] = parts.replay.state_dict()
         save_checkpoint(run_dir / "checkpoints", saved, state.progress(axis))
 

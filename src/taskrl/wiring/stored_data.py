@@ -8,6 +8,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from taskrl import config as config_io
 from taskrl.checkpoint import load_checkpoint
 from taskrl.config import TrainConfig
 from taskrl.envs.base import BatchedEnv
@@ -88,6 +89,17 @@ def replay_needs(config: TrainConfig, env: BatchedEnv, own_steps: Callable[[Trai
     return max(dataset_steps(config, env) + own_steps(config, env), 1)
 
 
+def _where_its_data_is(run_dir: str | Path) -> str:
+    """What to do about a run whose checkpoints hold no replay: an --offline run's data are where it read them."""
+    try:
+        source = config_io.load(Path(run_dir) / "config.json").data
+    except (OSError, ValueError):
+        source = None
+    if source is not None and source.offline and source.offline_data:
+        return f"it learnt offline from {source.offline_data}: use --offline-data {source.offline_data}"
+    return "train it with --save-replay"
+
+
 def preload_replay(parts: RunParts, run_dir: str | Path) -> int:
     """Fill the replay with the stored episodes of another run's last checkpoint (``--offline-data``);
     how many episodes it now holds."""
@@ -100,7 +112,7 @@ def preload_replay(parts: RunParts, run_dir: str | Path) -> int:
             f"{run_dir} has no checkpoint with a replay to start from ({reason(error)}); train it with --save-replay",
         ) from None
     if "replay" not in saved:
-        raise ConfigError("offline_data", f"the last checkpoint of {run_dir} holds no replay; train it with --save-replay")
+        raise ConfigError("offline_data", f"the last checkpoint of {run_dir} holds no replay; {_where_its_data_is(run_dir)}")
     try:
         episodes, _ = saved_episodes(saved["replay"])
     except (KeyError, RuntimeError, ValueError, IndexError) as error:
