@@ -280,15 +280,37 @@ def wider_search_job(job: tuple) -> tuple[tuple, dict]:
     return job, {**result, "seconds": time.perf_counter() - start}
 
 
-def protocol(random_run: Path, runs: list[Path], supervised: list[Path], episodes: int, workers: int = 2) -> dict:
+def _online_part(run_dir: Path) -> dict:
+    """What an online run (``--init-from``) added to the offline run it started from: its env steps, the grasps it
+    collected (its replay's episodes past the preloaded ones, read at its first evaluation), its training success
+    (exploring), and the offline run's updates before its own."""
+    import csv
+
+    with open(run_dir / "metrics.csv") as f:
+        rows = list(csv.DictReader(f))
+    config = json.loads((run_dir / "config.json").read_text())
+    before = _last_row(Path(config["checkpoints"]["init_from"]))
+    return {
+        "online_env_steps": int(float(rows[-1]["env_steps"])),
+        "online_grasps": int(float(rows[-1]["replay_episodes"])) - int(float(rows[0]["replay_episodes"])),
+        "online_train_success": float(rows[-1]["train_success"]),
+        "offline_updates": int(before.get("updates", 0)),
+    }
+
+
+def protocol(
+    random_run: Path, runs: list[Path], supervised: list[Path], episodes: int, workers: int = 2, online: list[Path] = ()
+) -> dict:
     """Each run evaluated greedily on training and test objects (``taskrl eval RUN`` and ``--held-out``), beside the
     random policy's success while collecting (training objects) and on the same evaluation episodes; the
-    evaluations run ``workers`` at a time (one process each: an evaluation env simulates in one process)."""
+    evaluations run ``workers`` at a time (one process each: an evaluation env simulates in one process). ``online``:
+    runs started from an offline run (``--init-from``) that collected with their policy."""
     from concurrent.futures import ProcessPoolExecutor
 
     EPISODES[0] = episodes
-    groups = (("QT-Opt", runs), ("supervised on outcomes (gamma 0)", supervised))
-    jobs = [("random", runs[0], False), ("random", runs[0], True)]
+    groups = (("QT-Opt", runs), ("QT-Opt, then online", list(online)), ("supervised on outcomes (gamma 0)", supervised))
+    first = (runs or list(online))[0]  # the evaluation episodes are the same for every run of one seed offset
+    jobs = [("random", first, False), ("random", first, True)]
     for _, group in groups:
         for run_dir in group:
             jobs += [("actions", run_dir), ("greedy", run_dir, False), ("greedy", run_dir, True)]
@@ -296,7 +318,7 @@ def protocol(random_run: Path, runs: list[Path], supervised: list[Path], episode
         done = dict(pool.map(_evaluation_job, jobs))
     same = {"kind": "random (on the evaluation episodes)", "seed": 0, "updates": 0}
     for split, held_out in (("train", False), ("test", True)):
-        result = done[("random", runs[0], held_out)]
+        result = done[("random", first, held_out)]
         same[split], same[f"{split}_length"] = result["success_rate"], result["eval_length"]
     rows = [same]
     for kind, group in groups:
@@ -305,6 +327,8 @@ def protocol(random_run: Path, runs: list[Path], supervised: list[Path], episode
             last = _last_row(run_dir)  # what the run did (a time limit may stop it before total_steps)
             row = {"run": str(run_dir), "kind": kind, "seed": config["seed"], "updates": int(last.get("updates", 0))}
             row["train_wall_seconds"] = last.get("wall_seconds")
+            if kind == "QT-Opt, then online":
+                row.update(_online_part(run_dir))
             row.update({k: v for k, v in done[("actions", run_dir)].items() if k in ("mean_dz", "down_share")})
             for split, held_out in (("train", False), ("test", True)):
                 result = done[("greedy", run_dir, held_out)]
@@ -337,7 +361,8 @@ def main() -> None:
         p.add_argument("--write", action="store_true")
     proto = sub.add_parser("protocol", help="QT-Opt's runs and the controls on training and test objects")
     proto.add_argument("--random", type=Path, required=True, help="the collection run (kukagrasp-random)")
-    proto.add_argument("--runs", type=Path, nargs="+", required=True, help="QT-Opt runs trained on its data")
+    proto.add_argument("--runs", type=Path, nargs="*", default=[], help="QT-Opt runs trained on its data")
+    proto.add_argument("--online", type=Path, nargs="*", default=[], help="runs started from one of those (--init-from)")
     proto.add_argument("--supervised", type=Path, nargs="*", default=[], help="the supervised control's runs")
     proto.add_argument("--episodes", type=int, default=50)
     proto.add_argument("--workers", type=int, default=2, help="evaluations at a time (one process each)")
@@ -411,10 +436,11 @@ def main() -> None:
                     )
                 )
     elif args.what == "protocol":
-        found = protocol(args.random, args.runs, args.supervised, args.episodes, args.workers)
+        found = protocol(args.random, args.runs, args.supervised, args.episodes, args.workers, args.online)
         if args.earlier:  # read before --write replaces it (it may be the same file)
             earlier = [r for r in json.loads(args.earlier.read_text())["rows"] if r.get("updates", 0) > 0]
-            found["rows"] += [{**r, "kind": f"{r['kind']} ({args.earlier_label})"} for r in earlier]
+            label = f" ({args.earlier_label})" if args.earlier_label else ""  # "": the rows as they were marked
+            found["rows"] += [{**r, "kind": r["kind"] + label} for r in earlier]
         random_rows = {r["objects"]: r for r in json.loads(args.random_test.read_text())} if args.random_test.exists() else {}
         grasps = int(found["collected"].get("replay_episodes", 0))
         lines = [
@@ -431,8 +457,14 @@ def main() -> None:
             + " - | - |",
         ]
         for r in found["rows"]:
+            updates = f"{r['offline_updates']:,} + {r['updates']:,}" if "offline_updates" in r else f"{r['updates']:,}"
+            kind = r["kind"] + (
+                f" ({r['online_grasps']:,} grasps, {r['online_env_steps']:,} env steps; exploring: {r['online_train_success']:.2f})"
+                if "online_grasps" in r
+                else ""
+            )
             lines.append(
-                f"| {r['kind']} | {r['seed']} | {r['updates']:,} | {_interval(r['train'], args.episodes)} | "
+                f"| {kind} | {r['seed']} | {updates} | {_interval(r['train'], args.episodes)} | "
                 f"{_interval(r['test'], args.episodes)} | {r['train_length']:.1f} / {r['test_length']:.1f} | "
                 + (f"{r['mean_dz']:.2f} / {r['down_share']:.2f} |" if "mean_dz" in r else "- |")
             )
