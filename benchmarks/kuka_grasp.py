@@ -21,10 +21,19 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from taskrl.envs.kuka_grasp import KukaGraspEnv, KukaGraspSettings, KukaGraspVectorEnv, random_grasp_action
+from taskrl.envs.kuka_grasp import STEPS, KukaGraspEnv, KukaGraspSettings, KukaGraspVectorEnv, random_grasp_action
 
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results"
+
+
+def random_episode(env: KukaGraspEnv, generator: torch.Generator) -> tuple[float, dict]:
+    """The rest of a reset episode acted by the authors' random policy: its last reward and info."""
+    for _ in range(STEPS):
+        _, reward, terminated, _, info = env.step(random_grasp_action(generator, 1)[0].numpy())
+        if terminated:
+            break
+    return reward, info
 
 
 def settle_check(drops: int, episodes: int, seed: int = 0) -> dict:
@@ -49,11 +58,7 @@ def settle_check(drops: int, episodes: int, seed: int = 0) -> dict:
             generator, wins = torch.Generator().manual_seed(seed), 0.0
             for k in range(episodes):
                 env.reset(seed=seed + 1_000 + k)
-                for _ in range(15):
-                    _, reward, terminated, _, _ = env.step(random_grasp_action(generator, 1)[0].numpy())
-                    if terminated:
-                        break
-                wins += reward
+                wins += random_episode(env, generator)[0]
             success[mode] = wins / episodes
     finally:
         for env in envs.values():
@@ -83,11 +88,7 @@ def _lift_job(job: tuple[int, int]) -> dict:
         try:
             for k in range(first, first + episodes):
                 env.reset(seed=k)  # a fresh simulation: the same episode both ways
-                generator = torch.Generator().manual_seed(k)
-                for _ in range(15):
-                    _, reward, terminated, _, info = env.step(random_grasp_action(generator, 1)[0].numpy())
-                    if terminated:
-                        break
+                reward, info = random_episode(env, torch.Generator().manual_seed(k))
                 rewards.append(reward)
                 if lift == "definition" and info["attempted"]:
                     found["attempts"].append({"outcome": bool(reward), "failed_at": info["lift_failed_at"]})
@@ -216,12 +217,11 @@ def greedy_actions(run_dir: Path, episodes: int, steps: int = 5) -> dict:
 
 
 def _last_row(run_dir: Path) -> dict:
-    """The last row of a run's ``metrics.csv`` (numbers as floats)."""
-    import csv
+    """The last row of a run's ``metrics.csv`` (its empty cells left out)."""
+    from taskrl.logger import read_metrics
 
-    with open(run_dir / "metrics.csv") as f:
-        rows = list(csv.DictReader(f))
-    return {k: float(v) for k, v in rows[-1].items() if v not in ("", None)} if rows else {}
+    rows = read_metrics(run_dir / "metrics.csv")
+    return {k: v for k, v in rows[-1].items() if v is not None} if rows else {}
 
 
 def random_on_evaluation_episodes(run_dir: Path, episodes: int, held_out: bool) -> dict:
@@ -284,16 +284,15 @@ def _online_part(run_dir: Path) -> dict:
     """What an online run (``--init-from``) added to the offline run it started from: its env steps, the grasps it
     collected (its replay's episodes past the preloaded ones, read at its first evaluation), its training success
     (exploring), and the offline run's updates before its own."""
-    import csv
+    from taskrl.logger import read_metrics
 
-    with open(run_dir / "metrics.csv") as f:
-        rows = list(csv.DictReader(f))
+    rows = read_metrics(run_dir / "metrics.csv")
     config = json.loads((run_dir / "config.json").read_text())
     before = _last_row(Path(config["checkpoints"]["init_from"]))
     return {
-        "online_env_steps": int(float(rows[-1]["env_steps"])),
-        "online_grasps": int(float(rows[-1]["replay_episodes"])) - int(float(rows[0]["replay_episodes"])),
-        "online_train_success": float(rows[-1]["train_success"]),
+        "online_env_steps": int(rows[-1]["env_steps"]),
+        "online_grasps": int(rows[-1]["replay_episodes"] - rows[0]["replay_episodes"]),
+        "online_train_success": rows[-1]["train_success"],
         "offline_updates": int(before.get("updates", 0)),
     }
 

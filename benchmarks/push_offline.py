@@ -47,8 +47,7 @@ def train_offline(learner: str, data_name: str, data: str, updates: int, eval_in
         taskrl.train(resume=out, **common)
     else:
         taskrl.train(
-            preset, out=out, seed=seed, offline=True, offline_data=data, eval_interval=eval_interval, save_replay=False,
-            **settings, **common,
+            preset, out=out, seed=seed, offline=True, offline_data=data, eval_interval=eval_interval, **settings, **common,
         )  # fmt: skip
     return str(out)
 
