@@ -25,6 +25,7 @@ LEARNERS = {
         "fetchpush-qtopt-her",
         {"target_samples": 64, "target_iterations": 2, "target_elites": 6},
     ),
+    "qtopt-mse": ("QT-Opt with a squared loss (SAC's) in place of the Huber loss", "fetchpush-qtopt-her", {"loss": "mse"}),
     "sac": (
         "SAC + HER with QT-Opt's network (`fetchpush-sac-her`, 128 x 128)",
         "fetchpush-sac-her",
