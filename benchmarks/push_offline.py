@@ -5,7 +5,8 @@ not (0.07 at 1M); both start from alike data (RESULTS, "FetchPush: how often eac
 block"). Here each learner trains ``--offline`` (no env step, hindsight relabelling as online) on the stored replay of
 an online run: SAC's, which holds pushes that succeed, and QT-Opt's, which does not. A learner that pushes from SAC's
 data but not from its own has a data problem (its exploration); one that fails on SAC's data too has a learner
-problem. Arms (``LEARNERS``): QT-Opt's defaults, QT-Opt with the 2 x 64 target search, SAC with QT-Opt's network.
+problem. Arms (``LEARNERS``): QT-Opt's defaults, QT-Opt with the 2 x 64 target search, QT-Opt with a squared loss in
+place of the Huber loss, SAC with QT-Opt's network.
 
     .venv/bin/python benchmarks/push_offline.py --data sac=RUN qtopt=RUN --learners qtopt sac --updates 40000 --write
 """
