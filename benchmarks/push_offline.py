@@ -5,8 +5,8 @@ not (0.07 at 1M); both start from alike data (RESULTS, "FetchPush: how often eac
 block"). Here each learner trains ``--offline`` (no env step, hindsight relabelling as online) on the stored replay of
 an online run: SAC's, which holds pushes that succeed, and QT-Opt's, which does not. A learner that pushes from SAC's
 data but not from its own has a data problem (its exploration); one that fails on SAC's data too has a learner
-problem. Arms (``LEARNERS``): QT-Opt's defaults, QT-Opt with the 2 x 64 target search, QT-Opt with a squared loss in
-place of the Huber loss, SAC with QT-Opt's network.
+problem. Arms (``LEARNERS``): QT-Opt with the Huber loss (its defaults before the squared loss), the same with the
+2 x 64 target search, QT-Opt's defaults (the squared loss), SAC with QT-Opt's network.
 
     .venv/bin/python benchmarks/push_offline.py --data sac=RUN qtopt=RUN --learners qtopt sac --updates 40000 --write
 """
@@ -19,14 +19,15 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
+HUBER = {"loss": "huber"}  # QT-Opt's loss on the goal envs until the squared loss replaced it
 LEARNERS = {
-    "qtopt": ("QT-Opt's defaults (`fetchpush-qtopt-her`)", "fetchpush-qtopt-her", {}),
+    "qtopt": ("QT-Opt with the Huber loss (`fetchpush-qtopt-her` before the squared loss)", "fetchpush-qtopt-her", HUBER),
     "qtopt-2x64": (
-        "QT-Opt with the 2 x 64 target search",
+        "QT-Opt with the Huber loss and the 2 x 64 target search",
         "fetchpush-qtopt-her",
-        {"target_samples": 64, "target_iterations": 2, "target_elites": 6},
+        {**HUBER, "target_samples": 64, "target_iterations": 2, "target_elites": 6},
     ),
-    "qtopt-mse": ("QT-Opt with a squared loss (SAC's) in place of the Huber loss", "fetchpush-qtopt-her", {"loss": "mse"}),
+    "qtopt-mse": ("QT-Opt's defaults (`fetchpush-qtopt-her`): the squared loss", "fetchpush-qtopt-her", {"loss": "mse"}),
     "sac": (
         "SAC + HER with QT-Opt's network (`fetchpush-sac-her`, 128 x 128)",
         "fetchpush-sac-her",

@@ -3,13 +3,15 @@
 Two tasks (``--task``): ``pixelpush`` (PixelPush from positions, ``pixelpush-state-qtopt-her``: the five-minute
 question) and ``fetchpush`` (FetchPush-v4, ``fetchpush-qtopt-her``: hours). Arms:
 
-- ``defaults``: the preset as it is (QT-Opt's defaults: the Bellman maximum over one CEM round of 32 candidates,
-  truncated CEM samples, noise 0.2 around the CEM action and 30% random actions throughout, independent twins);
+- ``defaults``: QT-Opt's defaults with the Huber loss, as they stood before the squared loss became the goal-env
+  presets' loss (the arm keeps its name so its earlier run folders resume): the Bellman maximum over one CEM round of
+  32 candidates, truncated CEM samples, noise 0.2 around the CEM action and 30% random actions throughout,
+  independent twins;
 - ``before``: QT-Opt as it was before those defaults (targets by the acting CEM's 2 x 64, clipped samples, no
-  noise, random actions 0.3 -> 0.1 over 20k env steps, lagged twins);
-- ``lagged``, ``paper-maximum``: the defaults with one piece as it was (lagged twins; the 2 x 64 target search);
-- ``mse``: the defaults with a squared loss in place of the Huber loss (offline on SAC's FetchPush replay it learnt
-  as fast as SAC: RESULTS, "FetchPush: each learner offline on each learner's data");
+  noise, random actions 0.3 -> 0.1 over 20k env steps, lagged twins; the Huber loss);
+- ``lagged``, ``paper-maximum``: the ``defaults`` arm with one piece as it was (lagged twins; the 2 x 64 target search);
+- ``mse``: the presets as they are: the ``defaults`` arm with a squared loss in place of the Huber loss (offline on
+  SAC's FetchPush replay it learnt as fast as SAC: RESULTS, "FetchPush: each learner offline on each learner's data");
 - ``sac``: SAC + HER (the task's SAC preset) with QT-Opt's network and update ratio.
 
 Each run is its own process with one torch thread (``--workers`` at a time); a run directory holding checkpoints is
@@ -19,7 +21,7 @@ run's env steps to 0.9, its success at fixed points, its update and env-step rat
 clips) at the ``--marks``. Raw curves: ``benchmarks/results/qtopt_push_<task>.json``.
 
     .venv/bin/python benchmarks/qtopt_push.py --task pixelpush --seeds 0 1 --workers 2 --write
-    .venv/bin/python benchmarks/qtopt_push.py --task fetchpush --arms defaults sac --seeds 0 1 --budget 1000000 --hours 1.4
+    .venv/bin/python benchmarks/qtopt_push.py --task fetchpush --arms mse sac --seeds 0 1 --budget 1000000 --hours 1.4
 """
 
 from __future__ import annotations
@@ -41,18 +43,20 @@ BEFORE = {
     "target_samples": 64,
     "target_iterations": 2,
     "target_elites": 6,
+    "loss": "huber",
 }
+HUBER = {"loss": "huber"}  # the presets' loss until the squared loss replaced it
 ARMS = {
-    "defaults": ("QT-Opt's defaults", {}),
+    "defaults": ("QT-Opt's defaults with the Huber loss (the presets before the squared loss)", HUBER),
     # reported, not re-runnable: the noise has followed `cem.truncate` since
-    "clipped-noise": ("the defaults with exploration noise clipped to the box (commit d15eae3)", {}),
+    "clipped-noise": ("the Huber defaults with exploration noise clipped to the box (commit d15eae3)", {}),
     "before": ("QT-Opt as it was (2 x 64 target search, clipped samples, no noise, 0.3 -> 0.1 random, lagged)", BEFORE),
-    "lagged": ("the defaults with lagged twins", {"twin": "lagged"}),
+    "lagged": ("the Huber defaults with lagged twins", {**HUBER, "twin": "lagged"}),
     "paper-maximum": (
-        "the defaults with the paper's 2 x 64 target search",
-        {"target_samples": 64, "target_iterations": 2, "target_elites": 6},
+        "the Huber defaults with the paper's 2 x 64 target search",
+        {**HUBER, "target_samples": 64, "target_iterations": 2, "target_elites": 6},
     ),
-    "mse": ("the defaults with a squared loss (SAC's critic loss) in place of the Huber loss", {"loss": "mse"}),
+    "mse": ("QT-Opt's defaults: the squared loss (SAC's critic loss)", {"loss": "mse"}),
     "sac": ("SAC + HER with QT-Opt's network and update ratio", {}),
 }
 #: task -> (QT-Opt preset, SAC preset, evaluation marks in env steps, default budget)
@@ -197,7 +201,9 @@ def table(results: list[dict], marks: tuple[int, ...]) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--task", choices=list(TASKS), default="pixelpush")
-    parser.add_argument("--arms", nargs="+", default=["defaults", "before", "lagged", "paper-maximum", "sac"], choices=list(ARMS))
+    parser.add_argument(
+        "--arms", nargs="+", default=["mse", "defaults", "before", "lagged", "paper-maximum", "sac"], choices=list(ARMS)
+    )
     parser.add_argument("--note", default="", help="a note for the written section (where runs came from)")
     parser.add_argument(
         "--earlier", nargs="*", default=[], metavar="FILE:RUN", help="also report runs kept only as another benchmark's curve"

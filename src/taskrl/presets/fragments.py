@@ -10,8 +10,11 @@ from __future__ import annotations
 CONTINUOUS_HER = {"her": "future", "her_k": 4, "batch_size": 256}
 SAC = {"algo": "sac"}
 # QT-Opt bounds Q as its paper does; the goal envs' rewards are -1 / 0, so by clipping targets to
-# [-1/(1-gamma), 0] (the hindsight paper's clip), not by the paper's sigmoid for 0/1 rewards.
-QTOPT = {"algo": "qtopt", "clip_target": True}
+# [-1/(1-gamma), 0] (the hindsight paper's clip), not by the paper's sigmoid for 0/1 rewards. The
+# squared loss, not the Huber loss: Q spans [-1/(1-gamma), 0], errors above 1 are common, and the
+# Huber loss weighs each of those by its sign alone; on FetchPush it learnt 3-5x slower offline and
+# never took off online (benchmarks/RESULTS.md, "QT-Opt + HER learning to push (fetchpush)").
+QTOPT = {"algo": "qtopt", "clip_target": True, "loss": "mse"}
 POINTREACH = {
     **CONTINUOUS_HER,
     "env": "pointreach",
