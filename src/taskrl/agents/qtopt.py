@@ -25,7 +25,8 @@ Bounded Q. Loss ``cross_entropy`` is the paper's for rewards in [0, 1]: the netw
 Q = sigmoid(logit), targets are clipped to [0, 1] and the loss is the log loss
 -(y log Q + (1 - y) log(1 - Q)). For rewards in {-1, 0} (the goal envs' sparse reward) ``huber`` /
 ``mse`` regress Q directly and ``clip_target`` clips targets to [-1/(1-gamma), 0], as the hindsight
-paper does; the presets on goal envs with that reward (pointreach, fetchreach, fetchpush) turn it on, and
+paper does; the presets on goal envs with that reward (pointreach, fetchreach, fetchpush) turn it on with
+``mse`` (``huber`` weighs every error above 1 by its sign alone, and Q spans [-50, 0] there), and
 ``grasp-qtopt-pixels`` bounds Q by ``cross_entropy`` instead (its reward is 0/1). The first update checks that the batch's rewards lie
 in the range the chosen bound assumes and otherwise stops with one line naming the setting.
 
@@ -91,8 +92,8 @@ class QTOptConfig:
         lr: Adam learning rate.
         gamma: discount factor.
         hidden_sizes: widths of the Q-network's hidden layers.
-        loss: ``huber``, ``mse``, or ``cross_entropy`` (log loss on Q = sigmoid(logit), rewards
-            in [0, 1], targets clipped to [0, 1], as in the paper).
+        loss: ``huber``, ``mse`` (the goal-env presets'), or ``cross_entropy`` (log loss on Q = sigmoid(logit),
+            rewards in [0, 1], targets clipped to [0, 1], as in the paper).
         tau: Polyak factor of the target networks at every update.
         twin: ``lagged`` (the paper's: the second target network is a copy of the first taken every
             ``target2_interval`` updates) or ``independent`` (two online networks regressed to the
