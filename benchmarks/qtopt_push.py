@@ -59,6 +59,8 @@ ARMS = {
     "mse": ("QT-Opt's defaults: the squared loss (SAC's critic loss)", {"loss": "mse"}),
     "sac": ("SAC + HER with QT-Opt's network and update ratio", {}),
 }
+#: the QT-Opt loss of the arms whose run names do not say it (the figure's legend)
+LOSSES = {"defaults": "Huber loss", "mse": "squared loss"}
 #: task -> (QT-Opt preset, SAC preset, evaluation marks in env steps, default budget)
 TASKS = {
     "pixelpush": ("pixelpush-state-qtopt-her", "pixelpush-state-sac-her", (50_000, 100_000, 150_000), 150_000),
@@ -149,7 +151,8 @@ def figure(results: list[dict], path: Path, title: str) -> None:
     for r in results:
         arm = r["run"].rsplit("-s", 1)[0]
         steps, success = zip(*r["curve"])
-        line = ax.plot([s / 1e3 for s in steps], success, marker=".", color=colours.get(arm), label=r["run"])[0]
+        label = f"{r['run']} ({LOSSES[arm]})" if arm in LOSSES else r["run"]
+        line = ax.plot([s / 1e3 for s in steps], success, marker=".", color=colours.get(arm), label=label)[0]
         colours.setdefault(arm, line.get_color())
     ax.axhline(TARGET, color="grey", linestyle="--", linewidth=0.8)
     ax.set_xlabel("env steps (thousands)")
@@ -157,7 +160,7 @@ def figure(results: list[dict], path: Path, title: str) -> None:
     ax.set_ylim(0, 1.02)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
-    ax.set_title(title)
+    ax.set_title(title, fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
 
