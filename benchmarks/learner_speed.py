@@ -200,23 +200,36 @@ def _with_compile(ours, compile_mode: str, per_call: int, *args):
     return ours(*args, compile_mode, per_call)
 
 
-def _later_run(key: str, seed: int, budget: int, interval: int, target: float) -> dict:
-    """What a user's later run with no flag gets: the same training in a new process, after an earlier process (not
-    timed) compiled the same graphs into the on-disk cache: a folder of this arm's own, so no other arm warms it and
-    no in-memory cache of this process helps."""
+#: what a no-flag arm's process finds in its compile cache: nothing (the machine's first compile), another
+#: network's graphs (a first run of these shapes on a machine that compiled before), or these shapes' graphs (a later run)
+CACHE_BEFORE = {"taskrl, no flag, first compile on the machine": "nothing", "taskrl, no flag": "other shapes",
+                "taskrl, no flag, later run": "same shapes"}  # fmt: skip
+
+
+def _no_flag_run(key: str, before: str, seed: int, budget: int, interval: int, target: float) -> dict:
+    """A user's run with no flag, in a new process with a compile cache of this arm's own (so no other arm warms it
+    and no in-memory cache of this process helps), holding ``before`` (`CACHE_BEFORE`): for "other shapes" an earlier
+    process (not timed) compiled the other DQN case's update, for "same shapes" it ran this very training."""
     import os
     import shutil
     import subprocess
     import sys
 
-    cache = tempfile.mkdtemp(prefix="taskrl-inductor-later-")
+    cache = tempfile.mkdtemp(prefix="taskrl-inductor-arm-")
     env = {**os.environ, "TORCHINDUCTOR_CACHE_DIR": cache}
-    command = [sys.executable, str(Path(__file__).resolve()), "one", "--cases", key, "--seeds", str(seed)]
-    command += ["--throughput-steps", str(budget)]
-    try:
-        for _ in range(2):  # the first run fills the cache; the second is the one measured
-            done = subprocess.run(command, env=env, check=True, capture_output=True, text=True)
+
+    def one_run(case: str, steps: int, compile_mode: str) -> dict:
+        command = [sys.executable, str(Path(__file__).resolve()), "one", "--cases", case, "--seeds", str(seed)]
+        command += ["--throughput-steps", str(steps), "--one-compile", compile_mode]
+        done = subprocess.run(command, env=env, check=True, capture_output=True, text=True)
         return json.loads(done.stdout.strip().splitlines()[-1])
+
+    try:
+        if before == "other shapes":
+            one_run("dqn256" if key == "dqn32" else "dqn32", 300, "default")
+        elif before == "same shapes":
+            one_run(key, budget, "auto")
+        return one_run(key, budget, "auto")
     finally:
         shutil.rmtree(cache, ignore_errors=True)
 
@@ -226,40 +239,39 @@ EQUAL_CASES = {"dqn32": lambda: dqn_case(32, (64, 64)), "dqn256": lambda: dqn_ca
 
 
 def one(args) -> None:
-    """Print the result of one no-flag taskrl throughput run (``--cases KEY --seeds S --throughput-steps N``), for
-    `_later_run`'s processes."""
+    """Print the result of one taskrl throughput run (``--cases KEY --seeds S --throughput-steps N``, compiled as
+    ``--one-compile``, updates per call auto), for `_no_flag_run`'s processes."""
     _, _, ours = EQUAL_CASES[args.cases[0]]()
-    print(json.dumps(_with_compile(ours, "auto", 0, args.seeds[0], args.throughput_steps, 10**12, 0.0)), flush=True)
+    result = _with_compile(ours, args.one_compile, 0, args.seeds[0], args.throughput_steps, 10**12, 0.0)
+    print(json.dumps(result), flush=True)
 
 
-#: SB3's updates per second on its own env, one update per env step (benchmarks/sb3_env_probe.py, Intel Xeon, RESULTS
-#: "Learner speed at equal work against Stable-Baselines3"): what ``--slice-seconds`` sizes the equal work by
-SB3_UPDATES_PER_S = {"dqn32": 462, "dqn256": 176}
+#: env steps of SB3's run that sizes ``--slice-seconds``
+SB3_PROBE_STEPS = 5_000
 
 
 def equal(args) -> tuple[str, dict]:
     budgets = {"dqn32": (100_000, 20_000), "dqn256": (100_000, 20_000), "sac": (20_000, 6_000)}
     if args.throughput_steps:
         budgets = {key: (to_target, args.throughput_steps) for key, (to_target, _) in budgets.items()}
-    if args.slice_seconds:  # equal work sized to last about that long for SB3 (its updates/s measured on this machine class)
-        budgets = {
-            key: (to_target, int(args.slice_seconds * SB3_UPDATES_PER_S[key]) if key in SB3_UPDATES_PER_S else steps)
-            for key, (to_target, steps) in budgets.items()
-        }
     out, lines = {}, []
     reused = _earlier_runs(args.reuse_log, args.seeds)
     for key in args.cases:
         title, sb3, ours = EQUAL_CASES[key]()
         to_target, throughput_steps = budgets[key]
+        if args.slice_seconds:  # equal work that SB3 does in about that long, at its rate measured here and now
+            probe = sb3(args.seeds[0], SB3_PROBE_STEPS, 10**12, 0.0)
+            throughput_steps = int(args.slice_seconds * probe["updates"] / probe["seconds"])
+            print(f"{key}: SB3 made {probe['updates'] / probe['seconds']:.0f} updates/s over {SB3_PROBE_STEPS:,} env steps: "
+                  f"{args.slice_seconds:.0f} s slices are {throughput_steps:,} env steps", flush=True)  # fmt: skip
         runners = {
             "sb3": sb3,
             "taskrl": functools.partial(_with_compile, ours, "off", 1),
             "taskrl compiled": functools.partial(_with_compile, ours, "default", 1),
             "taskrl compiled, 4 per call": functools.partial(_with_compile, ours, "default", 4),
-            # what a user gets with no flag: --compile auto --updates-per-call auto chose from the budget
-            "taskrl, no flag": functools.partial(_with_compile, ours, "auto", 0),
-            # the same, as a user's later run: the graphs compiled by an earlier process, from the on-disk cache
-            "taskrl, no flag, later run": functools.partial(_later_run, key),
+            # what a user gets with no flag (--compile auto --updates-per-call auto chose from the budget), each
+            # in a new process whose compile cache holds what `CACHE_BEFORE` says
+            **{lib: functools.partial(_no_flag_run, key, before) for lib, before in CACHE_BEFORE.items()},
         }
         runners = {lib: run for lib, run in runners.items() if not args.libs or lib in args.libs or lib == "sb3"}
         runs: dict[str, dict[str, list]] = {lib: {"target": [], "throughput": []} for lib in runners}
@@ -301,16 +313,20 @@ def equal(args) -> tuple[str, dict]:
                 f"{_median(p, 'env_steps_per_s'):,.0f} | {_median(p, 'updates_per_s'):,.0f} | {after:,.0f} | "
                 f"{_median(p, 'updates_per_s') / sb3_rate:.2f}x ({after / sb3_rate:.2f}x after compiling) |"
             )
-        if "taskrl, no flag" in runs and runs["taskrl, no flag"]["throughput"]:
-            chosen = sorted({r.get("path", "?") for r in runs["taskrl, no flag"]["throughput"]})
+        no_flag = [lib for lib in CACHE_BEFORE if lib in runs and runs[lib]["throughput"]]
+        if no_flag:
+            chosen = sorted({r.get("path", "?") for lib in no_flag for r in runs[lib]["throughput"]})
             seconds = {lib: _median(r["throughput"], "seconds") for lib, r in runs.items() if r["throughput"]}
-            later = "taskrl, no flag, later run"
             lines.append(
-                f"\nWith no flag the run chose: {'; '.join(chosen)}. Seconds for the same work (compile included): "
+                f"\nWith no flag the runs chose: {'; '.join(chosen)}. Seconds for the same work (compile included): "
                 + ", ".join(f"{lib} {s:.1f}" for lib, s in seconds.items())
-                + f"; SB3 / no flag: {seconds['sb3'] / seconds['taskrl, no flag']:.2f}x"
-                + (f", SB3 / no flag, later run: {seconds['sb3'] / seconds[later]:.2f}x" if later in seconds else "")
-                + (f", eager / no flag: {seconds['taskrl'] / seconds['taskrl, no flag']:.2f}x" if "taskrl" in seconds else "")
+                + "; SB3 / "
+                + ", SB3 / ".join(f"{lib.removeprefix('taskrl, ')}: {seconds['sb3'] / seconds[lib]:.2f}x" for lib in no_flag)
+                + (
+                    f"; eager / no flag: {seconds['taskrl'] / seconds['taskrl, no flag']:.2f}x"
+                    if {"taskrl", "taskrl, no flag"} <= set(seconds)
+                    else ""
+                )
             )
         if runs["sb3"]["target"]:
             sb3_seconds = _median(runs["sb3"]["target"], "seconds")
@@ -741,14 +757,14 @@ def loop(args) -> tuple[str, dict]:
     import taskrl.agents.base as base
     import taskrl.agents.dqn as dqn
     import taskrl.envs.bitflip as bitflip
-    import taskrl.replay.episodes as episodes
+    import taskrl.replay.storage as storage
     from taskrl.training import offpolicy
 
     pieces = {
         "update": (dqn.DQNAgent, "update"),
         "act": (base.Agent, "act"),
         "env step": (bitflip.BitFlip, "step"),
-        "store": (episodes.EpisodeReplay, "add"),
+        "store": (storage.EpisodeReplay, "add"),
     }
     out, rows = {}, []
     for batch, hidden in ((32, (64, 64)), (256, (256, 256))):
@@ -817,6 +833,7 @@ def main() -> None:
     )
     parser.add_argument("--seconds", type=float, default=6.0, help="bound: timing per case and path, over all rounds")
     parser.add_argument("--rounds", type=int, default=12, help="bound: rounds of the side-by-side timing")
+    parser.add_argument("--one-compile", default="auto", help="one: the run's --compile")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (both libraries)")
     parser.add_argument("--write", action="store_true", help="append the results to benchmarks/RESULTS.md")
     parser.add_argument(

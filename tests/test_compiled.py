@@ -211,6 +211,22 @@ def test_each_agent_runs_its_own_graph():
 
 
 @pytest.mark.slow
+def test_a_compiled_dqn_update_is_one_graph_and_refreshes_its_target_on_schedule():
+    """The target refresh runs after the compiled step, so the refreshes add no second graph (a quarter to a third of
+    the compile seconds); the target is still copied at every third update and only then."""
+    torch.manual_seed(0)
+    agent = DQNAgent(("observation",), 6, 4, DQNConfig(hidden_sizes=(16,), target_update_interval=3, tau=1.0))
+    agent.compile("default", say=lambda line: None)
+    graphs = torch._dynamo.utils.counters["stats"]["unique_graphs"]
+    for update in range(1, 8):
+        agent.update(discrete_batch(seed=update))
+        copied = all(torch.equal(t, p) for t, p in zip(agent._target_params, agent._params))
+        assert copied == (update % 3 == 0), update
+    assert agent.step.active
+    assert torch._dynamo.utils.counters["stats"]["unique_graphs"] - graphs == 1
+
+
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["dqn", "td3", "qtopt", "sac"])
 def test_k_updates_in_one_call_are_k_updates(name, same_random_numbers):
     """Eagerly K = 4; compiled K = 2, which holds both schedule flags of each agent (a target refresh or a

@@ -167,12 +167,12 @@ class Agent:
         """The update step as this agent runs it: `learn` eagerly, or compiled after `compile`."""
         return self.learn(*args)
 
-    def counted_step(self, batch: Any, *args: Any) -> dict[str, torch.Tensor]:
-        """One update: count it, then `step` on ``batch`` with its `schedule` flags and ``args``."""
+    def counted_step(self, batch: Any, *args: Any, flags: tuple | None = None) -> dict[str, torch.Tensor]:
+        """One update: count it, then `step` on ``batch`` with its `schedule` flags (or ``flags``) and ``args``."""
         if self.updates == 0:
             self.check_batch(batch)
         self.updates += 1
-        return self.step(batch, *self.schedule(self.updates), *args)
+        return self.step(batch, *(self.schedule(self.updates) if flags is None else flags), *args)
 
     def check_batch(self, batch: Any) -> None:
         """Called with the first update's batch: raise ``ConfigError`` (one line naming the setting) for data

@@ -206,8 +206,14 @@ class DQNAgent(Agent):
             return td_target(batch.reward, batch.terminated, next_value, cfg.gamma, clip)
 
     def update(self, batch: Batch) -> dict[str, torch.Tensor]:
-        """One gradient step on the TD error; returns detached scalars (``loss``, ``q_mean``)."""
-        return self.counted_step(batch)
+        """One gradient step on the TD error, then the target refresh when due; returns detached scalars (``loss``,
+        ``q_mean``). The refresh runs after the step, not inside it, so that a compiled update is one graph: a
+        refresh inside would make a second graph, about a third of DQN (64, 64) / 32's compile seconds
+        (benchmarks/RESULTS.md, "Compile seconds of one graph and of two"). `update_many` keeps it inside."""
+        metrics = self.counted_step(batch, flags=(False,))
+        if self.schedule(self.updates)[0]:
+            self.update_target()
+        return metrics
 
     def schedule(self, update: int) -> tuple[bool]:
         """``(refresh_target,)``: every ``target_update_interval`` updates."""
