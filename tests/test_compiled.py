@@ -387,6 +387,33 @@ def test_a_compile_an_earlier_run_made_is_estimated_at_a_later_runs_cost(monkeyp
     assert cached_calls(other) == set()
 
 
+def test_a_machines_first_compile_is_estimated_with_its_one_time_cost(monkeypatch, tmp_path):
+    """Where nothing compiled on the machine before, a compile costs `MACHINE_FIRST_SECONDS` more: between the two
+    break-evens auto stays eager on a fresh machine and compiles on one that compiled other shapes before."""
+    from taskrl.agents.compile_rule import (
+        MACHINE_FIRST_SECONDS,
+        MEASURED,
+        choose_compile,
+        machine_compiled_before,
+        remember_compiled,
+    )
+
+    monkeypatch.setenv("TORCHINDUCTOR_CACHE_DIR", str(tmp_path))
+    dqn = MEASURED[0]  # DQN (64, 64) / 32
+    updates = int((dqn.compile_seconds + 0.5 * MACHINE_FIRST_SECONDS) / ((dqn.eager_ms - dqn.compiled_ms) / 1e3))
+    config, _ = _settled(
+        "bitflip-her", batch_size=32, hidden_sizes=(64, 64), updates_per_step=1.0, learning_starts=0, updates_per_call=1
+    )
+    config = dataclasses.replace(config, compile="auto", total_steps=updates)
+    assert not machine_compiled_before()
+    fresh = choose_compile(config, compiles=True, many_allowed=False, machine_compiled=machine_compiled_before())
+    assert fresh.mode == "off" and "nothing compiled on this machine before" in fresh.reason
+    other = dataclasses.replace(config, env_settings=dataclasses.replace(config.env_settings, n_bits=9))
+    remember_compiled(other, 1)  # another network compiled here before
+    assert machine_compiled_before()
+    assert choose_compile(config, compiles=True, many_allowed=False, machine_compiled=machine_compiled_before()).mode == "default"
+
+
 def test_the_command_line_takes_auto_and_a_run_says_its_choice_first(tmp_path):
     from helpers import cli_train
 

@@ -1,7 +1,7 @@
 """``--compile auto`` and ``--updates-per-call auto`` (the defaults): the library chooses the faster path.
 
-Compiling an update costs tens of seconds before the first update and saves a share of every later one, so
-it pays only after enough updates. For each path (eager; compiled, one update per call; compiled, four per
+Compiling an update costs seconds to tens of seconds before the first update and saves a share of every later one,
+so it pays only after enough updates. For each path (eager; compiled, one update per call; compiled, four per
 call) the run's time is estimated as ``compile seconds + planned updates x ms per update`` from `MEASURED`,
 and the fastest path is taken. A run's planned updates are its ``offline_updates`` plus
 ``updates_per_step x (total_steps - learning_starts)`` (an offline run's ``total_steps`` are updates).
@@ -9,7 +9,8 @@ and the fastest path is taken. A run's planned updates are its ``offline_updates
 A compile is cheaper where an earlier run on this machine compiled the same shapes (the same algorithm, env
 settings, widths, batch, updates per call, device and torch): torch's on-disk cache then serves most of the work, and
 the estimate takes ``LATER_RUN_FACTOR`` of the first compile's seconds. A run that compiled leaves a marker of its
-shapes in the compile cache (`remember_compiled`) for later runs to find (`cached_calls`).
+shapes in the compile cache (`remember_compiled`) for later runs to find (`cached_calls`). A machine's first compile
+costs `MACHINE_FIRST_SECONDS` more.
 
 Networks that read pictures (conv encoders) have no measured case: ``auto`` keeps them eager. Other cases not
 measured take the times of the measured case of the same algorithm nearest in work (batch x the
@@ -37,14 +38,16 @@ __all__ = [
     "MeasuredUpdate",
     "cached_calls",
     "choose_compile",
+    "machine_compiled_before",
     "planned_updates",
     "remember_compiled",
 ]
 
-#: compiling four updates per call took 2.24x the seconds of one (49.2 against 22.0 s, DQN (256, 256) / 256:
-#: benchmarks/RESULTS.md, "Compile seconds of a first and a later run")
-MANY_COMPILE_FACTOR = 2.24
 MANY = 4  # updates per call of the compiled-many path
+#: a machine's first compile also builds what every later one reuses, whatever its shapes (the C++ compiler's checks,
+#: torch's precompiled header): DQN (64, 64) / 32 compiled in 9.2 s on a fresh cache and in 5.1 s where another
+#: network had compiled before (AMD EPYC, 2 runs each; benchmarks/RESULTS.md, "Learner speed with no flag")
+MACHINE_FIRST_SECONDS = 4.1
 #: a later run of the same shapes compiled in 0.26x a first run's seconds, with one update per call (5.8 against 22.0 s)
 #: and with four (12.6 against 49.2 s): DQN (256, 256) / 256, benchmarks/RESULTS.md, "Compile seconds of a first and a
 #: later run"
@@ -62,7 +65,9 @@ class MeasuredUpdate:
         eager_ms: one eager update.
         compiled_ms: one compiled update, one per call.
         compiled_many_ms: one compiled update, four per call.
-        compile_seconds: compiling the one-per-call graph in a first run (no cache).
+        compile_seconds: compiling the one-per-call graph in a first run of these shapes (on a machine that compiled
+            other shapes before: `MACHINE_FIRST_SECONDS` apart).
+        compile_many_seconds: the same for the four-per-call graphs.
     """
 
     algo: str
@@ -72,20 +77,23 @@ class MeasuredUpdate:
     compiled_ms: float
     compiled_many_ms: float
     compile_seconds: float
+    compile_many_seconds: float
 
     @property
     def work(self) -> float:
         return update_work(self.hidden_sizes, self.batch_size)
 
 
-#: Intel Xeon, 2 cores, one torch thread, torch 2.13.0, a fresh compile cache: the first three rows measured
-#: 2026-12-05 (`benchmarks/learner_speed.py bound --only "DQN (64, 64) / 32" "DQN (256, 256) / 256, as" "SAC (256, 256)"`,
-#: benchmarks/results/learner_bound_auto_table.json), MT10's 2026-12-03 (learner_bound_mt10_xeon.json)
+#: AMD EPYC, 2 cores, one torch thread, torch 2.13.0, a compile cache where a throwaway update had compiled: the first
+#: three rows measured 2026-12-06 (`benchmarks/learner_speed.py bound --only "DQN (64, 64) / 32" "DQN (256, 256) / 256,
+#: as" "SAC (256, 256)"`, benchmarks/results/learner_bound_auto_table.json); MT10's on Intel Xeon, 2026-12-03
+#: (learner_bound_mt10_xeon.json), its four-per-call compile not measured: taken as 2.24x its one-per-call compile, the
+#: ratio DQN (256, 256) / 256 had then (benchmarks/RESULTS.md, "Compile seconds of a first and a later run")
 MEASURED: tuple[MeasuredUpdate, ...] = (
-    MeasuredUpdate("dqn", (64, 64), 32, 0.74, 0.18, 0.13, 20.8),
-    MeasuredUpdate("dqn", (256, 256), 256, 2.64, 1.63, 1.51, 10.1),
-    MeasuredUpdate("sac", (256, 256), 256, 8.61, 5.85, 5.80, 30.2),
-    MeasuredUpdate("sac", (400, 400, 400), 1280, 199.20, 176.50, 174.44, 70.56),
+    MeasuredUpdate("dqn", (64, 64), 32, 0.39, 0.093, 0.058, 3.2, 17.7),
+    MeasuredUpdate("dqn", (256, 256), 256, 2.07, 1.586, 1.541, 4.4, 19.2),
+    MeasuredUpdate("sac", (256, 256), 256, 8.54, 6.734, 6.396, 18.8, 34.9),
+    MeasuredUpdate("sac", (400, 400, 400), 1280, 199.20, 176.50, 174.44, 70.56, 158.1),
 )
 
 
@@ -159,8 +167,19 @@ def remember_compiled(config: Any, per_call: int) -> None:
         pass
 
 
+def machine_compiled_before() -> bool:
+    """Whether a taskrl run compiled anything on this machine before (any marker of `remember_compiled`)."""
+    folder = Path(compile_cache_dir()) / "taskrl-compiled-shapes"
+    return folder.is_dir() and any(folder.iterdir())
+
+
 def choose_compile(
-    config: Any, compiles: bool, many_allowed: bool, pictures: bool = False, cached: set[int] = frozenset()
+    config: Any,
+    compiles: bool,
+    many_allowed: bool,
+    pictures: bool = False,
+    cached: set[int] = frozenset(),
+    machine_compiled: bool = True,
 ) -> CompileChoice:
     """The path of a run whose ``compile`` and ``updates_per_call`` may be ``auto`` (``updates_per_call`` 0).
 
@@ -171,6 +190,8 @@ def choose_compile(
         pictures: whether its networks read camera pictures (conv encoders: no case measured, so ``auto`` stays eager).
         cached: the updates per call whose graphs an earlier run of the same shapes compiled (`cached_calls`): their
             compile is estimated at `LATER_RUN_FACTOR` of a first one.
+        machine_compiled: whether anything compiled on this machine before (`machine_compiled_before`); if not, a
+            compile also costs `MACHINE_FIRST_SECONDS`.
     """
     mode_auto, calls_auto = config.compile == "auto", config.updates_per_call == 0
     if config.compile == "off" or not (mode_auto or calls_auto):  # set by the user: nothing to choose or say
@@ -184,7 +205,10 @@ def choose_compile(
     case = nearest_measured(config.algo, tuple(config.algo_settings.hidden_sizes), config.batch_size)
 
     def compiling(k: int) -> float:  # seconds of compiling k updates per call: a first run's, or a later run's
-        return (LATER_RUN_FACTOR if k in cached else 1.0) * (MANY_COMPILE_FACTOR if k > 1 else 1.0) * case.compile_seconds
+        if k in cached:
+            return LATER_RUN_FACTOR * (case.compile_many_seconds if k > 1 else case.compile_seconds)
+        first = 0.0 if machine_compiled else MACHINE_FIRST_SECONDS
+        return first + (case.compile_many_seconds if k > 1 else case.compile_seconds)
 
     eager = n * case.eager_ms / 1e3
     one = compiling(1) + n * case.compiled_ms / 1e3
@@ -204,6 +228,8 @@ def choose_compile(
         f"{n:,} planned updates, estimated {eager:.0f} s eager, {one:.0f} s compiled and {many:.0f} s compiled four per "
         f"call, from the measured {case.algo.upper()} {case.hidden_sizes} / {case.batch_size}"
     )
+    if not machine_compiled and not cached:
+        basis += f"; nothing compiled on this machine before: {MACHINE_FIRST_SECONDS} s more"
     if cached:
         calls = " and ".join(str(k) for k in sorted(cached))
         basis += (

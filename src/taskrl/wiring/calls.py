@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any
 from rich.console import Console
 
 from taskrl import config as config_io
-from taskrl.agents.compile_rule import cached_calls, choose_compile, remember_compiled
+from taskrl.agents.compile_rule import cached_calls, choose_compile, machine_compiled_before, remember_compiled
 from taskrl.agents.registry import algorithm
 from taskrl.config import TrainConfig
 from taskrl.envs.registry import ENV_FAMILIES, family_for_source
@@ -117,7 +117,8 @@ def settle_compile(config: TrainConfig, spec: AlgorithmSpec, family: EnvFamily, 
     and env family (a `RunPlan`'s); why goes first in ``notes``."""
     many = spec.loop == "off_policy" and not config.cluster.distributed and not config.data.offline
     pictures = family.images
-    choice = choose_compile(config, spec.compiles, many, pictures, cached_calls(config) if spec.compiles else set())
+    cached = cached_calls(config) if spec.compiles else set()
+    choice = choose_compile(config, spec.compiles, many, pictures, cached, machine_compiled_before() if spec.compiles else True)
     if choice.reason:  # the run's first line
         notes.insert(0, choice.reason)
     return dataclasses.replace(config, compile=choice.mode, updates_per_call=choice.updates_per_call)
