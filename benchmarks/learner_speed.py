@@ -259,7 +259,10 @@ def equal(args) -> tuple[str, dict]:
     for key in args.cases:
         title, sb3, ours = EQUAL_CASES[key]()
         to_target, throughput_steps = budgets[key]
-        if args.slice_seconds:  # equal work that SB3 does in about that long, at its rate measured here and now
+        earlier_sb3 = reused.get((key, "sb3", "throughput", args.seeds[0])) if "sb3" in args.reuse_libs else None
+        if args.slice_seconds and earlier_sb3:  # the slice the reused runs were measured on
+            throughput_steps = earlier_sb3["env_steps"]
+        elif args.slice_seconds:  # equal work that SB3 does in about that long, at its rate measured here and now
             probe = sb3(args.seeds[0], SB3_PROBE_STEPS, 10**12, 0.0)
             throughput_steps = int(args.slice_seconds * probe["updates"] / probe["seconds"])
             print(f"{key}: SB3 made {probe['updates'] / probe['seconds']:.0f} updates/s over {SB3_PROBE_STEPS:,} env steps: "
