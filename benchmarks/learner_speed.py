@@ -764,8 +764,9 @@ def _clocked_sampler(clock: _Clock, sampler, *args, **kwargs):
 
 
 def loop(args) -> tuple[str, dict]:
-    """Time each piece of the off-policy loop in a real run (DQN + HER at the equal-work settings) by
-    wrapping it with a clock; the first 300 calls of each piece (compilation, warm-up) are left out."""
+    """The parts of one env step of a real run (DQN + HER at the equal-work settings, 2 envs, one update per env step),
+    each wrapped with a clock (the first 300 calls of each, compilation and warm-up, left out), against the bound of
+    the update's matrix products and SB3's whole step on the same case (its throughput run of as many env steps)."""
     import taskrl.agents.base as base
     import taskrl.agents.dqn as dqn
     import taskrl.envs.bitflip as bitflip
@@ -778,8 +779,14 @@ def loop(args) -> tuple[str, dict]:
         "env step": (bitflip.BitFlip, "step"),
         "store": (storage.EpisodeReplay, "add"),
     }
+    per_env_step = {"update": 1.0, "sample + relabel": 1.0, "act": 0.5, "env step": 0.5, "store": 0.5}  # 2 envs
     out, rows = {}, []
     for batch, hidden in ((32, (64, 64)), (256, (256, 256))):
+        agent, one_batch, _ = bitflip_agent_and_batch(batch, hidden, False)
+        flops = update_flops(agent, one_batch)
+        _, sb3, _ = dqn_case(batch, hidden)
+        sb3_run = sb3(0, args.loop_steps, 10**12, 0.0)
+        sb3_ms = sb3_run["seconds"] / sb3_run["env_steps"] * 1e3
         for compile_mode in ("off", "default"):
             clock = _Clock(skip=300)
             originals = {name: getattr(owner, attr) for name, (owner, attr) in pieces.items()}
@@ -788,29 +795,39 @@ def loop(args) -> tuple[str, dict]:
                 for name, (owner, attr) in pieces.items():
                     setattr(owner, attr, clock.wrap(name, originals[name]))
                 offpolicy.batch_sampler = functools.partial(_clocked_sampler, clock, sampler)
-                settings = {**DQN_EQUAL, "batch_size": batch, "hidden_sizes": hidden}
+                settings = {**DQN_EQUAL, "batch_size": batch, "hidden_sizes": hidden, "updates_per_call": 1}
                 r = taskrl_learn_until("bitflip-her", 0, args.loop_steps, 10**12, 0.0, compile=compile_mode, **settings)
             finally:
                 for name, (owner, attr) in pieces.items():
                     setattr(owner, attr, originals[name])
                 offpolicy.batch_sampler = sampler
+            rate = matmul_rate()
+            bound_ms = flops / rate * 1e3
             per = clock.ms_per_call()
+            wall = (r["seconds"] - r["compile_seconds"]) / r["env_steps"] * 1e3
+            parts = {name: per.get(name, 0.0) * share for name, share in per_env_step.items()}
+            rest = wall - sum(parts.values())
             key = f"batch {batch}, {list(hidden)}, compile {compile_mode}"
-            out[key] = {"per_call_ms": per, "calls": clock.calls, "run": r}
+            out[key] = {"per_call_ms": per, "calls": clock.calls, "run": r, "bound_ms": bound_ms, "sb3": sb3_run}
             rows.append(
-                f"| {key} | {r['seconds'] / r['env_steps'] * 1e3:.2f} | "
-                + " | ".join(f"{per.get(name, 0.0):.3f}" for name in ("update", "sample + relabel", "act", "env step", "store"))
-                + " |"
+                f"| {key} | {wall:.3f} | {parts['update']:.3f} ({bound_ms:.3f}) | "
+                + " | ".join(f"{parts[name]:.3f}" for name in ("sample + relabel", "act", "env step", "store"))
+                + f" | {rest:.3f} | {sb3_ms:.3f} | {sb3_ms / wall:.2f}x | {sb3_ms / bound_ms:.2f}x |"
             )
             print(rows[-1], flush=True)
     table = "\n".join(
         [
-            f"DQN + HER on bit flipping n = 15 at the equal-work settings, {args.loop_steps:,} env steps, seed 0; ms per call "
-            "after the first 300 calls of each (2 envs: one act, env step and store per 2 env steps, one update and one "
-            "sample per env step).",
+            f"DQN + HER on bit flipping n = 15 at the equal-work settings (2 envs, one update per env step), "
+            f"{args.loop_steps:,} env steps, seed 0. ms per env step: each part's ms per call after its first 300 calls, "
+            "times its calls per env step (one update and one sample; one act, env step and store per 2 env steps); "
+            "the wall time leaves out the compile; the rest is the loop's own (the bookkeeping, the clocks' wrappers). "
+            "In brackets: the update's matrix products at the matrix-multiply rate measured after the run (the bound). "
+            "SB3: its whole step on the same case, as many env steps. Ceiling: SB3's step over the bound, the ratio "
+            "to SB3 of a step that were only its update's matrix products.",
             "",
-            "| run | wall ms per env step | update | sample + relabel | act | env step | store |",
-            "|---|---|---|---|---|---|---|",
+            "| run | wall ms per env step | update (bound) | sample + relabel | act | env step | store | rest | SB3's step "
+            "| SB3 / taskrl | ceiling |",
+            "|---|---|---|---|---|---|---|---|---|---|---|",
             *rows,
         ]
     )

@@ -3,8 +3,9 @@
 Compiling an update costs seconds to tens of seconds before the first update and saves a share of every later one,
 so it pays only after enough updates. For each path (eager; compiled, one update per call; compiled, four per
 call) the run's time is estimated as ``compile seconds + planned updates x ms per update`` from `MEASURED`,
-and the fastest path is taken. A run's planned updates are its ``offline_updates`` plus
-``updates_per_step x (total_steps - learning_starts)`` (an offline run's ``total_steps`` are updates).
+and the fastest path is taken, a compiled one only where it is estimated at most `COMPILE_MARGIN` of eager's time.
+A run's planned updates are its ``offline_updates`` plus ``updates_per_step x (total_steps - learning_starts)``
+(an offline run's ``total_steps`` are updates).
 
 A compile is cheaper where an earlier run on this machine compiled the same shapes (the same algorithm, env
 settings, widths, batch, updates per call, device and torch): torch's on-disk cache then serves most of the work, and
@@ -34,6 +35,7 @@ from taskrl.agents.compiled import compile_cache_dir
 
 __all__ = [
     "MEASURED",
+    "COMPILE_MARGIN",
     "CompileChoice",
     "MeasuredUpdate",
     "cached_calls",
@@ -44,6 +46,11 @@ __all__ = [
 ]
 
 MANY = 4  # updates per call of the compiled-many path
+#: a compiled path is taken only where it is estimated at no more than this share of eager's seconds: near the
+#: break-even the estimate's error decides, and there eager loses little (DQN (256, 256) / 256 over a 30 s slice,
+#: estimated 21.5 s compiled against 22.4 s eager, ran 6% slower compiled, 29.7 against 28.0 s: the run at commit
+#: 4303883, benchmarks/results/learner_equal_auto_30s_4303883.json; RESULTS.md, "... 30 s slices", says it)
+COMPILE_MARGIN = 0.9
 #: a machine's first compile also builds what every later one reuses, whatever its shapes (the C++ compiler's checks,
 #: torch's precompiled header): DQN (64, 64) / 32 compiled in 9.2 s on a fresh cache and in 5.1 s where another
 #: network had compiled before (AMD EPYC, 2 runs each; benchmarks/RESULTS.md, "Learner speed with no flag")
@@ -221,7 +228,7 @@ def choose_compile(
         seconds = {p: t for p, t in seconds.items() if p[1] == 1}
     if not mode_auto:  # a compile mode as set (``off`` returned above): only its compiled paths
         seconds = {p: t for p, t in seconds.items() if p[0] != "off"}
-    mode, k = min(seconds, key=seconds.__getitem__)
+    mode, k = min(seconds, key=lambda path: seconds[path] * (COMPILE_MARGIN if path[0] == "off" else 1.0))
     mode = mode if mode_auto else config.compile
     path = "eager" if mode == "off" else f"compiled ({mode}), {k} update{'s' if k > 1 else ''} per call"
     basis = (
