@@ -3,7 +3,9 @@
 Arms: the preset; scripted exploration (a share of training episodes acted by the env's scripted grasp); a looser
 hold (``--env.tolerance 0.06``: the gripper's centre may be 0.06 off an object's spine, about 4 pixels), the positive
 control of the bin as it was (tolerance 0.025, squares of half-side 0.035-0.05); 0.06 is the fair bin's default since,
-so on today's bin this arm is the preset. Each arm is reported beside the success of uniformly random actions at its own tolerance.
+so on today's bin this arm is the preset; "fair bin": the preset on today's bin, in a section of its own, each run then
+evaluated by ``taskrl eval RUN`` and ``taskrl eval RUN --held-out``. Each arm is reported beside the success of
+uniformly random actions at its own tolerance.
 
 Each arm is ``taskrl train grasp-qtopt-pixels --seed S --threads 1 --max-hours H`` plus its flags, its own
 process; a run directory that already holds a finished run (its ``learning_curve.png``) is read instead of trained again, so
@@ -12,6 +14,7 @@ objects); ``train success`` counts every training attempt, scripted ones include
 
     .venv/bin/python benchmarks/grasp_learning.py --seeds 0 --max-hours 0.75 --out /work/runs-bench/grasp --write
     .venv/bin/python benchmarks/grasp_learning.py --arms "looser hold" --seeds 0 --max-hours 1 --out /work/runs-bench/grasp --write
+    .venv/bin/python benchmarks/grasp_learning.py --arms "fair bin" --seeds 0 1 --max-hours 1 --out /work/runs-bench/grasp --write
 """
 
 from __future__ import annotations
@@ -35,6 +38,7 @@ ARMS = {
     "preset": "",
     "scripted exploration": "--scripted-exploration 0.5 --scripted-steps 60000",
     "looser hold": "--env.tolerance 0.06",
+    "fair bin": "",  # the preset on today's bin (tolerance 0.06, the sizes at which yaw matters), its own section
 }
 SECTIONS = {  # the arms each RESULTS section compares, and its raw data under benchmarks/results/
     "Grasp from pixels: scripted exploration against the preset, equal budgets": (
@@ -42,7 +46,13 @@ SECTIONS = {  # the arms each RESULTS section compares, and its raw data under b
         "grasp_learning.json",
     ),
     "Grasp from pixels: a looser hold (tolerance 0.06) as a positive control": (("looser hold",), "grasp_looser_hold.json"),
+    "Grasp from pixels: the fair bin's preset for an hour, training and held-out objects": (
+        ("fair bin",),
+        "grasp_fair_bin.json",
+    ),
 }
+#: arms whose runs are also evaluated by `taskrl eval RUN` and `taskrl eval RUN --held-out` (the issue's check)
+EVALUATED = ("fair bin",)
 
 
 def run(flags: str, seed: int, run_dir: Path, max_hours: float) -> list[dict]:
@@ -71,11 +81,22 @@ def main() -> None:
             slug = arm.replace(" ", "-")
             curve = run(ARMS[arm], seed, Path(args.out) / f"{slug}-seed{seed}", args.max_hours)
             results.append({"arm": arm, "flags": ARMS[arm], "seed": seed, "curve": curve})
+            if arm in EVALUATED:
+                results[-1]["eval"] = evaluate(Path(args.out) / f"{slug}-seed{seed}")
             print(arm, seed, curve[-1], flush=True)
     raw = Path(__file__).parent / "results" / raw_name
     raw.write_text(json.dumps(results, indent=2) + "\n")
     if args.write:
         report(results, args, title, raw_name)
+
+
+def evaluate(run_dir: Path) -> dict:
+    """``taskrl eval RUN --json`` on the training objects and with ``--held-out`` (100 attempts each): success rates."""
+    out = {}
+    for name, extra in (("train", []), ("held_out", ["--held-out", "--episodes", "100"])):
+        done = subprocess.run([TASKRL, "eval", str(run_dir), "--json", *extra], check=True, capture_output=True, text=True)
+        out[name] = json.loads(done.stdout.strip().splitlines()[-1])["success_rate"]
+    return out
 
 
 def tolerance_of(flags: str) -> float:
@@ -113,6 +134,18 @@ def report(results: list[dict], args, title: str, raw_name: str) -> None:
             f"{last['wall_seconds']:.0f} | {best['success_rate']:.2f} ({best['env_steps']:,.0f}) | "
             f"{last['success_rate']:.2f} | {last['train_success']:.3f} |"
         )
+    evaluated = [r for r in results if "eval" in r]
+    if evaluated:
+        held_out_floor = random_success("held_out", tolerance=tolerance_of(ARMS[evaluated[0]["arm"]]))[1]
+        lines += [
+            "",
+            "After the run, `taskrl eval RUN --json` (100 attempts on the training objects) and `taskrl eval RUN --held-out "
+            f"--episodes 100 --json` (held-out objects; random actions {held_out_floor:.3f}):",
+            "",
+            "| arm | seed | training objects | held-out objects |",
+            "|---|---|---:|---:|",
+            *(f"| {r['arm']} | {r['seed']} | {r['eval']['train']:.2f} | {r['eval']['held_out']:.2f} |" for r in evaluated),
+        ]
     lines += ["", "Every evaluation (env steps: greedy success):", ""]
     for r in results:
         points = ", ".join(f"{row['env_steps'] / 1e3:.0f}k: {row['success_rate']:.2f}" for row in r["curve"][1:])
