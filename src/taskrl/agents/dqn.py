@@ -208,8 +208,9 @@ class DQNAgent(Agent):
     def update(self, batch: Batch) -> dict[str, torch.Tensor]:
         """One gradient step on the TD error, then the target refresh when due; returns detached scalars (``loss``,
         ``q_mean``). The refresh runs after the step, not inside it, so that a compiled update is one graph: a
-        refresh inside would make a second graph, about a third of DQN (64, 64) / 32's compile seconds
-        (benchmarks/RESULTS.md, "Compile seconds of one graph and of two"). `update_many` keeps it inside."""
+        refresh inside would make a second graph, about half of DQN (64, 64) / 32's compile seconds (6.2 against 3.2
+        s: benchmarks/RESULTS.md, "Compile seconds of a DQN update: the target refresh inside the graph and after
+        it"). `update_many` keeps it inside."""
         metrics = self.counted_step(batch, flags=(False,))
         if self.schedule(self.updates)[0]:
             self.update_target()
