@@ -52,9 +52,10 @@ MANY = 4  # updates per call of the compiled-many path
 #: 4303883, benchmarks/results/learner_equal_auto_30s_4303883.json; RESULTS.md, "... 30 s slices", says it)
 COMPILE_MARGIN = 0.9
 #: a machine's first compile also builds what every later one reuses, whatever its shapes (the C++ compiler's checks,
-#: torch's precompiled header): DQN (64, 64) / 32 compiled in 9.2 s on a fresh cache and in 5.1 s where another
-#: network had compiled before (AMD EPYC, 2 runs each; benchmarks/RESULTS.md, "Learner speed with no flag")
-MACHINE_FIRST_SECONDS = 4.1
+#: torch's precompiled header): DQN (64, 64) / 32 compiled in 9.2 s on a fresh cache and in 5.2 s where the other
+#: DQN case had compiled before (AMD EPYC; the no-flag runs of benchmarks/RESULTS.md, "Learner speed with no flag
+#: (--compile auto) against Stable-Baselines3, 120 s slices", their compile seconds in learner_equal_auto_120s.json)
+MACHINE_FIRST_SECONDS = 4.0
 #: a later run of the same shapes compiled in 0.26x a first run's seconds, with one update per call (5.8 against 22.0 s)
 #: and with four (12.6 against 49.2 s): DQN (256, 256) / 256, benchmarks/RESULTS.md, "Compile seconds of a first and a
 #: later run"
