@@ -49,7 +49,7 @@ HUBER = {"loss": "huber"}  # the presets' loss until the squared loss replaced i
 ARMS = {
     "defaults": ("QT-Opt's defaults with the Huber loss (the presets before the squared loss)", HUBER),
     # reported, not re-runnable: the noise has followed `cem.truncate` since
-    "clipped-noise": ("the Huber defaults with exploration noise clipped to the box (commit d15eae3)", {}),
+    "clipped-noise": ("the Huber defaults with exploration noise clipped to the box (commit d15eae3)", HUBER),
     "before": ("QT-Opt as it was (2 x 64 target search, clipped samples, no noise, 0.3 -> 0.1 random, lagged)", BEFORE),
     "lagged": ("the Huber defaults with lagged twins", {**HUBER, "twin": "lagged"}),
     "paper-maximum": (

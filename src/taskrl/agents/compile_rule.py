@@ -213,10 +213,10 @@ def choose_compile(
     case = nearest_measured(config.algo, tuple(config.algo_settings.hidden_sizes), config.batch_size)
 
     def compiling(k: int) -> float:  # seconds of compiling k updates per call: a first run's, or a later run's
+        measured = case.compile_many_seconds if k > 1 else case.compile_seconds
         if k in cached:
-            return LATER_RUN_FACTOR * (case.compile_many_seconds if k > 1 else case.compile_seconds)
-        first = 0.0 if machine_compiled else MACHINE_FIRST_SECONDS
-        return first + (case.compile_many_seconds if k > 1 else case.compile_seconds)
+            return LATER_RUN_FACTOR * measured
+        return measured + (0.0 if machine_compiled else MACHINE_FIRST_SECONDS)
 
     eager = n * case.eager_ms / 1e3
     one = compiling(1) + n * case.compiled_ms / 1e3
