@@ -256,15 +256,16 @@ def test_the_bellman_maximum_searches_with_its_own_smaller_cem():
         QTOptConfig(target_samples=8, target_elites=9).validate()
 
 
-def test_each_update_reports_the_bound_share_the_q_spread_and_how_often_the_twin_minimum_clips():
+def test_each_update_reports_the_bound_share_the_batch_reward_the_q_spread_and_how_often_the_twin_minimum_clips():
     agent = make_agent(twin="lagged")
-    # stored actions: 2 of 4 components on a bound (the box is [-1, 1])
-    batch = onehot_batch([0.0] * 4, [False] * 4, [False] * 4, [0, 1, 0, 1], action=torch.tensor([[1.0], [-1.0], [0.3], [0.0]]))
+    # stored actions: 2 of 4 components on a bound (the box is [-1, 1]); rewards: mean -0.25
+    batch = onehot_batch([0.0, -1.0, 0.0, 0.0], [False] * 4, [False] * 4, [0, 1, 0, 1], action=torch.tensor([[1.0], [-1.0], [0.3], [0.0]]))
     # target2 below target1 in the rows of state 1 (half the rows); Q_target1 varies with the action in state 0 only
     agent.q_target1 = Stub(lambda x, a: x[:, :1] * a[..., 0] + 0.0 * x[:, 1:])
     agent.q_target2 = Stub(lambda x, a: x[:, :1] * a[..., 0] - x[:, 1:] * torch.ones_like(a[..., 0]))
     metrics = agent.update(batch)
     assert metrics["action_on_bound"].item() == pytest.approx(0.5)
+    assert metrics["batch_reward"].item() == pytest.approx(-0.25)
     assert metrics["twin_clip_rate"].item() == pytest.approx(0.5)
     # state 0: Q = a over candidates spread across the box (std about 0.5); state 1: Q constant (std 0)
     assert 0.15 < metrics["q_spread"].item() < 0.4

@@ -47,7 +47,8 @@ the box (``cem.truncate``): with clipped samples and no noise a third of the sto
 bound, and with clipped noise a sixth.
 
 Diagnostics (every update, averaged per metrics row): ``action_on_bound`` (share of the batch's stored action
-components on a bound of the box), ``q_spread`` (standard deviation of Q_target1(s', .) over the target CEM's first
+components on a bound of the box), ``batch_reward`` (the batch's mean reward: with 0/1 rewards, times the batch size,
+the positives per batch), ``q_spread`` (standard deviation of Q_target1(s', .) over the target CEM's first
 candidates, mean over rows: how much Q tells actions apart) and ``twin_clip_rate`` (share of rows where the second
 target is below the first, so the minimum clips).
 """
@@ -362,6 +363,7 @@ class QTOptAgent(Agent):
         self.inputs.update_statistics(batch.obs)
         x, action = self.inputs(batch.obs), self.box.to_unit(batch.action)
         diagnostics["action_on_bound"] = share_on_bound(action)
+        diagnostics["batch_reward"] = batch.reward.mean()
         out = self.q(x, action)
         loss = self.loss(out, target)
         if self.independent:  # both twins regress onto the same target
