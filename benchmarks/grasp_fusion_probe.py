@@ -10,7 +10,7 @@ shift in pixels, which moves the picture but not the gripper's position in the s
 every 1,000 updates (batch 64, Adam 3e-4, one torch thread) and the time to score one candidate action (a batch of
 64 states x 32 candidates, as the Bellman maximum does).
 
-    .venv/bin/python benchmarks/grasp_fusion_probe.py --arms flat:2 conv:2 conv:0 conv:4 --updates 6000 --write
+    .venv/bin/python benchmarks/grasp_fusion_probe.py --arms flat:0 flat:1 flat:2 flat:4 conv:0 conv:2 --workers 2 --write
 """
 
 from __future__ import annotations
@@ -18,8 +18,10 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import multiprocessing
 import sys
 import time
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import torch
@@ -85,12 +87,18 @@ def probe(fusion: str, pad: int, updates: int, train: tuple, test: tuple, seed: 
     return {"fusion": fusion, "pad": pad, "curve": curve, "ms_per_candidate": 1e3 * seconds_per_candidate(net, x_test)}
 
 
+def probe_arm(job: tuple) -> dict:
+    torch.set_num_threads(1)
+    return probe(*job)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--arms", nargs="+", default=["flat:2", "conv:2"], help="FUSION:PAD")
     parser.add_argument("--updates", type=int, default=6000)
     parser.add_argument("--train-states", type=int, default=40_000)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--workers", type=int, default=1, help="arms trained at once, one process and thread each")
     parser.add_argument("--write", action="store_true", help="replace the RESULTS section")
     parser.add_argument("--report", action="store_true", help="train nothing: the section from the raw data")
     args = parser.parse_args()
@@ -99,14 +107,15 @@ def main() -> None:
     if args.report:
         saved = json.loads(raw.read_text())
         share, results = saved["holding_share"], saved["arms"]
+        args.workers = saved.get("workers", 1)
     else:
         train, test = labelled_closes(args.train_states, 1), labelled_closes(4_000, 2)
-        results = []
-        for arm in args.arms:
-            fusion, pad = arm.split(":")
-            results.append(probe(fusion, int(pad), args.updates, train, test, args.seed))
+        jobs = [(fusion, int(pad), args.updates, train, test, args.seed) for fusion, pad in (a.split(":") for a in args.arms)]
+        # one torch thread per arm; forked workers share the labelled closes
+        with ProcessPoolExecutor(args.workers, mp_context=multiprocessing.get_context("fork")) as pool:
+            results = list(pool.map(probe_arm, jobs))
         share = float(test[2].mean())
-        raw.write_text(json.dumps({"holding_share": share, "arms": results}, indent=2) + "\n")
+        raw.write_text(json.dumps({"holding_share": share, "workers": args.workers, "arms": results}, indent=2) + "\n")
     steps = [row["updates"] for row in results[0]["curve"]]
     lines = [
         f"{args.train_states:,} training closes, 4,000 held-out ones ({share:.0%} of them hold); batch 64, Adam 3e-4, "
@@ -126,9 +135,12 @@ def main() -> None:
 
         append_results(
             "Grasp critic probe: where the action meets the picture (label depends on the action)",
-            f"Trained with `.venv/bin/python benchmarks/grasp_fusion_probe.py --arms {' '.join(args.arms)} --updates "
-            f"{args.updates}` (raw data: `benchmarks/results/grasp_fusion_probe.json`); the machine ran two learning "
-            "runs beside it, so the milliseconds compare the arms with each other, not with an idle machine.\n\n" + text,
+            "Trained with `.venv/bin/python benchmarks/grasp_fusion_probe.py --arms "
+            + " ".join(f"{r['fusion']}:{r['pad']}" for r in results)
+            + " --updates "
+            f"{args.updates} --workers {args.workers}` (raw data: `benchmarks/results/grasp_fusion_probe.json`): "
+            f"{args.workers} arm(s) at a time, one process and torch thread each, so the milliseconds compare the arms "
+            "with each other, not with an idle machine.\n\n" + text,
         )
 
 

@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import re
 import shlex
 import subprocess
 import sys
@@ -31,14 +32,20 @@ sys.path.insert(0, str(Path(__file__).parent))
 from common import append_results  # noqa: E402
 from grasp_random import random_success  # noqa: E402
 from taskrl.envs.grasp import GraspSettings  # noqa: E402
+from taskrl.presets import PRESETS  # noqa: E402
 
 TASKRL = str(Path(sys.executable).with_name("taskrl"))
 PRESET = "grasp-qtopt-pixels"
+BATCH = PRESETS[PRESET].overrides["batch_size"]
 ARMS = {
     "preset": "",
     "scripted exploration": "--scripted-exploration 0.5 --scripted-steps 60000",
     "looser hold": "--env.tolerance 0.06",
     "fair bin": "",  # the preset on today's bin (tolerance 0.06, the sizes at which yaw matters), its own section
+    # the fair bin's preset until the twins measurement (two online networks), and the two changes measured against it
+    "independent twins": "--algo.twin independent",
+    "lagged twins": "--algo.twin lagged",
+    "lagged twins + scripted": "--algo.twin lagged --scripted-exploration 0.5 --scripted-steps 60000",
 }
 SECTIONS = {  # the arms each RESULTS section compares, and its raw data under benchmarks/results/
     "Grasp from pixels: scripted exploration against the preset, equal budgets": (
@@ -49,6 +56,10 @@ SECTIONS = {  # the arms each RESULTS section compares, and its raw data under b
     "Grasp from pixels: the fair bin's preset for an hour, training and held-out objects": (
         ("fair bin",),
         "grasp_fair_bin.json",
+    ),
+    "Grasp from pixels: lagged twins and scripted exploration on the fair bin, half an hour": (
+        ("independent twins", "lagged twins", "lagged twins + scripted"),
+        "grasp_twins.json",
     ),
 }
 #: arms whose runs are also evaluated by `taskrl eval RUN` and `taskrl eval RUN --held-out` (the issue's check)
@@ -62,8 +73,10 @@ def run(flags: str, seed: int, run_dir: Path, max_hours: float) -> list[dict]:
         subprocess.run(command, check=True, capture_output=True)
     with open(run_dir / "metrics.csv") as f:
         rows = [r for r in csv.DictReader(f) if r.get("success_rate") not in (None, "")]
-    keep = ("env_steps", "updates", "wall_seconds", "success_rate", "train_success")
-    return [{k: float(r[k]) for k in keep} for r in rows]
+    keep = ("env_steps", "updates", "wall_seconds", "success_rate", "train_success", "batch_reward")
+    curve = [{k: float(r.get(k) or "nan") for k in keep} for r in rows]
+    # a longer run read for a shorter budget: its evaluations up to that budget's wall-clock
+    return [row for row in curve if row["wall_seconds"] <= max_hours * 3600]
 
 
 def main() -> None:
@@ -78,7 +91,7 @@ def main() -> None:
     results = []
     for arm in args.arms:
         for seed in args.seeds:
-            slug = arm.replace(" ", "-")
+            slug = re.sub(r"[^a-z0-9]+", "-", arm).strip("-")
             curve = run(ARMS[arm], seed, Path(args.out) / f"{slug}-seed{seed}", args.max_hours)
             results.append({"arm": arm, "flags": ARMS[arm], "seed": seed, "curve": curve})
             if arm in EVALUATED:
@@ -97,6 +110,11 @@ def evaluate(run_dir: Path) -> dict:
         done = subprocess.run([TASKRL, "eval", str(run_dir), "--json", *extra], check=True, capture_output=True, text=True)
         out[name] = json.loads(done.stdout.strip().splitlines()[-1])["success_rate"]
     return out
+
+
+def positives(row: dict) -> str:
+    """Rewarded transitions per batch (QT-Opt's ``batch_reward`` x the preset's batch size; runs before it: "-")."""
+    return "-" if row["batch_reward"] != row["batch_reward"] else f"{row['batch_reward'] * BATCH:.1f}"
 
 
 def tolerance_of(flags: str) -> float:
@@ -122,8 +140,9 @@ def report(results: list[dict], args, title: str, raw_name: str) -> None:
         + ", ".join(f"{floors[a]:.3f} ({a}, tolerance {tolerance_of(ARMS[a])})" for a in args.arms)
         + f". Raw curves: `benchmarks/results/{raw_name}`.",
         "",
-        "| arm | seed | env steps | updates | wall s | best greedy success (at env steps) | last greedy success | last train success |",
-        "|---|---|---:|---:|---:|---|---:|---:|",
+        "| arm | seed | env steps | updates | wall s | best greedy success (at env steps) | last greedy success | last train success "
+        "| positives per batch (last row) |",
+        "|---|---|---:|---:|---:|---|---:|---:|---:|",
     ]
     for r in results:
         last = r["curve"][-1]
@@ -132,7 +151,7 @@ def report(results: list[dict], args, title: str, raw_name: str) -> None:
         lines.append(
             f"| {r['arm']}{flags} | {r['seed']} | {last['env_steps']:,.0f} | {last['updates']:,.0f} | "
             f"{last['wall_seconds']:.0f} | {best['success_rate']:.2f} ({best['env_steps']:,.0f}) | "
-            f"{last['success_rate']:.2f} | {last['train_success']:.3f} |"
+            f"{last['success_rate']:.2f} | {last['train_success']:.3f} | {positives(last)} |"
         )
     evaluated = [r for r in results if "eval" in r]
     if evaluated:
