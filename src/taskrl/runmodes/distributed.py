@@ -130,7 +130,7 @@ def fits_a_cluster(config: TrainConfig) -> None:
     require(
         config.data.scripted_exploration == 0,
         "scripted_exploration",
-        "acts in the one-process loop only (not with --distributed)",
+        "acts in the one-process loop only (not with --distributed): use --scripted-exploration 0 there",
     )
     if config.cluster.bellman_updaters > 0:
         splitting = [a.name for a in ALGORITHMS.values() if a.bellman_updaters]
