@@ -6,6 +6,7 @@ import datetime
 import os
 import platform
 import resource
+import shlex
 import sys
 from pathlib import Path
 
@@ -32,7 +33,7 @@ def peak_rss_mib() -> float:
 
 
 def command_line() -> str:
-    return " ".join([".venv/bin/python", *sys.argv])
+    return shlex.join([".venv/bin/python", *sys.argv])
 
 
 def commit() -> str:

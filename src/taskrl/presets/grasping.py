@@ -17,7 +17,7 @@ PRESETS: dict[str, Preset] = {
             "clip_target": False,  # the sigmoid bounds Q to [0, 1] for the 0/1 reward
             # the paper's lagged twins: one online network to encode and backpropagate, 1.6x the updates per second of
             # independent twins; with half the first 60k env steps acted by the scripted grasp, 0.36 greedy success at
-            # half an hour against 0.10-0.15 (benchmarks/RESULTS.md, "lagged twins and scripted exploration")
+            # half an hour against 0.09-0.15 (benchmarks/RESULTS.md, "lagged twins and scripted exploration")
             "twin": "lagged",
             "scripted_exploration": 0.5,
             "scripted_steps": 60_000,
