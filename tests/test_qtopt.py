@@ -259,7 +259,9 @@ def test_the_bellman_maximum_searches_with_its_own_smaller_cem():
 def test_each_update_reports_the_bound_share_the_batch_reward_the_q_spread_and_how_often_the_twin_minimum_clips():
     agent = make_agent(twin="lagged")
     # stored actions: 2 of 4 components on a bound (the box is [-1, 1]); rewards: mean -0.25
-    batch = onehot_batch([0.0, -1.0, 0.0, 0.0], [False] * 4, [False] * 4, [0, 1, 0, 1], action=torch.tensor([[1.0], [-1.0], [0.3], [0.0]]))
+    batch = onehot_batch(
+        [0.0, -1.0, 0.0, 0.0], [False] * 4, [False] * 4, [0, 1, 0, 1], action=torch.tensor([[1.0], [-1.0], [0.3], [0.0]])
+    )
     # target2 below target1 in the rows of state 1 (half the rows); Q_target1 varies with the action in state 0 only
     agent.q_target1 = Stub(lambda x, a: x[:, :1] * a[..., 0] + 0.0 * x[:, 1:])
     agent.q_target2 = Stub(lambda x, a: x[:, :1] * a[..., 0] - x[:, 1:] * torch.ones_like(a[..., 0]))
@@ -269,3 +271,36 @@ def test_each_update_reports_the_bound_share_the_batch_reward_the_q_spread_and_h
     assert metrics["twin_clip_rate"].item() == pytest.approx(0.5)
     # state 0: Q = a over candidates spread across the box (std about 0.5); state 1: Q constant (std 0)
     assert 0.15 < metrics["q_spread"].item() < 0.4
+
+
+class _RecordingEnv:
+    """Four copies of a one-hot state for ``horizon`` steps; keeps every action it is given."""
+
+    num_envs, device, horizon = 4, torch.device("cpu"), 3
+
+    def __init__(self) -> None:
+        self.actions: list[torch.Tensor] = []
+
+    def reset(self, seed: int) -> dict:
+        return {"observation": torch.eye(2)[[0, 1, 0, 1]]}
+
+    def step(self, action: torch.Tensor):
+        self.actions.append(action.clone())
+        none = torch.zeros(self.num_envs, dtype=torch.bool)
+        return self.reset(0), torch.zeros(self.num_envs), none, none, {"is_success": none}
+
+
+def test_an_evaluation_draws_its_cem_candidates_from_its_own_seed():
+    """The same checkpoint scores the same at every evaluation with one seed: the greedy CEM's candidate actions come
+    from the evaluation's own generator, seeded with its seed, whatever else drew from torch's global one. Mutation:
+    `ActingPolicy` not passing its generator (CEM drawing from the global one) fails."""
+    from taskrl.training.evaluation import ActingPolicy, evaluate
+
+    agent = make_agent(cem=CEMConfig(iterations=1, samples=4, elites=1))
+    policy, first, second, other = ActingPolicy(agent), _RecordingEnv(), _RecordingEnv(), _RecordingEnv()
+    evaluate(policy, first, seed=7)
+    torch.rand(100)  # the global generator moves on between evaluations
+    evaluate(policy, second, seed=7)
+    evaluate(policy, other, seed=8)
+    assert all(torch.equal(a, b) for a, b in zip(first.actions, second.actions, strict=True))
+    assert not all(torch.equal(a, b) for a, b in zip(first.actions, other.actions, strict=True))

@@ -16,16 +16,31 @@ UNLIMITED_EPISODE_STEPS = 100_000
 
 class ActingPolicy:
     """``obs -> actions`` of an agent (greedy unless ``explore``), told when episodes end, so a policy with
-    per-episode state (a chunked policy's ensembled predictions) starts every episode afresh."""
+    per-episode state (a chunked policy's ensembled predictions) starts every episode afresh.
+
+    Its random draws (a CEM's candidate actions, exploration noise) come from a generator of its own that each
+    evaluation seeds with its ``seed`` (`ActingPolicy.start`), so the same checkpoint scores the same every time."""
 
     def __init__(self, agent: Any, explore: bool = False) -> None:
         self.agent, self.explore = agent, explore
+        self.generator = torch.Generator(device=getattr(agent, "device", "cpu"))
+
+    def start(self, seed: int) -> None:
+        """Seed the acting draws for an evaluation that starts its env with ``seed``."""
+        self.generator.manual_seed(seed)
 
     def __call__(self, obs: Obs) -> Any:
-        return self.agent.act(obs, explore=self.explore)
+        return self.agent.act(obs, explore=self.explore, generator=self.generator)
 
     def episodes_ended(self, ended: torch.Tensor) -> None:
         episodes_ended(self.agent, ended)
+
+
+def seed_acting(policy: Any, seed: int) -> None:
+    """Seed ``policy``'s own random draws for an evaluation (a no-op for a plain function)."""
+    start = getattr(policy, "start", None)
+    if start is not None:
+        start(seed)
 
 
 def episodes_ended(policy: Any, ended: torch.Tensor) -> None:
@@ -50,6 +65,7 @@ def evaluate(policy: Callable[[Obs], torch.Tensor], env: BatchedEnv, seed: int, 
     """
     obs = env.reset(seed=seed)
     n = env.num_envs
+    seed_acting(policy, seed)
     episodes_ended(policy, torch.ones(n, dtype=torch.bool, device=env.device))
     finished = torch.zeros(n, dtype=torch.bool, device=env.device)
     success = torch.zeros(n, dtype=torch.bool, device=env.device)

@@ -18,7 +18,7 @@ import torch
 
 from taskrl.envs.base import BatchedEnv
 from taskrl.tasks import TaskSet
-from taskrl.training.evaluation import UNLIMITED_EPISODE_STEPS, episodes_ended
+from taskrl.training.evaluation import UNLIMITED_EPISODE_STEPS, episodes_ended, seed_acting
 from taskrl.types import Obs
 
 __all__ = ["TooManyEpisodes", "evaluate_per_task"]
@@ -133,6 +133,7 @@ def _evaluate_per_task(policy, env, n, seed, task_set, save_to, max_steps, crite
     done_slot = torch.zeros(num_envs, dtype=torch.long)  # episodes recorded per slot
     try:
         obs = env.reset(seed=seed)
+        seed_acting(policy, seed)
         episodes_ended(policy, torch.ones(num_envs, dtype=torch.bool))
         ep_task = obs["task"].detach().cpu().long().clone()
         ep_success = torch.zeros(num_envs, dtype=torch.bool)
