@@ -51,8 +51,8 @@ ARMS = {
     "looser hold": "--env.tolerance 0.06",
     "fair bin": "",  # the preset on today's bin (tolerance 0.06, the sizes at which yaw matters), its own section
     # the fair bin's preset until the twins measurement (two online networks), and the two changes measured against it
-    "independent twins": "--algo.twin independent",
-    "lagged twins": "--algo.twin lagged",
+    "independent twins": "--algo.twin independent --scripted-exploration 0",
+    "lagged twins": "--algo.twin lagged --scripted-exploration 0",
     "lagged twins + scripted": "--algo.twin lagged --scripted-exploration 0.5 --scripted-steps 60000",
 }
 SECTIONS = {  # the arms each RESULTS section compares, and its raw data under benchmarks/results/
