@@ -15,7 +15,7 @@ PRESETS: dict[str, Preset] = {
             "her": "none",
             "loss": "cross_entropy",
             "clip_target": False,  # the sigmoid bounds Q to [0, 1] for the 0/1 reward
-            # the paper's lagged twins: one online network to encode and backpropagate, 1.6x the updates per second of
+            # the paper's lagged twins: one online network to encode and backpropagate, 1.5-1.7x the updates per second of
             # independent twins; with half the first 60k env steps acted by the scripted grasp, 0.36 greedy success at
             # half an hour against 0.09-0.15 (benchmarks/RESULTS.md, "lagged twins and scripted exploration")
             "twin": "lagged",
