@@ -8,7 +8,8 @@ from taskrl.presets.spec import Preset
 PRESETS: dict[str, Preset] = {
     "grasp-qtopt-pixels": Preset(
         "QT-Opt from the camera: grasp objects in a bin from 64x64 pictures (conv encoder, random shifts, the paper's "
-        "sigmoid Q with a log loss on the 0/1 grasp reward)",
+        "sigmoid Q with a log loss on the 0/1 grasp reward and lagged twins; scripted grasps in half the first 60k "
+        "env steps' episodes)",
         {
             **QTOPT,
             "env": "grasp",
