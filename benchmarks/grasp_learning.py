@@ -99,11 +99,11 @@ def main() -> None:
     results = []
     for arm in args.arms:
         for seed in args.seeds:
-            slug = re.sub(r"[^a-z0-9]+", "-", arm).strip("-")
-            curve = run(ARMS[arm], seed, Path(args.out) / f"{slug}-seed{seed}", args.max_hours)
+            run_dir = Path(args.out) / f"{re.sub(r'[^a-z0-9]+', '-', arm).strip('-')}-seed{seed}"
+            curve = run(ARMS[arm], seed, run_dir, args.max_hours)
             results.append({"arm": arm, "flags": ARMS[arm], "seed": seed, "curve": curve})
             if title in EVALUATED:
-                results[-1]["eval"] = evaluate(Path(args.out) / f"{slug}-seed{seed}")
+                results[-1]["eval"] = evaluate(run_dir)
             print(arm, seed, curve[-1], flush=True)
     raw = Path(__file__).parent / "results" / raw_name
     raw.write_text(json.dumps(results, indent=2) + "\n")
@@ -150,15 +150,17 @@ def section(arms: list[str]) -> tuple[str, str]:
 
 
 def report(results: list[dict], args, title: str, raw_name: str) -> None:
-    floors = {arm: random_floor("train", tolerance_of(ARMS[arm])) for arm in args.arms}
+    arms_at: dict[float, list[str]] = {}  # tolerance -> the arms run at it
+    for arm in args.arms:
+        arms_at.setdefault(tolerance_of(ARMS[arm]), []).append(arm)
     lines = [
         f"`taskrl train {PRESET} --seed S --threads 1 --max-hours {args.max_hours}` plus each arm's flags, one process "
         "and torch thread each (what ran beside them: the note); greedy evaluation on 100 attempts at the training objects "
         "every 5,000 env steps; `train success` counts every training attempt, scripted ones included. Uniformly random "
         "actions (`benchmarks/grasp_random.py`, 10,000 attempts): "
         + ", ".join(
-            f"{floor:.3f} (tolerance {tolerance}: {', '.join(a for a in args.arms if tolerance_of(ARMS[a]) == tolerance)})"
-            for tolerance, floor in {tolerance_of(ARMS[a]): floors[a] for a in args.arms}.items()
+            f"{random_floor('train', tolerance):.3f} (tolerance {tolerance}: {', '.join(arms)})"
+            for tolerance, arms in arms_at.items()
         )
         + f". Raw curves: `benchmarks/results/{raw_name}`.",
         "",
