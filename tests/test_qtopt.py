@@ -239,6 +239,13 @@ def test_the_first_update_refuses_rewards_outside_the_range_the_bound_on_q_assum
     make_agent().update(positive)  # unbounded Huber takes any reward
 
 
+def test_an_initial_cem_mean_of_the_wrong_length_is_refused_when_the_agent_is_made():
+    from taskrl.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="init_mean"):
+        make_agent(cem=CEMConfig(init_mean=(0.0, -1.0, 0.0)))
+
+
 def test_the_bellman_maximum_searches_with_its_own_smaller_cem():
     """The target's CEM scores ``target_samples`` candidates per row in ``target_iterations`` rounds; acting scores the
     acting ``cem``'s. Mutation: the target searching with the acting CEM's sizes fails."""

@@ -233,6 +233,11 @@ class QTOptAgent(Agent):
             target.requires_grad_(False)
         if self.independent:
             self.checkpointed = {**type(self).checkpointed, "q2": "q2"}
+        require(
+            len(config.cem.init_mean) in (0, self.action_dim),
+            "cem.init_mean",
+            f"needs one value per action dimension ({self.action_dim}) or none (got {config.cem.init_mean})",
+        )
         self.cem = CrossEntropyMethod(config.cem)
         self._q1_params = list(self.q.parameters())
         self._q2_params = list(self.q2.parameters()) if self.independent else []
