@@ -78,7 +78,7 @@ from taskrl.agents.parts import (
 )
 from taskrl.agents.spec import AlgorithmSpec
 from taskrl.encoders import DRQ_SHIFT, ImageStateInput, picture_encoder, picture_values, shift_pictures
-from taskrl.errors import one_of, require
+from taskrl.errors import ConfigError, one_of, require
 from taskrl.fused_q import FUSIONS, PictureActionQ
 from taskrl.nets import StateActionQ
 from taskrl.replay.batch import Batch, Obs
@@ -167,7 +167,10 @@ class QTOptConfig:
             "target_elites",
             f"must be in [1, target_samples={self.target_samples}] (got {self.target_elites})",
         )
-        self.cem.validate()
+        try:
+            self.cem.validate()
+        except ConfigError as error:  # named by its path, as the command line spells it
+            raise ConfigError(f"cem.{error.field}", error.message) from None
 
 
 class QTOptAgent(Agent):
