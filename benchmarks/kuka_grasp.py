@@ -9,6 +9,8 @@ the random policy achieves and how fast grasps are collected, and QT-Opt's runs 
     .venv/bin/python benchmarks/kuka_grasp.py lift --episodes 400 --write
     # the supervised control's data: the grasps of a collection run, every step labelled with its grasp's outcome
     .venv/bin/python benchmarks/kuka_grasp.py outcomes runs/kuka-random runs/kuka-outcomes
+    # trained runs acting with other CEM searches (the preset's, a wider one, the benchmark's CEM actor)
+    .venv/bin/python benchmarks/kuka_grasp.py search --runs runs/kuka-offline-s0 runs/kuka-offline-s1 --write
 """
 
 from __future__ import annotations
@@ -256,9 +258,22 @@ def _evaluation_job(job: tuple) -> tuple[tuple, dict]:
 EPISODES = [50]  # the protocol's episodes per evaluation, set before the workers start
 
 
-def wider_search_job(job: tuple) -> tuple[tuple, dict]:
-    """``(run, held_out, samples, iterations, elites, episodes)``: the run's greedy policy acting with a wider CEM
-    search than it trained with, on the very episodes ``taskrl eval RUN`` scores it on (one process)."""
+#: acting searches compared by ``search`` (CEM settings; the rest as the run trained): the preset's own, a wider one,
+#: the benchmark's CEM actor (dql_grasping ``policies.CEMActorPolicy``: 64 samples x 3 rounds, 10 elites, starting at
+#: "down" (0, 0, -1, 0) with std 0.5), and the wide search from "down"
+SEARCHES = {
+    "preset": {},
+    "wide": {"samples": 256, "iterations": 3, "elites": 24, "first_samples": 0},
+    "actor": {"samples": 64, "iterations": 3, "elites": 10, "init_std": 0.5, "init_mean": (0.0, 0.0, -1.0, 0.0)},
+    "wide-down": {
+        "samples": 256, "iterations": 3, "elites": 24, "first_samples": 0, "init_std": 0.5, "init_mean": (0.0, 0.0, -1.0, 0.0)
+    },
+}  # fmt: skip
+
+
+def search_job(job: tuple) -> tuple[tuple, dict]:
+    """``(run, held_out, search, episodes)``: the run's greedy policy acting with one of `SEARCHES`, on the very episodes
+    ``taskrl eval RUN`` scores it on (one process)."""
     import dataclasses
 
     from taskrl.agents.cem import CrossEntropyMethod
@@ -266,11 +281,9 @@ def wider_search_job(job: tuple) -> tuple[tuple, dict]:
     from taskrl.training.evaluation import ActingPolicy, evaluate
 
     torch.set_num_threads(1)
-    run_dir, held_out, samples, iterations, elites, episodes = job
+    run_dir, held_out, search, episodes = job
     agent = load_agent(run_dir)
-    agent.cem = CrossEntropyMethod(
-        dataclasses.replace(agent.cem.config, samples=samples, iterations=iterations, elites=elites, first_samples=0)
-    )
+    agent.cem = CrossEntropyMethod(dataclasses.replace(agent.cem.config, **SEARCHES[search]))
     env, seed = _evaluation_env(run_dir, episodes, held_out)
     start = time.perf_counter()
     try:
@@ -374,13 +387,13 @@ def main() -> None:
     proto.add_argument("--earlier-label", default="earlier", help="how the earlier rows are marked")
     proto.add_argument("--note", default="", help="a line on how the runs were made (commands, commit, times)")
     proto.add_argument("--write", action="store_true")
-    wider = sub.add_parser("search", help="trained runs acting with a wider CEM search, on their evaluation episodes")
-    wider.add_argument("--runs", type=Path, nargs="+", required=True)
-    wider.add_argument("--samples", type=int, default=256)
-    wider.add_argument("--iterations", type=int, default=3)
-    wider.add_argument("--elites", type=int, default=24)
-    wider.add_argument("--episodes", type=int, default=50)
-    wider.add_argument("--workers", type=int, default=2)
+    searches = sub.add_parser("search", help="trained runs acting with other CEM searches, on their evaluation episodes")
+    searches.add_argument("--runs", type=Path, nargs="+", required=True)
+    searches.add_argument("--searches", nargs="+", choices=list(SEARCHES), default=list(SEARCHES))
+    searches.add_argument("--episodes", type=int, default=100)
+    searches.add_argument("--workers", type=int, default=2)
+    searches.add_argument("--note", default="", help="a line on how the runs were made (commands, commit, times)")
+    searches.add_argument("--write", action="store_true")
     outcomes = sub.add_parser("outcomes", help="the supervised control's data: a run's grasps labelled by their outcome")
     outcomes.add_argument("source", type=Path)
     outcomes.add_argument("out", type=Path)
@@ -424,16 +437,48 @@ def main() -> None:
     elif args.what == "search":
         from concurrent.futures import ProcessPoolExecutor
 
-        wider_search = (args.samples, args.iterations, args.elites, args.episodes)
-        jobs = [(run, held, *wider_search) for run in args.runs for held in (False, True)]
+        jobs = [(run, held, search, args.episodes) for run in args.runs for search in args.searches for held in (False, True)]
+        rows = []
         with ProcessPoolExecutor(max_workers=args.workers) as pool:
-            for (run, held, *_), result in pool.map(wider_search_job, jobs):
-                split = "test" if held else "train"
-                print(
-                    json.dumps(
-                        {"run": str(run), "split": split, **{k: result[k] for k in ("success_rate", "eval_length", "seconds")}}
-                    )
+            for (run, held, search, _), result in pool.map(search_job, jobs):
+                row = {"run": str(run), "search": search, "split": "test" if held else "train"}
+                row.update({k: result[k] for k in ("success_rate", "eval_length", "seconds")})
+                print(json.dumps(row), flush=True)
+                rows.append(row)
+        found = {"searches": {name: SEARCHES[name] for name in args.searches}, "episodes": args.episodes, "rows": rows}
+        cell = {(r["run"], r["search"], r["split"]): r for r in rows}
+        lines = [
+            "| run | search | training objects | test objects | steps per episode (training / test) |",
+            "|---|---|---|---|---|",
+        ]
+        for run in map(str, args.runs):
+            for search in args.searches:
+                train, test = cell[run, search, "train"], cell[run, search, "test"]
+                lines.append(
+                    f"| {Path(run).name} | {search} | {_interval(train['success_rate'], args.episodes)} | "
+                    f"{_interval(test['success_rate'], args.episodes)} | {train['eval_length']:.1f} / {test['eval_length']:.1f} |"
                 )
+        pooled = {
+            search: np.mean([r["success_rate"] for r in rows if r["search"] == search and r["split"] == "test"])
+            for search in args.searches
+        }
+        lines += ["", "Pooled over the runs, test objects: " + ", ".join(f"{k} {v:.2f}" for k, v in pooled.items()) + "."]
+        text = "\n".join(lines)
+        print(text)
+        if args.write:
+            (RESULTS / "kuka_grasp_search.json").write_text(json.dumps(found, indent=1) + "\n")
+            described = "; ".join(
+                f"{name}: " + (", ".join(f"{k} {v}" for k, v in SEARCHES[name].items()) or "the run's own CEM")
+                for name in args.searches
+            )
+            append_results(
+                "KukaGrasp: the trained runs acting with other CEM searches",
+                f"Each run's greedy policy acting with CEM searches other than the one it trained and is scored with, on "
+                f"the very evaluation episodes `taskrl eval RUN` (`--held-out`) scores it on (the run's evaluation seed: "
+                f"the same objects and initial states, the same CEM draws for the same search), {args.episodes} "
+                f"episodes per row and split; 95% normal intervals. The searches (`CEMConfig` fields changed): "
+                f"{described}. {args.note} Raw data: `benchmarks/results/kuka_grasp_search.json`.\n\n" + text,
+            )
     elif args.what == "protocol":
         found = protocol(args.random, args.runs, args.supervised, args.episodes, args.workers, args.online)
         if args.earlier:  # read before --write replaces it (it may be the same file)
