@@ -29,8 +29,10 @@ Where this env differs from the authors' code, and why:
   ``num_objects`` new ones (with replacement) from the split.
 - **Cheaper settling.** Theirs drops each object and steps 500 times (2.5 s of simulation) whatever happens;
   ``settle="rest"`` (default) stops an object's drop once it is at rest (speed under 1 cm/s and 0.1 rad/s,
-  checked every 10 steps, at most 500); ``settle="definition"`` keeps the 500 steps. ``benchmarks/kuka_grasp.py
-  settle`` compares the settled object positions of both from the same drops.
+  checked every 10 steps, at most 500); ``settle="staggered"`` drops each object 60 steps after the one before (about
+  when it has landed) and then simulates them all until every one is at rest (at most 500 more);
+  ``settle="definition"`` keeps the 500 steps. ``benchmarks/kuka_grasp.py
+  settle`` compares where the objects end with each, from the same drops.
 - **A missed grasp stops lifting.** Theirs always simulates the 1,000 steps of the close-and-lift;
   ``lift="decided"`` (default) stops it once it has failed for certain (`KukaGraspEnv.lift_failed`, checked every
   10 steps): both fingers shut (nothing between them) and no object touching the arm, so no object can rise any
@@ -71,6 +73,8 @@ __all__ = ["OBJECT_SPLITS", "KukaGraspEnv", "KukaGraspSettings", "KukaGraspVecto
 
 #: split -> which ``random_urdfs`` folders it draws from: ``test`` the 100 whose number ends in 0
 OBJECT_SPLITS = ("train", "test")
+#: how the dropped objects settle (see the module docstring)
+SETTLINGS = ("rest", "staggered", "definition")
 STEPS = 15  # actions per episode
 ACTION_REPEAT = 200  # simulation steps per action
 TIME_STEP = 1.0 / 200.0
@@ -85,6 +89,7 @@ SUCCESS_HEIGHT = 0.2  # an object above this after the lift is a success
 DROP_SPREAD = 0.3  # objects drop at x in 0.4 + [0, 0.3], y in [-0.15, 0.15], yaw pi/2 + [0, 0.3 pi]
 DROP_HEIGHT = 0.15
 SETTLE_STEPS = 500  # the definition's settling steps per object (the most "rest" takes)
+STAGGER_STEPS = 60  # "staggered": steps between drops (this project's; a drop from 0.15 m lands after about 50)
 # the arm (dql_grasping kuka.py): base pose, rest joint angles, limits of the gripper's target, forces
 ARM_BASE = (-0.1, 0.0, 0.07)
 ARM_JOINTS = (
@@ -148,7 +153,8 @@ class KukaGraspSettings(CameraSettings):
         redraw_every: episodes between draws of new objects (1: every episode).
         num_objects: objects in the tray.
         height_hack: the easier variant: the gripper always moves down, actions ``(dx, dy, dyaw)``.
-        settle: ``rest`` (each dropped object until at rest, at most 500 steps) or ``definition`` (500 steps each).
+        settle: ``rest`` (each dropped object until at rest, at most 500 steps), ``staggered`` (each dropped 60 steps
+            after the one before, then all until at rest) or ``definition`` (500 steps each).
         lift: ``decided`` (the close-and-lift stops once it has failed for certain: fingers shut on nothing) or
             ``definition`` (its 1,000 steps always).
         image_size: the side of the picture (rendered at twice this and resized).
@@ -159,14 +165,14 @@ class KukaGraspSettings(CameraSettings):
     redraw_every: int = 1
     num_objects: int = 5
     height_hack: bool = False
-    settle: Literal["rest", "definition"] = "rest"
+    settle: Literal["rest", "staggered", "definition"] = "rest"
     lift: Literal["decided", "definition"] = "decided"
     image_size: int = 64
     vector_strategy: Literal["sync", "async"] = "async"
 
     def validate(self) -> None:
         one_of(self.objects, OBJECT_SPLITS, "objects", "split")
-        one_of(self.settle, ("rest", "definition"), "settle", "settling")
+        one_of(self.settle, SETTLINGS, "settle", "settling")
         one_of(self.lift, ("decided", "definition"), "lift", "lift")
         one_of(self.vector_strategy, VECTOR_STRATEGIES, "vector_strategy", "strategy")
         require(self.redraw_every >= 1, "redraw_every", f"must be >= 1 episode (got {self.redraw_every})")
@@ -263,6 +269,18 @@ class KukaGraspEnv(gym.Env):
         for k, uid in enumerate(self._objects):
             self._sim.resetBasePositionAndOrientation(uid, self._parking(k), [0, 0, 0, 1])
         steps = 0
+        if settle == "staggered":  # each drop STAGGER_STEPS after the one before, then all of them until at rest
+            for uid, (position, orientation) in zip(self._objects, poses):
+                self._sim.resetBasePositionAndOrientation(uid, position, orientation)
+                for _ in range(STAGGER_STEPS):
+                    self._sim.stepSimulation()
+                steps += STAGGER_STEPS
+            for k in range(SETTLE_STEPS):
+                if k % 10 == 0 and all(self._at_rest(uid) for uid in self._objects):
+                    break
+                self._sim.stepSimulation()
+                steps += 1
+            return steps
         for uid, (position, orientation) in zip(self._objects, poses):
             self._sim.resetBasePositionAndOrientation(uid, position, orientation)
             for k in range(SETTLE_STEPS):
