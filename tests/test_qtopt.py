@@ -311,3 +311,34 @@ def test_an_evaluation_draws_its_cem_candidates_from_its_own_seed():
     evaluate(policy, other, seed=8)
     assert all(torch.equal(a, b) for a, b in zip(first.actions, second.actions, strict=True))
     assert not all(torch.equal(a, b) for a, b in zip(first.actions, other.actions, strict=True))
+
+
+def test_an_evaluation_acts_with_the_cem_search_it_is_given(tmp_path, monkeypatch):
+    """``taskrl eval RUN --cem samples=N ...`` (``evaluate_run(cem=...)``) acts with that search instead of the run's;
+    a setting CEM lacks, or a value it refuses, is one line naming it. Mutation: the changes not applied fails."""
+    import json
+
+    from helpers import cli, small_run
+    from taskrl import loading
+    from taskrl.agents import cem as cem_module
+    from taskrl.errors import ConfigError
+
+    small_run("pointreach-qtopt-her", tmp_path / "run", total_steps=64, learning_starts=32, eval_interval=64, eval_episodes=2)
+    counts = []
+    maximize = cem_module.maximize
+    monkeypatch.setattr(
+        cem_module, "maximize", lambda *a, **k: counts.append((a[4], tuple(a[5]), a[6])) or maximize(*a, **k)
+    )  # (iterations, samples, elites)
+    result = loading.evaluate_run(tmp_path / "run", episodes=2, cem={"samples": 7, "iterations": 3, "elites": 2})
+    assert counts and set(counts) == {(3, (7, 7, 7), 2)}
+    assert result["cem"]["samples"] == 7 and result["cem"]["iterations"] == 3
+    counts.clear()
+    loading.evaluate_run(tmp_path / "run", episodes=2)
+    assert set(counts) == {(2, (64, 64), 6)}  # the run's own search
+    with pytest.raises(ConfigError, match="cem.elites"):
+        loading.evaluate_run(tmp_path / "run", episodes=2, cem={"samples": 4, "elites": 5})
+    done = cli("eval", str(tmp_path / "run"), "--episodes", "2", "--cem", "samples=9", "--json")
+    assert done.returncode == 0, done.stderr
+    assert json.loads(done.stdout)["cem"]["samples"] == 9
+    done = cli("eval", str(tmp_path / "run"), "--episodes", "2", "--cem", "sample=9")
+    assert done.returncode == 2 and "--cem takes NAME=VALUE" in done.stderr and "samples" in done.stderr

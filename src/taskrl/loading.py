@@ -132,6 +132,27 @@ def wilson_interval(successes: float, n: int, z: float = 1.96) -> list[float]:
     return [max(0.0, centre - half), min(1.0, centre + half)]
 
 
+def set_acting_search(agent: Any, changes: dict[str, Any]) -> None:
+    """Make ``agent`` (one that acts by CEM) search with its `CEMConfig` but for ``changes``; `ConfigError` naming
+    ``cem.FIELD`` for a field it lacks or a value it refuses."""
+    from taskrl.agents.cem import CEMConfig, CrossEntropyMethod
+
+    if not isinstance(getattr(agent, "cem", None), CrossEntropyMethod):
+        raise ConfigError("cem", f"applies to agents that act by CEM (QT-Opt); this one is a {type(agent).__name__}")
+    fields = {f.name for f in dataclasses.fields(CEMConfig)}
+    for name in changes:
+        if name not in fields:
+            raise ConfigError("cem", f"unknown setting {name!r}; allowed: {', '.join(sorted(fields))}")
+    search = dataclasses.replace(agent.cem.config, **changes)
+    try:
+        search.validate()
+    except ConfigError as error:
+        raise ConfigError(f"cem.{error.field}", error.message) from None
+    if len(search.init_mean) not in (0, agent.action_dim):
+        raise ConfigError("cem.init_mean", f"needs one value per action dimension ({agent.action_dim}) or none")
+    agent.cem = CrossEntropyMethod(search)
+
+
 def evaluate_run(
     run_dir: str | Path,
     episodes: int = 100,
@@ -143,6 +164,7 @@ def evaluate_run(
     stochastic: bool = False,
     video: int = 0,
     held_out: bool = False,
+    cem: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Re-evaluate a saved agent on ``episodes`` fresh episodes (per task on multi-task envs).
 
@@ -157,6 +179,8 @@ def evaluate_run(
         stochastic: act with the algorithm's exploration instead of greedily.
         video: also record this many episodes to ``run_dir/videos/`` (MP4).
         held_out: evaluate on the env family's held-out objects (a family that declares ``held_out``).
+        cem: act with these `CEMConfig` fields changed (an agent that acts by CEM, QT-Opt), e.g. a wider search
+            ``{"samples": 256, "iterations": 3, "elites": 24}``; the result's ``cem`` holds the search used.
 
     Returns:
         ``success_rate`` with its 95% Wilson interval ``success_ci95``, ``eval_return`` with
@@ -184,11 +208,15 @@ def evaluate_run(
     except ConfigError as error:  # the only setting this call changes is the episode count
         raise ConfigError("episodes" if error.field == "eval_episodes" else error.field, error.message) from None
     agent = load(run_dir, device, env=source, env_module=None, checkpoint=checkpoint)
+    if cem:
+        set_acting_search(agent, cem)
     seed = config.seed + EVAL_SEED_OFFSET if seed is None else seed
     eval_env = make_env(config, agent.device, seed=seed, evaluation=True, source=source)
     try:
         run, last = make_evaluator(config, eval_env, agent, seed, stochastic=stochastic, details=True)
         result = {**run(), "episodes": episodes, "checkpoint_step": agent.loaded_step}
+        if cem:
+            result["cem"] = dataclasses.asdict(agent.cem.config)
         result["checkpoint_unit"] = "gradient updates" if progress_axis(config) == "updates" else "env steps"
     finally:
         eval_env.close()

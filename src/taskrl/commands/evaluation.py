@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 from collections.abc import Sequence
+from typing import Any
 
 from taskrl.commands.parsing import (
     Parser,
@@ -30,6 +32,14 @@ def cmd_eval(argv: Sequence[str]) -> int:
     )
     parser.add_argument("--stochastic", action="store_true", help="act with the algorithm's exploration, not greedily")
     parser.add_argument("--video", type=int, default=0, metavar="N", help="also record N episodes to RUN_DIR/videos/ (MP4)")
+    parser.add_argument(
+        "--cem",
+        nargs="+",
+        default=None,
+        metavar="NAME=VALUE",
+        help="act with another CEM search than the run's (QT-Opt), e.g. --cem samples=256 iterations=3 elites=24 "
+        "(init_mean=0,0,-1,0: one value per action dimension)",
+    )
     parser.add_argument("--json", action="store_true", help="print one line of JSON instead of tables")
     parser.add_argument("--env-module", default=None, help="import this module first (one that registers the run's gymnasium id)")
     prompted = parser.add_argument_group("prompted policies (--algo bc with language or demo input)")
@@ -76,6 +86,7 @@ def cmd_eval(argv: Sequence[str]) -> int:
         stochastic=args.stochastic,
         video=args.video,
         held_out=bool(objects),
+        cem=cem_changes(args.cem) if args.cem else None,
     )
     if args.json:
         print(json.dumps(result))
@@ -96,6 +107,32 @@ def cmd_eval(argv: Sequence[str]) -> int:
     for path in result.get("videos", []):
         out.print(f"video: {path}", soft_wrap=True, markup=False)
     return 0
+
+
+def cem_changes(items: Sequence[str]) -> dict[str, Any]:
+    """``["samples=256", "init_mean=0,0,-1,0"]`` -> `CEMConfig` field changes, each value of its field's type."""
+    from taskrl.agents.cem import CEMConfig
+
+    defaults = dataclasses.asdict(CEMConfig())
+    changes: dict[str, Any] = {}
+    for item in items:
+        name, _, text = item.partition("=")
+        name = name.strip().replace("-", "_")
+        if name not in defaults or not text:
+            raise UsageError(f"--cem takes NAME=VALUE with NAME one of {', '.join(defaults)} (got {item!r})")
+        kind = type(defaults[name])
+        try:
+            if kind is tuple:
+                changes[name] = tuple(float(v) for v in text.split(","))
+            elif kind is bool:
+                changes[name] = {"true": True, "false": False}[text.lower()]
+            else:
+                changes[name] = kind(text)
+        except (ValueError, KeyError):
+            raise UsageError(
+                f"--cem {name} must be {kind.__name__ if kind is not tuple else 'numbers separated by commas'} (got {text!r})"
+            ) from None
+    return changes
 
 
 def _eval_prompted(args: argparse.Namespace) -> int:
