@@ -279,24 +279,14 @@ SEARCHES = {
 
 
 def search_job(job: tuple) -> tuple[tuple, dict]:
-    """``(run, held_out, search, episodes)``: the run's greedy policy acting with one of `SEARCHES`, on the very episodes
-    ``taskrl eval RUN`` scores it on (one process)."""
-    import dataclasses
-
-    from taskrl.agents.cem import CrossEntropyMethod
-    from taskrl.loading import load as load_agent
-    from taskrl.training.evaluation import ActingPolicy, evaluate
+    """``(run, held_out, search, episodes)``: ``taskrl eval RUN [--held-out] --cem ...`` with one of `SEARCHES` (the run's
+    evaluation seed: the same episodes for every search), in a process of its own."""
+    from taskrl.loading import evaluate_run
 
     torch.set_num_threads(1)
     run_dir, held_out, search, episodes = job
-    agent = load_agent(run_dir)
-    agent.cem = CrossEntropyMethod(dataclasses.replace(agent.cem.config, **SEARCHES[search]))
-    env, seed = _evaluation_env(run_dir, episodes, held_out)
     start = time.perf_counter()
-    try:
-        result = evaluate(ActingPolicy(agent, explore=False), env, seed)
-    finally:
-        env.close()
+    result = evaluate_run(run_dir, episodes=episodes, held_out=held_out, cem=SEARCHES[search] or None)
     return job, {**result, "seconds": time.perf_counter() - start}
 
 
