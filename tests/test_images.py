@@ -95,7 +95,9 @@ def test_every_update_shifts_the_pictures_of_both_states_unless_turned_off(monke
     shifted = []
     shift = qtopt.shift_pictures
     monkeypatch.setattr(
-        qtopt, "shift_pictures", lambda obs, pad, generator: shifted.append(shift(obs, pad, generator)) or shifted[-1]
+        qtopt,
+        "shift_pictures",
+        lambda obs, pad, generator, coordinates=(): shifted.append(shift(obs, pad, generator, coordinates)) or shifted[-1],
     )
     env = Grasp(GraspSettings(image_size=16), num_envs=4, seed=0)
     batch = one_step(env, env.reset(seed=0), torch.zeros(4, 4))
@@ -118,14 +120,48 @@ def test_every_update_shifts_the_pictures_of_both_states_unless_turned_off(monke
             assert seen[who] and torch.equal(seen[who][-1], picture[:, None]), who
 
 
+def test_with_shift_coordinates_an_update_moves_the_grippers_state_with_its_shifted_picture():
+    """``--shift-coordinates``: the run's agent gets the env's picture coordinates and its update hands the networks
+    the gripper's x, y moved with each shifted picture; off (the default), the state as stored. Mutation: the agent
+    not passing its coordinates to the shift fails."""
+    from taskrl.config import TrainConfig
+    from taskrl.overrides import with_overrides
+    from taskrl.wiring.parts import make_agent, make_env
+
+    base = with_overrides(TrainConfig(), {"env": "grasp", "algo": "qtopt", "her": "none", "image_size": 16, "num_envs": 4})
+    env = make_env(base, "cpu")
+    try:
+        batch = one_step(env, env.reset(seed=0), torch.zeros(4, 4))
+        for moved in (False, True):
+            agent = make_agent(with_overrides(base, {"shift_coordinates": moved}), env, torch.device("cpu"))
+            assert agent.picture_coordinates == (env.picture_coordinates if moved else ())
+            seen = []
+            agent.q.state_input.register_forward_hook(lambda m, args, out, seen=seen: seen.append(args[0]))
+            agent.update(batch, generator=torch.Generator().manual_seed(0))
+            normalized = agent.inputs.normalize(batch.obs["observation"])  # the vector as stored, normalised
+            vector = seen[-1].vector
+            assert torch.equal(vector[:, 2:], normalized[:, 2:])  # the yaw and the time left never move
+            assert torch.equal(vector[:, :2], normalized[:, :2]) != moved
+    finally:
+        env.close()
+    tabletop = with_overrides(TrainConfig(), {"env": "tabletop", "algo": "bc", "image_size": 16, "shift_coordinates": True})
+    env = make_env(tabletop, "cpu")
+    try:
+        with pytest.raises(ConfigError, match="picture_coordinates") as refused:
+            make_agent(tabletop, env, torch.device("cpu"))
+        assert refused.value.field == "shift_coordinates"
+    finally:
+        env.close()
+
+
 def test_sac_from_pixels_shares_one_encoder_trained_by_the_critics_only_and_targets_read_a_lagged_copy(monkeypatch):
     import taskrl.agents.sac as sac
     import taskrl.encoders.shift as encoders
 
     seen = []
-    shift = encoders.random_shift
+    shift = encoders.random_shift_moves
     monkeypatch.setattr(
-        encoders, "random_shift", lambda images, pad, generator: seen.append(pad) or shift(images, pad, generator)
+        encoders, "random_shift_moves", lambda images, pad, generator: seen.append(pad) or shift(images, pad, generator)
     )
     env = Grasp(GraspSettings(image_size=16), num_envs=8, seed=0)
     config = sac.SACConfig(hidden_sizes=(32,), tau=0.5)
@@ -394,6 +430,48 @@ def test_a_scene_and_its_goal_picture_are_shifted_together():
     )  # the goal kept where it was relative to the scene
 
 
+def test_a_shift_moves_the_positions_the_state_gives_in_the_pictures_frame_with_the_picture():
+    """With ``coordinates``, a state entry that says where something is in the picture follows the shifted picture;
+    other entries, and every entry without ``coordinates``, stay. Mutation: the moves' sign flipped fails."""
+    from taskrl.encoders import PictureCoordinate, shift_pictures
+
+    image = torch.zeros(64, 12, 12, 3, dtype=torch.uint8)
+    image[:, 6, 5] = 255  # row 6, column 5: x = 5.5 / 12, y = 6.5 / 12
+    state = torch.tensor([[5.5 / 12, 6.5 / 12, 7.0]]).expand(64, 3)
+    coordinates = (PictureCoordinate("observation", 0, "col", 1 / 12), PictureCoordinate("observation", 1, "row", 1 / 12))
+    shifted = shift_pictures({"image": image, "observation": state}, 2, torch.Generator().manual_seed(0), coordinates)
+    at = (shifted["image"][..., 0] == 255).nonzero()[:, 1:].float()  # [64, (row, col)]
+    assert len({tuple(m) for m in at.tolist()}) > 10
+    torch.testing.assert_close(shifted["observation"][:, 0], (at[:, 1] + 0.5) / 12)
+    torch.testing.assert_close(shifted["observation"][:, 1], (at[:, 0] + 0.5) / 12)
+    assert torch.equal(shifted["observation"][:, 2], state[:, 2]) and torch.equal(state[:, 0], torch.full((64,), 5.5 / 12))
+    plain = shift_pictures({"image": image, "observation": state}, 2, torch.Generator().manual_seed(0))
+    assert torch.equal(plain["observation"], state)
+
+
+def test_the_grasp_bins_state_puts_the_gripper_where_its_picture_shows_it():
+    """The grasp env's declared picture coordinates (the gripper's x -> columns, y -> rows, 1/size per pixel) agree
+    with its camera: the fingers' pixels are centred on the gripper, and moving it 3 pixels' worth moves them 3."""
+    from taskrl.envs.grasp import FINGER
+
+    env = Grasp(GraspSettings(image_size=64, num_objects=1), num_envs=1, seed=0)
+    env.reset(seed=0)
+    env.gripper[:] = torch.tensor([[0.5, 0.4]])
+    env.yaw[:] = 0.3
+    declared = {c.axis: (c.key, c.index, c.per_pixel) for c in env.picture_coordinates}
+    assert declared == {"col": ("observation", 0, 1 / 64), "row": ("observation", 1, 1 / 64)}
+
+    def fingers_centre() -> torch.Tensor:
+        where = (env.render()[0] == torch.tensor(FINGER, dtype=torch.uint8)).all(-1).nonzero().float()
+        return where.mean(0)  # (row, col)
+
+    row, col = fingers_centre()
+    assert abs((col + 0.5) / 64 - 0.5) < 1 / 64 and abs((row + 0.5) / 64 - 0.4) < 1 / 64
+    env.gripper[:] = torch.tensor([[0.5 + 3 / 64, 0.4 - 3 / 64]])
+    moved = fingers_centre()
+    torch.testing.assert_close(moved - torch.stack([row, col]), torch.tensor([-3.0, 3.0]), atol=0.3, rtol=0)
+
+
 def test_the_rl_encoders_start_orthogonal_as_drqs_and_behaviour_cloning_keeps_torchs_default():
     from taskrl.encoders import FiLMPictureEncoder
 
@@ -506,7 +584,9 @@ def test_every_picture_reading_agent_hands_its_encoder_the_stored_uint8_pictures
     shifted = []
     shift = module.shift_pictures
     monkeypatch.setattr(
-        module, "shift_pictures", lambda obs, pad, generator=None: shifted.append(shift(obs, pad, generator)) or shifted[-1]
+        module,
+        "shift_pictures",
+        lambda obs, pad, generator=None, coordinates=(): shifted.append(shift(obs, pad, generator, coordinates)) or shifted[-1],
     )
     env = make_env(config, "cpu")
     agent = make_agent(config, env, torch.device("cpu"))

@@ -143,7 +143,9 @@ def test_every_pixel_bc_update_shifts_the_pictures(monkeypatch, reach_demos):
     shifted = []
     shift = bc.shift_pictures
     monkeypatch.setattr(
-        bc, "shift_pictures", lambda obs, pad, generator=None: shifted.append(shift(obs, pad, generator)) or shifted[-1]
+        bc,
+        "shift_pictures",
+        lambda obs, pad, generator=None, coordinates=(): shifted.append(shift(obs, pad, generator, coordinates)) or shifted[-1],
     )
     demos = read_demonstrations(reach_demos)
     for pad in (2, 0):

@@ -3,7 +3,8 @@ networks' input of an agent with a camera is a `PictureState`."""
 
 from __future__ import annotations
 
-from typing import NamedTuple
+import dataclasses
+from typing import Literal, NamedTuple
 
 import torch
 
@@ -32,3 +33,16 @@ class PictureState(NamedTuple):
 def state_rows(x: torch.Tensor | PictureState) -> int:
     """The batch size of a networks' input: a tensor ``[B, D]`` or a `PictureState`."""
     return x.rows if isinstance(x, PictureState) else x.shape[0]
+
+
+@dataclasses.dataclass(frozen=True)
+class PictureCoordinate:
+    """An entry of a vector observation that is a position in the picture's frame, such as the gripper's x on a bin
+    seen from above: ``obs[key][:, index]`` grows by ``per_pixel`` for each pixel the picture's content moves along
+    ``axis`` (``row``: down the picture, ``col``: to the right). An env declares these (``picture_coordinates``) so
+    that a shift can move them with the picture (`CameraSettings.shift_coordinates`)."""
+
+    key: str
+    index: int
+    axis: Literal["row", "col"]
+    per_pixel: float

@@ -145,6 +145,7 @@ class BCAgent(Agent):
         self.image_shape = getattr(inputs, "image_shape", None)
         shift = getattr(inputs, "picture_shift", None)  # the camera's; None: BC-Z's crop at this scale
         self.picture_shift = BC_SHIFT if shift is None else int(shift)
+        self.picture_coordinates = tuple(getattr(inputs, "picture_coordinates", ()))
         if self.image_shape is not None and len(self.image_shape) != 3:
             raise ConfigError("env", "behaviour cloning reads one camera picture per state; this env gives goal pictures too")
         raw = picture_values(self.image_shape) if self.image_shape is not None else 0
@@ -341,7 +342,7 @@ class BCAgent(Agent):
         cfg = self.config
         obs = batch.obs
         if self.encoder is not None and self.picture_shift:  # BC-Z's random crop: every picture shifted at random
-            obs = shift_pictures(obs, self.picture_shift)
+            obs = shift_pictures(obs, self.picture_shift, coordinates=self.picture_coordinates)
         x = self.inputs(obs)
         task = batch.obs["task"].long().view(-1)
         context, language_loss = None, None

@@ -77,7 +77,7 @@ from taskrl.agents.parts import (
     td_target,
 )
 from taskrl.agents.spec import AlgorithmSpec
-from taskrl.encoders import DRQ_SHIFT, ImageStateInput, picture_encoder, picture_values, shift_pictures
+from taskrl.encoders import DRQ_SHIFT, ImageStateInput, PictureCoordinate, picture_encoder, picture_values, shift_pictures
 from taskrl.errors import ConfigError, one_of, require
 from taskrl.fused_q import FUSIONS, PictureActionQ
 from taskrl.nets import StateActionQ
@@ -184,6 +184,8 @@ class QTOptAgent(Agent):
         device: torch device of the networks.
         image_shape: ``(H, W, C)`` of an ``image`` observation (the last of ``input_keys``), or None.
         picture_shift: pixels of DrQ's random shift of the pictures in every update (0: none; None: DrQ's 4).
+        picture_coordinates: vector entries that are positions in the picture's frame, moved with the shift
+            (`taskrl.encoders.PictureCoordinate`).
     """
 
     acting = ("q", "normalize")
@@ -206,9 +208,11 @@ class QTOptAgent(Agent):
         device: str | torch.device = "cpu",
         image_shape: tuple[int, ...] | None = None,
         picture_shift: int | None = None,
+        picture_coordinates: tuple[PictureCoordinate, ...] = (),
     ) -> None:
         self.image_shape = tuple(image_shape) if image_shape is not None else None
         self.picture_shift = DRQ_SHIFT if picture_shift is None else int(picture_shift)
+        self.picture_coordinates = tuple(picture_coordinates)
         raw = picture_values(self.image_shape) if self.image_shape is not None else 0
         self.setup(config, device, input_keys, input_dim, picture_dim=raw)
         self.box = ActionBox(action_space, self.device)
@@ -363,7 +367,7 @@ class QTOptAgent(Agent):
         """The update itself (what ``--compile`` compiles): the target if not given, the regression, the target networks."""
         cfg = self.config
         if self.image_shape is not None and self.picture_shift:  # DrQ: every picture shifted on its own
-            shift = lambda obs: shift_pictures(obs, self.picture_shift, generator)  # noqa: E731
+            shift = lambda obs: shift_pictures(obs, self.picture_shift, generator, self.picture_coordinates)  # noqa: E731
             batch = batch.replace(obs=shift(batch.obs), next_obs=shift(batch.next_obs))
         diagnostics: dict[str, torch.Tensor] = {}
         if target is None:
@@ -433,7 +437,14 @@ SPEC = AlgorithmSpec(
     description="QT-Opt: Q-learning over continuous actions with a CEM argmax and clipped double-Q targets",
     config=QTOptConfig,
     build=lambda inputs, config, device, conditioning: QTOptAgent(
-        inputs.keys, inputs.dim, inputs.action_space, config, device, inputs.image_shape, inputs.picture_shift
+        inputs.keys,
+        inputs.dim,
+        inputs.action_space,
+        config,
+        device,
+        inputs.image_shape,
+        inputs.picture_shift,
+        inputs.picture_coordinates,
     ),
     loop="off_policy",
     actions=("box",),

@@ -67,7 +67,7 @@ from taskrl.agents.parts import (
 )
 from taskrl.agents.spec import AlgorithmSpec
 from taskrl.conditioning.networks import TaskConditioning, network_for
-from taskrl.encoders import DRQ_SHIFT, ImageStateInput, picture_encoder, picture_values, shift_pictures
+from taskrl.encoders import DRQ_SHIFT, ImageStateInput, PictureCoordinate, picture_encoder, picture_values, shift_pictures
 from taskrl.errors import require
 from taskrl.replay.batch import Batch, Obs
 
@@ -212,6 +212,8 @@ class SACAgent(Agent):
             use; observations then carry the task index under ``conditioning.task_key``.
         image_shape: ``(H, W, C)`` of an ``image`` observation (the last of ``input_keys``), or None.
         picture_shift: pixels of DrQ's random shift of the pictures in every update (0: none; None: DrQ's 4).
+        picture_coordinates: vector entries that are positions in the picture's frame, moved with the shift
+            (`taskrl.encoders.PictureCoordinate`).
     """
 
     acting = ("actor", "normalize", "task_encoder", "encoder")
@@ -239,9 +241,11 @@ class SACAgent(Agent):
         conditioning: TaskConditioning | None = None,
         image_shape: tuple[int, ...] | None = None,
         picture_shift: int | None = None,
+        picture_coordinates: tuple[PictureCoordinate, ...] = (),
     ) -> None:
         self.image_shape = tuple(image_shape) if image_shape is not None else None
         self.picture_shift = DRQ_SHIFT if picture_shift is None else int(picture_shift)
+        self.picture_coordinates = tuple(picture_coordinates)
         raw = picture_values(self.image_shape) if self.image_shape is not None else 0
         self.setup(config, device, input_keys, input_dim, conditioning, picture_dim=raw)
         self.box = ActionBox(action_space, self.device)
@@ -335,7 +339,7 @@ class SACAgent(Agent):
         """The update itself (what ``--compile`` compiles): critics, actor, temperature, target critics."""
         cfg = self.config
         if self.encoder is not None and self.picture_shift:  # DrQ: each state's pictures shifted at random
-            shift = lambda obs: shift_pictures(obs, self.picture_shift, generator)  # noqa: E731
+            shift = lambda obs: shift_pictures(obs, self.picture_shift, generator, self.picture_coordinates)  # noqa: E731
             batch = batch.replace(obs=shift(batch.obs), next_obs=shift(batch.next_obs))
         self.inputs.update_statistics(batch.obs)
         target = self.bellman_target(batch, generator)
@@ -425,7 +429,15 @@ SPEC = AlgorithmSpec(
     description="soft actor-critic: twin critics, learned temperature (per task on multi-task envs)",
     config=SACConfig,
     build=lambda inputs, config, device, conditioning: SACAgent(
-        inputs.keys, inputs.dim, inputs.action_space, config, device, conditioning, inputs.image_shape, inputs.picture_shift
+        inputs.keys,
+        inputs.dim,
+        inputs.action_space,
+        config,
+        device,
+        conditioning,
+        inputs.image_shape,
+        inputs.picture_shift,
+        inputs.picture_coordinates,
     ),
     loop="off_policy",
     actions=("box",),

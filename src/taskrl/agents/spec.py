@@ -20,13 +20,16 @@ class AgentInputs:
     them, and the action space; on envs with a camera, the pictures' shape ``(H, W, C)`` (``(2, H, W, C)`` with a goal
     picture). Pictures reach the networks as stored, beside the vector of the other keys
     ([`PictureState`][taskrl.types.PictureState]). ``picture_shift``: the camera's random shift of the pictures the
-    agent trains on, in pixels (`taskrl.envs.camera.CameraSettings.shift`); None: the algorithm's own."""
+    agent trains on, in pixels (`taskrl.envs.camera.CameraSettings.shift`); None: the algorithm's own.
+    ``picture_coordinates``: the vector entries the shift moves with the picture (`taskrl.encoders.PictureCoordinate`;
+    empty unless the camera's ``shift_coordinates`` is on)."""
 
     keys: tuple[str, ...]
     dim: int
     action_space: gym.spaces.Space
     image_shape: tuple[int, ...] | None = None
     picture_shift: int | None = None
+    picture_coordinates: tuple[Any, ...] = ()
 
 
 @dataclasses.dataclass(frozen=True)

@@ -12,7 +12,16 @@ from taskrl.encoders.conv import conv_stack
 from taskrl.encoders.keypoints import SpatialSoftmax, keypoint_stack
 from taskrl.encoders.registry import PICTURE_ENCODERS, picture_encoder, register_picture_encoder
 from taskrl.encoders.resnet import small_resnet
-from taskrl.encoders.shift import BC_SHIFT, DRQ_SHIFT, PICTURE_KEYS, picture_values, random_shift, shift_pictures
+from taskrl.encoders.shift import (
+    BC_SHIFT,
+    DRQ_SHIFT,
+    PICTURE_KEYS,
+    PictureCoordinate,
+    picture_values,
+    random_shift,
+    random_shift_moves,
+    shift_pictures,
+)
 from taskrl.encoders.spec import PictureEncoder
 from taskrl.encoders.state_input import FiLMPictureEncoder, ImageStateInput, stacked_channels
 
@@ -23,6 +32,7 @@ __all__ = [
     "PICTURE_KEYS",
     "FiLMPictureEncoder",
     "ImageStateInput",
+    "PictureCoordinate",
     "PictureEncoder",
     "SpatialSoftmax",
     "conv_stack",
@@ -30,6 +40,7 @@ __all__ = [
     "picture_encoder",
     "picture_values",
     "random_shift",
+    "random_shift_moves",
     "register_picture_encoder",
     "shift_pictures",
     "small_resnet",

@@ -7,7 +7,18 @@ import math
 import torch
 from torch.nn import functional as F
 
-__all__ = ["BC_SHIFT", "DRQ_SHIFT", "PICTURE_KEYS", "picture_values", "random_shift", "shift_pictures"]
+from taskrl.types import PictureCoordinate
+
+__all__ = [
+    "BC_SHIFT",
+    "DRQ_SHIFT",
+    "PICTURE_KEYS",
+    "PictureCoordinate",
+    "picture_values",
+    "random_shift",
+    "random_shift_moves",
+    "shift_pictures",
+]
 
 #: pixels of shift of the RL agents' pictures when the camera does not set one: DrQ's pad of 4 (Kostrikov et al. 2020)
 DRQ_SHIFT = 4
@@ -18,31 +29,52 @@ BC_SHIFT = 2
 PICTURE_KEYS = ("image", "goal_image")
 
 
-def random_shift(images: torch.Tensor, pad: int, generator: torch.Generator | None = None) -> torch.Tensor:
+def random_shift_moves(
+    images: torch.Tensor, pad: int, generator: torch.Generator | None = None
+) -> tuple[torch.Tensor, torch.Tensor]:
     """DrQ's random shift of ``[B, H, W, C]`` pictures: replicate-pad by ``pad`` and crop back at an offset
-    drawn per picture (0 to ``2 * pad`` in each direction). Same dtype and shape as given."""
-    if pad <= 0:
-        return images
+    drawn per picture (0 to ``2 * pad`` in each direction). Returns the shifted pictures (same dtype and shape) and
+    ``[B, 2]``: how many pixels each picture's content moved (rows down, columns right; ``pad`` minus the offset)."""
     b, h, w, c = images.shape
+    if pad <= 0:
+        return images, torch.zeros(b, 2, dtype=torch.long, device=images.device)
     padded = F.pad(images.permute(0, 3, 1, 2).float(), (pad, pad, pad, pad), mode="replicate")  # [B, C, H+2p, W+2p]
     offset = torch.randint(0, 2 * pad + 1, (b, 2), generator=generator, device=images.device)
     rows = (offset[:, 0:1] + torch.arange(h, device=images.device))[:, None, :, None].expand(b, c, h, w + 2 * pad)
     cropped = padded.gather(2, rows)
     cols = (offset[:, 1:2] + torch.arange(w, device=images.device))[:, None, None, :].expand(b, c, h, w)
-    return cropped.gather(3, cols).permute(0, 2, 3, 1).to(images.dtype)
+    return cropped.gather(3, cols).permute(0, 2, 3, 1).to(images.dtype), pad - offset
 
 
-def shift_pictures(obs: dict[str, torch.Tensor], pad: int, generator: torch.Generator | None = None) -> dict[str, torch.Tensor]:
+def random_shift(images: torch.Tensor, pad: int, generator: torch.Generator | None = None) -> torch.Tensor:
+    """`random_shift_moves`'s shifted pictures alone."""
+    return random_shift_moves(images, pad, generator)[0]
+
+
+def shift_pictures(
+    obs: dict[str, torch.Tensor],
+    pad: int,
+    generator: torch.Generator | None = None,
+    coordinates: tuple[PictureCoordinate, ...] = (),
+) -> dict[str, torch.Tensor]:
     """``obs`` with its pictures (`PICTURE_KEYS`) shifted by `random_shift`: one offset per row,
     shared by the row's pictures, since a scene and its goal picture come from one camera and the policy
     reads where the scene differs from the goal (independent offsets would move that difference by up to
-    ``2 * pad`` pixels)."""
+    ``2 * pad`` pixels). ``coordinates``: vector entries that are positions in the picture's frame, moved with it
+    (a gripper's position then stays where the picture shows it)."""
     keys = [k for k in PICTURE_KEYS if k in obs]
     if not keys:
         return obs
     channels = [obs[k].shape[-1] for k in keys]
-    shifted = random_shift(torch.cat([obs[k] for k in keys], dim=-1), pad, generator)
-    return {**obs, **dict(zip(keys, shifted.split(channels, dim=-1)))}
+    shifted, moves = random_shift_moves(torch.cat([obs[k] for k in keys], dim=-1), pad, generator)
+    out = {**obs, **dict(zip(keys, shifted.split(channels, dim=-1)))}
+    for key in {c.key for c in coordinates}:
+        value = out[key].clone()
+        for c in coordinates:
+            if c.key == key:
+                value[:, c.index] += moves[:, 0 if c.axis == "row" else 1].to(value.dtype) * c.per_pixel
+        out[key] = value
+    return out
 
 
 def picture_values(shape: tuple[int, ...]) -> int:

@@ -24,10 +24,14 @@ class CameraSettings:
             by this many pixels, replicating the border, and cropped back at a random offset (a scene and its goal
             picture move together); 0: none; -1: the algorithm's own (4 for SAC and QT-Opt, as DrQ; 2 for behaviour
             cloning). Acting and evaluation see the pictures unshifted.
+        shift_coordinates: move the positions the state vector gives in the picture's frame with the shifted
+            picture (the grasp bin's gripper x, y: an env that declares ``picture_coordinates``), so that the state
+            and the picture agree about where the gripper is; off: the picture moves, the state does not.
     """
 
     image_size: int = 64
     shift: int = -1
+    shift_coordinates: bool = False
 
     def validate(self) -> None:
         low, high = IMAGE_SIZES

@@ -50,6 +50,7 @@ from taskrl.envs.base import NativeEnv, Obs, StepResult
 from taskrl.envs.camera import CameraSettings
 from taskrl.envs.spec import EnvFamily, EnvRequest
 from taskrl.errors import one_of, require
+from taskrl.types import PictureCoordinate
 
 __all__ = ["GRASP_OBJECT_SETS", "Grasp", "GraspGymEnv", "GraspSettings", "detect_grasp", "scripted_attempts"]
 
@@ -226,6 +227,13 @@ class Grasp(NativeEnv):
         self.gripper[mask] = 0.3 + 0.4 * self._uniform(n, 2)
         self.yaw[mask] = math.pi * self._uniform(n)
         self.t[mask] = 0
+
+    @property
+    def picture_coordinates(self) -> tuple[PictureCoordinate, ...]:
+        """The state's gripper x and y are positions in the picture's frame: a pixel's centre is at x = (column + 0.5) /
+        size and y = (row + 0.5) / size of the bin (what a shift moves with the picture, ``--shift-coordinates``)."""
+        per_pixel = 1.0 / self.settings.image_size
+        return (PictureCoordinate("observation", 0, "col", per_pixel), PictureCoordinate("observation", 1, "row", per_pixel))
 
     def _obs(self) -> Obs:
         state = torch.cat(

@@ -16,7 +16,7 @@ from taskrl.config import TrainConfig
 from taskrl.envs.base import BatchedEnv
 from taskrl.envs.registry import env_family
 from taskrl.envs.spec import EnvFamily, EnvRequest, env_kind
-from taskrl.errors import ConfigError
+from taskrl.errors import ConfigError, require
 from taskrl.fit import check_fit
 from taskrl.replay import EpisodeReplay, HindsightRelabeler
 from taskrl.setting_values import check_device
@@ -129,7 +129,15 @@ def make_agent(config: TrainConfig, env: Any, device: torch.device, spec: Algori
         image_shape = (2, *image_shape)
     check_network_memory(config, input_dim, device)
     shift = getattr(config.env_settings, "shift", -1)  # the camera's (CameraSettings); -1: the algorithm's own
-    inputs = AgentInputs(keys, input_dim, env.single_action_space, image_shape, shift if shift >= 0 else None)
+    coordinates: tuple = ()
+    if getattr(config.env_settings, "shift_coordinates", False):
+        coordinates = tuple(getattr(env, "picture_coordinates", ()))
+        require(
+            bool(coordinates),
+            "shift_coordinates",
+            f"{config.env!r} declares no position in the picture's frame in its state (picture_coordinates) to move",
+        )
+    inputs = AgentInputs(keys, input_dim, env.single_action_space, image_shape, shift if shift >= 0 else None, coordinates)
     return spec.build(inputs, config.algo_settings, device, conditioning)
 
 
