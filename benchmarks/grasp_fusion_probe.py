@@ -6,7 +6,8 @@ features, then the action joins an MLP: `StateActionQ` with `ImageStateInput`) a
 action and the gripper's state embedded and added to an intermediate conv feature map, then one more convolution:
 `PictureActionQ`). Bins have the gripper near an object (70%) or anywhere; the action is uniform in the box with the
 close on, and the label is whether that step's move and close holds. Arms are ``FUSION:PAD`` (pad: DrQ's random
-shift in pixels, which moves the picture but not the gripper's position in the state vector). Reported: held-out AUC
+shift in pixels, which moves the picture but not the gripper's position in the state vector) or ``FUSION:PAD:moved``
+(the gripper's x, y moved with the picture, as ``--shift-coordinates`` does). Reported: held-out AUC
 every 1,000 updates (batch 64, Adam 3e-4, one torch thread) and the time to score one candidate action (a batch of
 64 states x 32 candidates, as the Bellman maximum does).
 
@@ -63,7 +64,7 @@ def seconds_per_candidate(net: nn.Module, x: PictureState, repeats: int = 5) -> 
     return best / (64 * 32)
 
 
-def probe(fusion: str, pad: int, updates: int, train: tuple, test: tuple, seed: int) -> dict:
+def probe(fusion: str, pad: int, moved: bool, updates: int, train: tuple, test: tuple, seed: int) -> dict:
     torch.manual_seed(seed)
     net = network(fusion)
     optimiser = torch.optim.Adam(net.parameters(), 3e-4)
@@ -77,14 +78,20 @@ def probe(fusion: str, pad: int, updates: int, train: tuple, test: tuple, seed: 
                     [net(rows_of(x_test, slice(i, i + 500)), a_test[i : i + 500]) for i in range(0, x_test.rows, 500)]
                 )
             curve.append({"updates": step, "auc": auc(score, y_test), "seconds": time.perf_counter() - start})
-            print(fusion, pad, curve[-1], flush=True)
+            print(fusion, pad, moved, curve[-1], flush=True)
         rows = torch.randint(x.rows, (64,), generator=g)
-        logits = net(shifted(rows_of(x, rows), pad, g), a[rows])
+        logits = net(shifted(rows_of(x, rows), pad, g, moved), a[rows])
         loss = nn.functional.binary_cross_entropy_with_logits(logits, y[rows])
         optimiser.zero_grad()
         loss.backward()
         optimiser.step()
-    return {"fusion": fusion, "pad": pad, "curve": curve, "ms_per_candidate": 1e3 * seconds_per_candidate(net, x_test)}
+    return {
+        "fusion": fusion,
+        "pad": pad,
+        "moved": moved,
+        "curve": curve,
+        "ms_per_candidate": 1e3 * seconds_per_candidate(net, x_test),
+    }
 
 
 def probe_arm(job: tuple) -> dict:
@@ -94,7 +101,12 @@ def probe_arm(job: tuple) -> dict:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--arms", nargs="+", default=["flat:2", "conv:2"], help="FUSION:PAD")
+    parser.add_argument(
+        "--arms",
+        nargs="+",
+        default=["flat:2", "conv:2"],
+        help="FUSION:PAD, or FUSION:PAD:moved (the gripper's x, y moved with the picture)",
+    )
     parser.add_argument("--updates", type=int, default=6000)
     parser.add_argument("--train-states", type=int, default=40_000)
     parser.add_argument("--seed", type=int, default=0)
@@ -110,7 +122,10 @@ def main() -> None:
         args.workers = saved.get("workers", 1)
     else:
         train, test = labelled_closes(args.train_states, 1), labelled_closes(4_000, 2)
-        jobs = [(fusion, int(pad), args.updates, train, test, args.seed) for fusion, pad in (a.split(":") for a in args.arms)]
+        jobs = [
+            (arm[0], int(arm[1]), arm[2:] == ["moved"], args.updates, train, test, args.seed)
+            for arm in (a.split(":") for a in args.arms)
+        ]
         # one torch thread per arm; forked workers share the labelled closes
         with ProcessPoolExecutor(args.workers, mp_context=multiprocessing.get_context("fork")) as pool:
             results = list(pool.map(probe_arm, jobs))
@@ -127,7 +142,8 @@ def main() -> None:
     ]
     for r in results:
         aucs = " | ".join(f"{row['auc']:.2f}" for row in r["curve"])
-        lines.append(f"| {r['fusion']} | {r['pad']} | {aucs} | {r['ms_per_candidate']:.3f} |")
+        pad = f"{r['pad']}, the gripper's x, y moved with it" if r.get("moved") else f"{r['pad']}"
+        lines.append(f"| {r['fusion']} | {pad} | {aucs} | {r['ms_per_candidate']:.3f} |")
     text = "\n".join(lines)
     print(text)
     if args.write:
@@ -136,7 +152,7 @@ def main() -> None:
         append_results(
             "Grasp critic probe: where the action meets the picture (label depends on the action)",
             "Trained with `.venv/bin/python benchmarks/grasp_fusion_probe.py --arms "
-            + " ".join(f"{r['fusion']}:{r['pad']}" for r in results)
+            + " ".join(f"{r['fusion']}:{r['pad']}" + (":moved" if r.get("moved") else "") for r in results)
             + " --updates "
             f"{args.updates} --workers {args.workers}` (raw data: `benchmarks/results/grasp_fusion_probe.json`): "
             f"{args.workers} arm(s) at a time, one process and torch thread each, so the milliseconds compare the arms "

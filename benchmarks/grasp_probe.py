@@ -27,7 +27,7 @@ from torch import nn
 
 sys.path.insert(0, str(Path(__file__).parent))
 from common import append_results  # noqa: E402
-from taskrl.encoders import ImageStateInput, random_shift  # noqa: E402
+from taskrl.encoders import ImageStateInput, random_shift_moves  # noqa: E402
 from taskrl.envs.grasp import Grasp, GraspSettings  # noqa: E402
 from taskrl.types import PictureState  # noqa: E402
 
@@ -39,9 +39,16 @@ def rows_of(x: PictureState, rows: torch.Tensor | slice) -> PictureState:
     return PictureState(x.vector[rows], x.pictures[rows])
 
 
-def shifted(x: PictureState, pad: int, generator: torch.Generator) -> PictureState:
-    """The states with their pictures shifted (DrQ's augmentation)."""
-    return PictureState(x.vector, random_shift(x.pictures[:, 0], pad, generator)[:, None])
+def shifted(x: PictureState, pad: int, generator: torch.Generator, moved: bool = False) -> PictureState:
+    """The states with their pictures shifted (DrQ's augmentation); ``moved``: the gripper's x, y in the state
+    vector moved with the picture (the grasp env's picture coordinates: 1/64 of the bin per pixel)."""
+    pictures, moves = random_shift_moves(x.pictures[:, 0], pad, generator)
+    vector = x.vector
+    if moved:
+        vector = vector.clone()
+        vector[:, 0] += moves[:, 1] / pictures.shape[2]  # x follows the columns
+        vector[:, 1] += moves[:, 0] / pictures.shape[1]  # y follows the rows
+    return PictureState(vector, pictures[:, None])
 
 
 def placed_bins(n: int, seed: int, spread: float) -> tuple[Grasp, PictureState, torch.Generator]:
