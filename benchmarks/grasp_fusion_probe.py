@@ -112,10 +112,16 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--workers", type=int, default=1, help="arms trained at once, one process and thread each")
     parser.add_argument("--write", action="store_true", help="replace the RESULTS section")
+    parser.add_argument(
+        "--title",
+        default="Grasp critic probe: where the action meets the picture (label depends on the action)",
+        help="the RESULTS section the arms answer (another question's arms go to their own section)",
+    )
+    parser.add_argument("--raw", default="grasp_fusion_probe.json", help="the raw data's file under benchmarks/results/")
     parser.add_argument("--report", action="store_true", help="train nothing: the section from the raw data")
     args = parser.parse_args()
     torch.set_num_threads(1)
-    raw = Path(__file__).parent / "results" / "grasp_fusion_probe.json"
+    raw = Path(__file__).parent / "results" / args.raw
     if args.report:
         saved = json.loads(raw.read_text())
         share, results = saved["holding_share"], saved["arms"]
@@ -150,11 +156,11 @@ def main() -> None:
         from common import append_results
 
         append_results(
-            "Grasp critic probe: where the action meets the picture (label depends on the action)",
+            args.title,
             "Trained with `.venv/bin/python benchmarks/grasp_fusion_probe.py --arms "
             + " ".join(f"{r['fusion']}:{r['pad']}" + (":moved" if r.get("moved") else "") for r in results)
             + " --updates "
-            f"{args.updates} --workers {args.workers}` (raw data: `benchmarks/results/grasp_fusion_probe.json`): "
+            f"{args.updates} --workers {args.workers}` (raw data: `benchmarks/results/{args.raw}`): "
             f"{args.workers} arm(s) at a time, one process and torch thread each, so the milliseconds compare the arms "
             "with each other, not with an idle machine.\n\n" + text,
         )
