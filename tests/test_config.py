@@ -58,7 +58,7 @@ def test_every_preset_is_valid(name):
 @pytest.mark.parametrize(
     "changes, field",
     [
-        ({"algo": "qtopt", "env": "pointreach", "elites": 100}, "elites"),
+        ({"algo": "qtopt", "env": "pointreach", "elites": 100}, "cem.elites"),  # named by its path, as --cem.elites
         ({"algo": "qtopt", "env": "pointreach", "loss": "l1"}, "loss"),
         ({"algo": "sac", "env": "pointreach", "init_alpha": 0.0}, "init_alpha"),
         ({"algo": "td3", "env": "pointreach", "policy_delay": 0}, "policy_delay"),
