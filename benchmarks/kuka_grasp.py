@@ -479,9 +479,11 @@ def main() -> None:
     elif args.what == "protocol":
         found = protocol(args.random, args.runs, args.supervised, args.episodes, args.workers, args.online)
         if args.earlier:  # read before --write replaces it (it may be the same file)
-            earlier = [r for r in json.loads(args.earlier.read_text())["rows"] if r.get("updates", 0) > 0]
+            saved = json.loads(args.earlier.read_text())
+            earlier = [r for r in saved["rows"] if r.get("updates", 0) > 0]
             label = f" ({args.earlier_label})" if args.earlier_label else ""  # "": the rows as they were marked
-            found["rows"] += [{**r, "kind": r["kind"] + label} for r in earlier]
+            # each carried row keeps the episodes it was scored on (its interval)
+            found["rows"] += [{"episodes": saved.get("episodes", 50), **r, "kind": r["kind"] + label} for r in earlier]
         random_rows = {r["objects"]: r for r in json.loads(args.random_test.read_text())} if args.random_test.exists() else {}
         grasps = int(found["collected"].get("replay_episodes", 0))
         lines = [
@@ -505,8 +507,8 @@ def main() -> None:
                 else ""
             )
             lines.append(
-                f"| {kind} | {r['seed']} | {updates} | {_interval(r['train'], args.episodes)} | "
-                f"{_interval(r['test'], args.episodes)} | {r['train_length']:.1f} / {r['test_length']:.1f} | "
+                f"| {kind} | {r['seed']} | {updates} | {_interval(r['train'], r.get('episodes', args.episodes))} | "
+                f"{_interval(r['test'], r.get('episodes', args.episodes))} | {r['train_length']:.1f} / {r['test_length']:.1f} | "
                 + (f"{r['mean_dz']:.2f} / {r['down_share']:.2f} |" if "mean_dz" in r else "- |")
             )
         text = "\n".join(lines)
@@ -515,7 +517,8 @@ def main() -> None:
             (RESULTS / "kuka_grasp_protocol.json").write_text(json.dumps(found, indent=1) + "\n")
             append_results(
                 "KukaGrasp: QT-Opt offline on random grasps, on training and test objects",
-                f"Greedy evaluation (CEM), {args.episodes} episodes per row and split, objects redrawn every episode; "
+                f"Greedy evaluation (CEM), {args.episodes} episodes per row and split (rows carried from an earlier "
+                f"measurement: its own count), objects redrawn every episode; "
                 f"95% normal intervals. {args.note} Raw data: `benchmarks/results/kuka_grasp_protocol.json`.\n\n" + text,
             )
     elif args.what == "settle":
