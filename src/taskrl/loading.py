@@ -135,22 +135,15 @@ def wilson_interval(successes: float, n: int, z: float = 1.96) -> list[float]:
 def set_acting_search(agent: Any, changes: dict[str, Any]) -> None:
     """Make ``agent`` (one that acts by CEM) search with its `CEMConfig` but for ``changes``; `ConfigError` naming
     ``cem.FIELD`` for a field it lacks or a value it refuses."""
-    from taskrl.agents.cem import CEMConfig, CrossEntropyMethod
+    from taskrl.agents.cem import CEMConfig
 
-    if not isinstance(getattr(agent, "cem", None), CrossEntropyMethod):
+    if not hasattr(agent, "use_search"):
         raise ConfigError("cem", f"applies to agents that act by CEM (QT-Opt); this one is a {type(agent).__name__}")
     fields = {f.name for f in dataclasses.fields(CEMConfig)}
     for name in changes:
         if name not in fields:
             raise ConfigError("cem", f"unknown setting {name!r}; allowed: {', '.join(sorted(fields))}")
-    search = dataclasses.replace(agent.cem.config, **changes)
-    try:
-        search.validate()
-    except ConfigError as error:
-        raise ConfigError(f"cem.{error.field}", error.message) from None
-    if len(search.init_mean) not in (0, agent.action_dim):
-        raise ConfigError("cem.init_mean", f"needs one value per action dimension ({agent.action_dim}) or none")
-    agent.cem = CrossEntropyMethod(search)
+    agent.use_search(dataclasses.replace(agent.cem.config, **changes))
 
 
 def evaluate_run(

@@ -85,6 +85,14 @@ from taskrl.replay.batch import Batch, Obs
 from taskrl.types import state_rows
 
 
+def validate_search(search: CEMConfig) -> None:
+    """`CEMConfig.validate`, its errors named by the setting's path (``cem.elites``), as the command line spells it."""
+    try:
+        search.validate()
+    except ConfigError as error:
+        raise ConfigError(f"cem.{error.field}", error.message) from None
+
+
 @dataclasses.dataclass
 class QTOptConfig:
     """QT-Opt hyperparameters.
@@ -167,10 +175,7 @@ class QTOptConfig:
             "target_elites",
             f"must be in [1, target_samples={self.target_samples}] (got {self.target_elites})",
         )
-        try:
-            self.cem.validate()
-        except ConfigError as error:  # named by its path, as the command line spells it
-            raise ConfigError(f"cem.{error.field}", error.message) from None
+        validate_search(self.cem)
 
 
 class QTOptAgent(Agent):
@@ -240,18 +245,23 @@ class QTOptAgent(Agent):
             target.requires_grad_(False)
         if self.independent:
             self.checkpointed = {**type(self).checkpointed, "q2": "q2"}
-        require(
-            len(config.cem.init_mean) in (0, self.action_dim),
-            "cem.init_mean",
-            f"needs one value per action dimension ({self.action_dim}) or none (got {config.cem.init_mean})",
-        )
-        self.cem = CrossEntropyMethod(config.cem)
+        self.use_search(config.cem)
         self._q1_params = list(self.q.parameters())
         self._q2_params = list(self.q2.parameters()) if self.independent else []
         self._params = self._q1_params + self._q2_params
         self._target1_params, self._target2_params = list(self.q_target1.parameters()), list(self.q_target2.parameters())
         self.optimizer = torch.optim.Adam(self._params, lr=config.lr, fused=True)
         self.updates = 0
+
+    def use_search(self, search: CEMConfig) -> None:
+        """Act (and search the Bellman maximum) with ``search``; `ConfigError` naming ``cem.FIELD`` if it is refused."""
+        validate_search(search)
+        require(
+            len(search.init_mean) in (0, self.action_dim),
+            "cem.init_mean",
+            f"needs one value per action dimension ({self.action_dim}) or none (got {search.init_mean})",
+        )
+        self.cem = CrossEntropyMethod(search)
 
     # ---------------------------------------------------------------- helpers
     def q_value(self, out: torch.Tensor) -> torch.Tensor:
