@@ -246,6 +246,19 @@ def test_an_initial_cem_mean_of_the_wrong_length_is_refused_when_the_agent_is_ma
         make_agent(cem=CEMConfig(init_mean=(0.0, -1.0, 0.0)))
 
 
+def test_the_bellman_maximum_searches_the_whole_box_whatever_prior_the_acting_search_has():
+    """Acting starts narrowly at 0.9 (``cem.init_mean``, ``init_std`` 0.05) and stays there; the target's search over the
+    same Q finds its peak at -0.8. Mutation: the target searching with the acting prior -> its argmax stays near 0.9."""
+    prior = CEMConfig(iterations=1, samples=64, elites=4, init_std=0.05, init_mean=(0.9,), truncate=True)
+    agent = make_agent(cem=prior, target_iterations=3, target_samples=64, target_elites=6)
+    agent.q = agent.q_target1 = agent.q_target2 = Stub(lambda x, a: -(a[..., 0] + 0.8).square())
+    b = onehot_batch([0.0], [False], [False], [0])
+    acted, _ = agent.argmax(agent.q, b.obs["observation"], generator=torch.Generator().manual_seed(0))
+    assert acted.item() > 0.7
+    _, a_star = agent.bellman_target(b, return_action=True, generator=torch.Generator().manual_seed(0))
+    assert a_star.item() == pytest.approx(-0.8, abs=0.05)
+
+
 def test_the_bellman_maximum_searches_with_its_own_smaller_cem():
     """The target's CEM scores ``target_samples`` candidates per row in ``target_iterations`` rounds; acting scores the
     acting ``cem``'s. Mutation: the target searching with the acting CEM's sizes fails."""

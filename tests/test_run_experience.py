@@ -46,6 +46,22 @@ def test_print_config_round_trips_through_config(tmp_path, capsys):
     assert (dqn["lr"], dqn["gamma"]) == (0.005, 0.9)
 
 
+def test_a_list_of_numbers_setting_takes_negative_and_fractional_values_and_round_trips(tmp_path, capsys):
+    """``cem.init_mean`` (``tuple[float, ...]``) from flags, through config.json, and emptied by the bare flag.
+    Mutation: read as whole numbers like ``hidden_sizes`` -> -0.5 refused."""
+    assert main(["train", "kukagrasp-qtopt", "--init-mean", "0", "0", "-0.5", "0.25", "--print-config"]) == 0
+    printed = capsys.readouterr().out
+    assert json.loads(printed)["qtopt"]["cem"]["init_mean"] == [0.0, 0.0, -0.5, 0.25]
+    (tmp_path / "c.json").write_text(printed)
+    assert main(["train", "--config", str(tmp_path / "c.json"), "--print-config"]) == 0
+    assert capsys.readouterr().out == printed
+    assert main(["train", "kukagrasp-qtopt", "--init-mean", "--print-config"]) == 0
+    assert json.loads(capsys.readouterr().out)["qtopt"]["cem"]["init_mean"] == []
+    (tmp_path / "bad.json").write_text(printed.replace("0.25", '"up"'))
+    assert main(["train", "--config", str(tmp_path / "bad.json"), "--print-config"]) == 2
+    assert "--init-mean must be a list of numbers" in capsys.readouterr().err
+
+
 def test_help_shows_the_presets_values_and_budget_warnings_are_said(capsys):
     with pytest.raises(SystemExit):
         main(["train", "pointreach-sac-her", "--help"])

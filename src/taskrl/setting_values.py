@@ -29,7 +29,8 @@ def checked_value(name: str, value: Any, tp: Any) -> Any:
 
     The one type check of every setting, however it arrives (a flag, a keyword of ``taskrl.train``,
     a saved ``config.json``): integers (an integral float such as ``1e6`` is accepted), finite
-    numbers, booleans, strings, one of a ``Literal``'s values, lists of positive integers.
+    numbers, booleans, strings, one of a ``Literal``'s values, lists of whole numbers or (``tuple[float, ...]``) of
+    finite numbers.
     """
     origin = typing.get_origin(tp)
     if tp is bool:
@@ -51,6 +52,12 @@ def checked_value(name: str, value: Any, tp: Any) -> Any:
     if origin is typing.Literal:
         one_of(value, typing.get_args(tp), name, "value")
         return value
+    if origin is tuple and typing.get_args(tp)[:1] == (float,):
+        ok = isinstance(value, (list, tuple)) and all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value
+        )
+        require(ok, name, f"must be a list of numbers, e.g. [0, 0, -1, 0] (got {value!r})")
+        return tuple(float(v) for v in value)
     if origin is tuple:
         ok = isinstance(value, (list, tuple)) and all(isinstance(v, int) and not isinstance(v, bool) for v in value)
         require(ok, name, f"must be a list of whole numbers, e.g. [256, 256] (got {value!r})")

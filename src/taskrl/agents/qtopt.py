@@ -37,7 +37,8 @@ The Bellman maximum. The target's argmax runs its own, smaller CEM (``target_sam
 ``target_iterations`` rounds, ``target_elites``): by default one round of 32, as TF-Agents' QtOpt samples 32 and
 the QT-Opt team's simulated grasping benchmark (Quillen et al. 2018) took the maximum over 16 random samples; the
 paper's 2 x 64 moved to separate Bellman-updater processes, which a two-core machine does not have. Acting keeps
-the richer ``cem``.
+the richer ``cem``. The target's search starts from the whole box (the centre, ``init_std`` 1) whatever prior the
+acting search has (``cem.init_mean``, a narrower ``cem.init_std``), so a prior on where to act does not bias the values.
 
 Exploration while collecting: Gaussian noise of std ``noise_std`` around the CEM action and, with
 probability ``random_action_prob`` (decayed linearly to ``random_action_prob_end`` over
@@ -262,6 +263,9 @@ class QTOptAgent(Agent):
             f"needs one value per action dimension ({self.action_dim}) or none (got {search.init_mean})",
         )
         self.cem = CrossEntropyMethod(search)
+        # the Bellman maximum's cold search covers the whole box whatever prior the acting search has (the benchmark's
+        # config drew its 16 target candidates uniformly): an acting prior must not bias the learned values
+        self.target_cem = CrossEntropyMethod(dataclasses.replace(search, init_mean=(), init_std=1.0))
 
     # ---------------------------------------------------------------- helpers
     def q_value(self, out: torch.Tensor) -> torch.Tensor:
@@ -291,10 +295,11 @@ class QTOptAgent(Agent):
             return scores
 
         c = self.config
-        sizes = {}
+        search, sizes = self.cem, {}
         if target and warm_start is None:
+            search = self.target_cem
             sizes = {"iterations": c.target_iterations, "samples": c.target_samples, "elites": c.target_elites}
-        return self.cem.maximize(
+        return search.maximize(
             score, state_rows(x), self.unit_low, self.unit_high, init_mean=warm_start, generator=generator, **sizes
         )
 

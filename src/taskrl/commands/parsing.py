@@ -126,6 +126,8 @@ def add_config_flags(
             kwargs["action"] = argparse.BooleanOptionalAction
         elif origin is typing.Literal:
             kwargs["choices"] = typing.get_args(tp)
+        elif origin is tuple and typing.get_args(tp)[:1] == (float,):
+            kwargs.update(type=float, nargs="*", metavar="X")  # none given: the empty default (e.g. cem.init_mean)
         elif origin is tuple:
             kwargs.update(type=int, nargs="+", metavar="N")
         elif name in AUTO_COUNTS:
