@@ -122,6 +122,55 @@ def test_staggered_settling_drops_every_object_in_turn_and_lets_them_all_come_to
     assert ((ends[:, 0] > 0.35) & (ends[:, 0] < 0.85) & (np.abs(ends[:, 1]) < 0.3) & (ends[:, 2] < DROP_HEIGHT)).all()
 
 
+def play_episodes(env: KukaGraspEnv, seed: int, episodes: int) -> list[tuple]:
+    """Episodes acting DOWN throughout after one seeded reset: (objects, first picture, first object positions, reward)."""
+    found = []
+    for k in range(episodes):
+        obs, info = env.reset(seed=seed if k == 0 else None)
+        start = (info["objects"], obs["image"].copy(), env.object_positions())
+        _, reward, _ = until_the_end(env, DOWN)
+        found.append((*start, reward))
+    return found
+
+
+def test_an_episode_prepared_ahead_in_the_spare_simulation_is_the_one_reset_in_place_gives():
+    """``reset_ahead`` settles the next episode in a second simulation in the background, from the same draws: the same
+    objects, the same first pictures bit for bit, the same rewards. Mutation: the prepared simulation not handed over
+    (the episode played in the old one) -> the objects differ."""
+    found = {}
+    for ahead in (False, True):
+        env = KukaGraspEnv(reset_ahead=ahead)
+        try:
+            found[ahead] = play_episodes(env, seed=3, episodes=3)
+        finally:
+            env.close()
+        assert env._preparing is None  # closing stops the background thread
+    for (names, picture, positions, reward), (names_ahead, picture_ahead, positions_ahead, reward_ahead) in zip(
+        found[False], found[True]
+    ):
+        assert names == names_ahead and reward == reward_ahead
+        assert np.array_equal(picture, picture_ahead) and np.array_equal(positions, positions_ahead)
+    assert len({tuple(names) for names, *_ in found[True]}) == 3
+
+
+def test_the_arm_is_out_of_the_tray_while_the_next_objects_drop():
+    """A missed grasp's lift stops with the gripper low in the tray; the next reset moves the arm back to its rest pose
+    before dropping the objects (the definition's reset loads the arm there). Mutation: the arm reset only after the
+    drops -> the objects fall onto the gripper left in the tray."""
+    env = KukaGraspEnv(reset_ahead=False)
+    heights = []
+    settle = env._scene.settle_objects
+    try:
+        env._scene.settle_objects = lambda *a: heights.append(env.gripper_position()[2]) or settle(*a)
+        env.reset(seed=3)
+        _, reward, info = until_the_end(env, DOWN)
+        assert reward == 0 and info["lift_failed_at"] > 0 and env.gripper_position()[2] < 0.2  # left low
+        env.reset()
+    finally:
+        env.close()
+    assert len(heights) == 2 and min(heights) > 0.3
+
+
 def test_the_random_policy_moves_down_nine_times_in_ten():
     action = random_grasp_action(torch.Generator().manual_seed(0), 20_000)
     down = (action[:, 2] == -1).float().mean()

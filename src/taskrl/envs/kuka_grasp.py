@@ -59,6 +59,7 @@ import dataclasses
 import math
 import os
 import sys
+import threading
 from typing import Any, Literal
 
 import gymnasium as gym
@@ -159,6 +160,9 @@ class KukaGraspSettings(CameraSettings):
         lift: ``decided`` (the close-and-lift stops once it has failed for certain: fingers shut on nothing) or
             ``definition`` (its 1,000 steps always).
         image_size: the side of the picture (rendered at twice this and resized).
+        reset_ahead: simulate the next episode's initial state in a second simulation while the copy waits for its
+            caller (`KukaGraspEnv`); the same draws in the same order, so the same episodes. Only with
+            ``vector_strategy="async"``: one process holding every copy has no waiting to fill.
         vector_strategy: ``async`` (one process per copy: every core simulates) or ``sync`` (one process).
     """
 
@@ -169,6 +173,7 @@ class KukaGraspSettings(CameraSettings):
     settle: Literal["staggered", "rest", "definition"] = "staggered"
     lift: Literal["decided", "definition"] = "decided"
     image_size: int = 64
+    reset_ahead: bool = True
     vector_strategy: Literal["sync", "async"] = "async"
 
     def validate(self) -> None:
@@ -187,8 +192,162 @@ class KukaGraspSettings(CameraSettings):
         return fields
 
 
+class _Cancelled(Exception):
+    """A background preparation told to stop (a seeded reset, or closing)."""
+
+
+class _Scene:
+    """One pybullet simulation of the benchmark's scene (plane, table, arm, tray), the objects in it and the gripper's
+    target. While it is being prepared in the background, ``gate`` (set: it may simulate) pauses it whenever the env
+    is busy, and ``cancelled`` stops it."""
+
+    def __init__(self, pybullet: Any, root: str) -> None:
+        from pybullet_utils import bullet_client
+
+        self._pb, self._root = pybullet, root
+        with _c_stdout_silenced():  # pybullet's C code prints "argv[0]=" on connecting
+            self.sim = bullet_client.BulletClient(connection_mode=pybullet.DIRECT)
+        self.gate: threading.Event | None = None
+        self.cancelled = False
+        self.build()
+
+    def build(self) -> None:
+        """The fixed scene, in an empty simulation; no objects."""
+        sim, root = self.sim, self._root
+        sim.setPhysicsEngineParameter(numSolverIterations=150)
+        sim.setTimeStep(TIME_STEP)
+        sim.setGravity(0, 0, -10)
+        sim.loadURDF(os.path.join(root, "plane.urdf"), [0, 0, -1])
+        sim.loadURDF(os.path.join(root, "table/table.urdf"), [0.5, 0.0, -0.82], [0, 0, 0, 1])
+        self.arm = sim.loadSDF(os.path.join(root, "kuka_iiwa/kuka_with_gripper2.sdf"))[0]
+        sim.loadURDF(os.path.join(root, "tray/tray.urdf"), [0.64, 0.075, -0.19], [0, 0, 1, 0])
+        self.view = sim.computeViewMatrixFromYawPitchRoll(CAMERA["look"], CAMERA["distance"], CAMERA["yaw"], CAMERA["pitch"], 0, 2)
+        self.projection = sim.computeProjectionMatrixFOV(CAMERA["fov"], 1.0, 0.1, 10.0)
+        self.down = sim.getQuaternionFromEuler([0, -math.pi, 0])  # the gripper's orientation, pointing down
+        self.objects: list[int] = []
+        self.files: list[str] = []
+        self.target, self.yaw = list(ARM_START), 0.0
+
+    def rebuild(self) -> None:
+        """A fresh simulation (no contact state carried over), the fixed scene in it."""
+        self.sim.resetSimulation()
+        self.build()
+
+    def step_simulation(self) -> None:
+        if self.gate is not None:
+            self.gate.wait()
+            if self.cancelled:
+                raise _Cancelled
+        self.sim.stepSimulation()
+
+    def load_objects(self, files: list[str]) -> None:
+        """``files`` in the simulation, each at its parking place (kept when they are the ones already loaded)."""
+        if files == self.files:
+            return
+        for uid in self.objects:
+            self.sim.removeBody(uid)
+        self.objects = [self.sim.loadURDF(f, parking_place(k)) for k, f in enumerate(files)]
+        self.files = list(files)
+
+    def settle_objects(self, poses: list[tuple[list[float], list[float]]], settle: str) -> int:
+        """Drop the objects one by one from ``poses`` into the empty tray; the simulation steps it took."""
+        sim = self.sim
+        for k, uid in enumerate(self.objects):
+            sim.resetBasePositionAndOrientation(uid, parking_place(k), [0, 0, 0, 1])
+        steps = 0
+        if settle == "staggered":  # each drop STAGGER_STEPS after the one before, then all of them until at rest
+            for uid, (position, orientation) in zip(self.objects, poses):
+                sim.resetBasePositionAndOrientation(uid, position, orientation)
+                for _ in range(STAGGER_STEPS):
+                    self.step_simulation()
+                steps += STAGGER_STEPS
+            for k in range(SETTLE_STEPS):
+                if k % 10 == 0 and all(self.at_rest(uid) for uid in self.objects):
+                    break
+                self.step_simulation()
+                steps += 1
+            return steps
+        for uid, (position, orientation) in zip(self.objects, poses):
+            sim.resetBasePositionAndOrientation(uid, position, orientation)
+            for k in range(SETTLE_STEPS):
+                self.step_simulation()
+                steps += 1
+                if settle == "rest" and k % 10 == 9 and self.at_rest(uid):
+                    break
+        return steps
+
+    def at_rest(self, uid: int) -> bool:
+        linear, angular = self.sim.getBaseVelocity(uid)
+        return math.hypot(*linear) < 0.01 and math.hypot(*angular) < 0.1
+
+    def object_positions(self) -> np.ndarray:
+        return np.array([self.sim.getBasePositionAndOrientation(uid)[0] for uid in self.objects])
+
+    def reset_arm(self) -> None:
+        sim, pb = self.sim, self._pb
+        sim.resetBasePositionAndOrientation(self.arm, ARM_BASE, [0, 0, 0, 1])
+        for joint, angle in enumerate(ARM_JOINTS):
+            sim.resetJointState(self.arm, joint, angle)
+        sim.setJointMotorControlArray(
+            self.arm, list(range(len(ARM_JOINTS))), pb.POSITION_CONTROL,
+            targetPositions=list(ARM_JOINTS), forces=[MAX_FORCE] * len(ARM_JOINTS),
+        )  # fmt: skip
+        self.target, self.yaw = list(ARM_START), 0.0
+
+    def command(self, dx: float, dy: float, dz: float, dyaw: float, fingers: float) -> None:
+        """Move the gripper's target (clipped to the workspace), solve the arm's joints for it, set the fingers."""
+        sim, pb, target = self.sim, self._pb, self.target
+        height = self.gripper_position()[2]
+        target[0] = min(max(target[0] + dx, X_RANGE[0]), X_RANGE[1])
+        target[1] = min(max(target[1] + dy, Y_RANGE[0]), Y_RANGE[1])
+        if dz > 0 or height > GRASP_HEIGHT:
+            target[2] += dz
+        if height < GRASP_HEIGHT:  # the authors' arm creeps up when below the grasp height
+            target[2] += 0.0001
+        self.yaw += dyaw
+        joints = sim.calculateInverseKinematics(self.arm, GRIPPER_LINK, target, self.down, jointDamping=[0.1] * 12, maxNumIterations=1)
+        n = GRIPPER_LINK + 1
+        sim.setJointMotorControlArray(
+            self.arm, list(range(n)), pb.POSITION_CONTROL, targetPositions=list(joints[:n]),
+            targetVelocities=[0.0] * n, forces=[MAX_FORCE] * n, positionGains=[0.03] * n, velocityGains=[1.0] * n,
+        )  # fmt: skip
+        sim.setJointMotorControl2(self.arm, 7, pb.POSITION_CONTROL, targetPosition=self.yaw, force=MAX_FORCE)
+        for joint, force in FINGER_FORCES.items():
+            finger = {8: -fingers, 11: fingers}.get(joint, 0.0)
+            sim.setJointMotorControl2(self.arm, joint, pb.POSITION_CONTROL, targetPosition=finger, force=force)
+
+    def gripper_position(self) -> tuple[float, float, float]:
+        return self.sim.getLinkState(self.arm, GRIPPER_LINK)[0]
+
+    def start_episode(self, files: list[str], poses: list[tuple[list[float], list[float]]], settle: str) -> None:
+        """The part of a reset that simulates: the objects loaded and settled, the arm reset and its approach."""
+        self.load_objects(files)
+        for k, uid in enumerate(self.objects):
+            self.sim.resetBasePositionAndOrientation(uid, parking_place(k), [0, 0, 0, 1])
+        self.reset_arm()  # out of the tray before the drops: a missed grasp's lift stops with the gripper low in it
+        self.settle_objects(poses, settle)
+        self.reset_arm()
+        self.command(0.0, 0.0, -0.3, 0.0, 0.3)  # the approach: down towards the tray, fingers open
+        for _ in range(100):
+            self.step_simulation()
+
+    def close(self) -> None:
+        self.sim.disconnect()
+
+
+def parking_place(k: int) -> list[float]:
+    """Where object ``k`` waits for its drop: on the floor far from the tray and from the others (objects overlapping
+    while they wait cost more simulation than the whole drop)."""
+    return [3.0 + k, 3.0, -0.8]
+
+
 class KukaGraspEnv(gym.Env):
     """One copy of the benchmark (``taskrl/KukaGrasp-v0``); see the module docstring.
+
+    With ``reset_ahead`` the next episode's initial state is simulated in a second simulation, in a background thread
+    that runs only while the env waits for its caller (between `step` and `reset` calls), from the same random draws
+    in the same order as without it; `reset` then hands over the prepared simulation. In a process per copy, the
+    settling then fills the time a copy waits for the slowest of the others.
 
     Args:
         render_mode: ``rgb_array`` makes `render` return the camera picture at its rendered size.
@@ -201,15 +360,11 @@ class KukaGraspEnv(gym.Env):
         try:
             import pybullet
             import pybullet_data
-            from pybullet_utils import bullet_client
         except ImportError:
             raise ConfigError("env", "kukagrasp needs pybullet: pip install 'taskrl[grasp]'") from None
         self.settings = KukaGraspSettings(**settings)
         self.settings.validate()
         self.render_mode = render_mode
-        self._pb = pybullet
-        with _c_stdout_silenced():  # pybullet's C code prints "argv[0]=" on connecting
-            self._sim = bullet_client.BulletClient(connection_mode=pybullet.DIRECT)
         self._root = pybullet_data.getDataPath()
         self._files = object_files(self.settings.objects, self._root)
         size = self.settings.image_size
@@ -220,160 +375,135 @@ class KukaGraspEnv(gym.Env):
                 "observation": gym.spaces.Box(-5.0, 5.0, (5,), np.float32),
             }
         )
-        self._build_scene()
-        self._objects: list[int] = []
+        self._scene = _Scene(pybullet, self._root)
+        self._spare = _Scene(pybullet, self._root) if self.settings.reset_ahead else None
+        self._preparing: threading.Thread | None = None
+        self._prepare_error: BaseException | None = None
+        self._drawn_files: list[str] = []
         self.object_names: list[str] = []
         self._episodes = 0
+        self._step = 0
         self._picture: np.ndarray | None = None
 
     # ------------------------------------------------------------------ the scene
-    def _build_scene(self) -> None:
-        sim, root = self._sim, self._root
-        sim.setPhysicsEngineParameter(numSolverIterations=150)
-        sim.setTimeStep(TIME_STEP)
-        sim.setGravity(0, 0, -10)
-        sim.loadURDF(os.path.join(root, "plane.urdf"), [0, 0, -1])
-        sim.loadURDF(os.path.join(root, "table/table.urdf"), [0.5, 0.0, -0.82], [0, 0, 0, 1])
-        self._arm = sim.loadSDF(os.path.join(root, "kuka_iiwa/kuka_with_gripper2.sdf"))[0]
-        sim.loadURDF(os.path.join(root, "tray/tray.urdf"), [0.64, 0.075, -0.19], [0, 0, 1, 0])
-        self._view = sim.computeViewMatrixFromYawPitchRoll(
-            CAMERA["look"], CAMERA["distance"], CAMERA["yaw"], CAMERA["pitch"], 0, 2
-        )
-        self._projection = sim.computeProjectionMatrixFOV(CAMERA["fov"], 1.0, 0.1, 10.0)
-        self._arm_joints = list(range(GRIPPER_LINK + 1))
-        self._down = sim.getQuaternionFromEuler([0, -math.pi, 0])  # the gripper's orientation, pointing down
+    def _next_draws(self) -> tuple[list[str], list[tuple[list[float], list[float]]]]:
+        """The random draws of the next episode, in the order a reset makes them: its objects (new ones every
+        ``redraw_every`` episodes) and their drop poses."""
+        if not self._drawn_files or self._episodes % self.settings.redraw_every == 0:
+            picks = self.np_random.integers(0, len(self._files), self.settings.num_objects)
+            self._drawn_files = [self._files[i] for i in picks]
+        self._episodes += 1
+        return self._drawn_files, self.drop_poses(len(self._drawn_files))
 
-    def _draw_objects(self) -> None:
-        for uid in self._objects:
-            self._sim.removeBody(uid)
-        picks = self.np_random.integers(0, len(self._files), self.settings.num_objects)
-        self.object_names = [os.path.basename(self._files[i])[:-5] for i in picks]
-        self._objects = [self._sim.loadURDF(self._files[i], self._parking(k)) for k, i in enumerate(picks)]
-
-    @staticmethod
-    def _parking(k: int) -> list[float]:
-        """Where object ``k`` waits for its drop: on the floor far from the tray and from the others (objects
-        overlapping while they wait cost more simulation than the whole drop)."""
-        return [3.0 + k, 3.0, -0.8]
-
-    def drop_poses(self) -> list[tuple[list[float], list[float]]]:
-        """Where each object is dropped from this episode (position, quaternion): the benchmark's random drop."""
+    def drop_poses(self, count: int | None = None) -> list[tuple[list[float], list[float]]]:
+        """Where each of ``count`` objects (default: those in the tray) is dropped from: the benchmark's random drop."""
         poses = []
-        for _ in self._objects:
+        for _ in range(len(self._scene.objects) if count is None else count):
             u = self.np_random.random(3)
             position = [0.4 + DROP_SPREAD * u[0], DROP_SPREAD * (u[1] - 0.5), DROP_HEIGHT]
-            poses.append((position, list(self._sim.getQuaternionFromEuler([0, 0, math.pi / 2 + DROP_SPREAD * math.pi * u[2]]))))
+            yaw = math.pi / 2 + DROP_SPREAD * math.pi * u[2]
+            poses.append((position, list(self._scene.sim.getQuaternionFromEuler([0, 0, yaw]))))
         return poses
 
     def settle_objects(self, poses: list[tuple[list[float], list[float]]], settle: str) -> int:
         """Drop the objects one by one from ``poses`` into the empty tray; the simulation steps it took."""
-        for k, uid in enumerate(self._objects):
-            self._sim.resetBasePositionAndOrientation(uid, self._parking(k), [0, 0, 0, 1])
-        steps = 0
-        if settle == "staggered":  # each drop STAGGER_STEPS after the one before, then all of them until at rest
-            for uid, (position, orientation) in zip(self._objects, poses):
-                self._sim.resetBasePositionAndOrientation(uid, position, orientation)
-                for _ in range(STAGGER_STEPS):
-                    self._sim.stepSimulation()
-                steps += STAGGER_STEPS
-            for k in range(SETTLE_STEPS):
-                if k % 10 == 0 and all(self._at_rest(uid) for uid in self._objects):
-                    break
-                self._sim.stepSimulation()
-                steps += 1
-            return steps
-        for uid, (position, orientation) in zip(self._objects, poses):
-            self._sim.resetBasePositionAndOrientation(uid, position, orientation)
-            for k in range(SETTLE_STEPS):
-                self._sim.stepSimulation()
-                steps += 1
-                if settle == "rest" and k % 10 == 9 and self._at_rest(uid):
-                    break
-        return steps
-
-    def _at_rest(self, uid: int) -> bool:
-        linear, angular = self._sim.getBaseVelocity(uid)
-        return math.hypot(*linear) < 0.01 and math.hypot(*angular) < 0.1
+        return self._scene.settle_objects(poses, settle)
 
     def object_positions(self) -> np.ndarray:
         """``[num_objects, 3]``: where each object is now."""
-        return np.array([self._sim.getBasePositionAndOrientation(uid)[0] for uid in self._objects])
-
-    def _reset_arm(self) -> None:
-        sim = self._sim
-        sim.resetBasePositionAndOrientation(self._arm, ARM_BASE, [0, 0, 0, 1])
-        for joint, angle in enumerate(ARM_JOINTS):
-            sim.resetJointState(self._arm, joint, angle)
-        sim.setJointMotorControlArray(
-            self._arm, list(range(len(ARM_JOINTS))), self._pb.POSITION_CONTROL,
-            targetPositions=list(ARM_JOINTS), forces=[MAX_FORCE] * len(ARM_JOINTS),
-        )  # fmt: skip
-        self._target = list(ARM_START)
-        self._yaw = 0.0
-
-    def _command(self, dx: float, dy: float, dz: float, dyaw: float, fingers: float) -> None:
-        """Move the gripper's target (clipped to the workspace), solve the arm's joints for it, set the fingers."""
-        sim = self._sim
-        height = self.gripper_position()[2]
-        self._target[0] = min(max(self._target[0] + dx, X_RANGE[0]), X_RANGE[1])
-        self._target[1] = min(max(self._target[1] + dy, Y_RANGE[0]), Y_RANGE[1])
-        if dz > 0 or height > GRASP_HEIGHT:
-            self._target[2] += dz
-        if height < GRASP_HEIGHT:  # the authors' arm creeps up when below the grasp height
-            self._target[2] += 0.0001
-        self._yaw += dyaw
-        joints = sim.calculateInverseKinematics(
-            self._arm, GRIPPER_LINK, self._target, self._down, jointDamping=[0.1] * 12, maxNumIterations=1
-        )
-        n = len(self._arm_joints)
-        sim.setJointMotorControlArray(
-            self._arm, self._arm_joints, self._pb.POSITION_CONTROL, targetPositions=list(joints[:n]),
-            targetVelocities=[0.0] * n, forces=[MAX_FORCE] * n, positionGains=[0.03] * n, velocityGains=[1.0] * n,
-        )  # fmt: skip
-        sim.setJointMotorControl2(self._arm, 7, self._pb.POSITION_CONTROL, targetPosition=self._yaw, force=MAX_FORCE)
-        for joint, force in FINGER_FORCES.items():
-            target = {8: -fingers, 11: fingers}.get(joint, 0.0)
-            sim.setJointMotorControl2(self._arm, joint, self._pb.POSITION_CONTROL, targetPosition=target, force=force)
+        return self._scene.object_positions()
 
     def gripper_position(self) -> tuple[float, float, float]:
         """Where the gripper is (the arm's last link)."""
-        return self._sim.getLinkState(self._arm, GRIPPER_LINK)[0]
+        return self._scene.gripper_position()
+
+    def _prepare_next(self) -> None:
+        """Start simulating the next episode's initial state in the spare simulation, in the background."""
+        files, poses = self._next_draws()
+        spare = self._spare
+        spare.gate, spare.cancelled = threading.Event(), False
+        spare.gate.set()
+
+        def prepare() -> None:
+            try:
+                spare.start_episode(files, poses, self.settings.settle)
+            except _Cancelled:
+                pass
+            except BaseException as error:  # handed to the reset that needs this simulation
+                self._prepare_error = error
+
+        self._preparing = threading.Thread(target=prepare, name="kukagrasp-reset-ahead", daemon=True)
+        self._preparing.start()
+
+    def _finish_preparing(self, cancel: bool) -> bool:
+        """Wait for the background preparation (letting it run; stopped at once if ``cancel``); whether one finished."""
+        if self._preparing is None:
+            return False
+        spare = self._spare
+        spare.cancelled = cancel
+        spare.gate.set()
+        self._preparing.join()
+        self._preparing, spare.gate = None, None
+        if self._prepare_error is not None:
+            error, self._prepare_error = self._prepare_error, None
+            raise error
+        return not cancel
+
+    @contextlib.contextmanager
+    def _busy(self):
+        """The background preparation paused while the env itself simulates."""
+        gate = self._spare.gate if self._spare is not None else None
+        if gate is not None:
+            gate.clear()
+        try:
+            yield
+        finally:
+            if gate is not None:
+                gate.set()
 
     # ------------------------------------------------------------------ gymnasium
     def reset(self, *, seed: int | None = None, options: dict | None = None):
-        super().reset(seed=seed)
-        if seed is not None:  # a seeded episode starts from a fresh simulation (no contact state carried over)
-            self._sim.resetSimulation()
-            self._build_scene()
-            self._objects, self._episodes = [], 0
-        if not self._objects or self._episodes % self.settings.redraw_every == 0:
-            self._draw_objects()
-        self._episodes += 1
-        self.settle_objects(self.drop_poses(), self.settings.settle)
-        self._reset_arm()
-        self._command(0.0, 0.0, -0.3, 0.0, 0.3)  # the approach: down towards the tray, fingers open
-        for _ in range(100):
-            self._sim.stepSimulation()
+        if seed is not None:  # a seeded episode starts from fresh simulations (no contact state carried over)
+            self._finish_preparing(cancel=True)
+            super().reset(seed=seed)
+            for scene in (self._scene, self._spare):
+                if scene is not None:
+                    scene.rebuild()
+            self._drawn_files, self._episodes = [], 0
+        if self._finish_preparing(cancel=False):
+            self._scene, self._spare = self._spare, self._scene
+        else:
+            files, poses = self._next_draws()
+            self._scene.start_episode(files, poses, self.settings.settle)
+        self.object_names = [os.path.basename(f)[:-5] for f in self._scene.files]
         self._step = 0
-        return self._observation(), {"objects": list(self.object_names)}
+        observation = self._observation()
+        if self._spare is not None:
+            self._prepare_next()
+        return observation, {"objects": list(self.object_names)}
 
     def step(self, action):
+        with self._busy():
+            return self._step_simulated(action)
+
+    def _step_simulated(self, action):
         a = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
         if self.settings.height_hack:
             dx, dy, dz, dyaw = MOVE * a[0], MOVE * a[1], -MOVE, TURN * a[2]
         else:
             dx, dy, dz, dyaw = MOVE * a[0], MOVE * a[1], MOVE * a[2], TURN * a[3]
+        scene = self._scene
         self._step += 1
-        self._command(dx, dy, dz, dyaw, 0.3)
+        scene.command(dx, dy, dz, dyaw, 0.3)
         for _ in range(ACTION_REPEAT):
-            self._sim.stepSimulation()
+            scene.step_simulation()
             if self._step >= STEPS:  # the authors' loop stops at the episode's end
                 break
-        attempted = self.gripper_position()[2] <= GRASP_HEIGHT
+        attempted = scene.gripper_position()[2] <= GRASP_HEIGHT
         info: dict[str, Any] = {"attempted": attempted}
         if attempted:
             info.update(self._close_and_lift())
-        success = attempted and bool((self.object_positions()[:, 2] > SUCCESS_HEIGHT).any())
+        success = attempted and bool((scene.object_positions()[:, 2] > SUCCESS_HEIGHT).any())
         terminated = attempted or self._step >= STEPS
         info["is_success"] = success
         return self._observation(), float(success), terminated, False, info
@@ -383,8 +513,8 @@ class KukaGraspEnv(gym.Env):
         step at which it had (0: never)."""
         fingers, failed_at = 0.3, 0
         for step in range(1, LIFT_STEPS + 1):
-            self._command(0.0, 0.0, 0.001, 0.0, fingers)
-            self._sim.stepSimulation()
+            self._scene.command(0.0, 0.0, 0.001, 0.0, fingers)
+            self._scene.step_simulation()
             fingers = max(fingers - 0.003, 0.0)
             if not failed_at and step % LIFT_CHECK == 0 and self.lift_failed():
                 failed_at = step
@@ -395,28 +525,35 @@ class KukaGraspEnv(gym.Env):
     def lift_failed(self) -> bool:
         """Whether the close-and-lift can no longer lift anything: both fingers shut (nothing between them) and no object
         touching the arm. Nothing rises without the gripper, so no object can reach the success height after this."""
-        shut = all(abs(self._sim.getJointState(self._arm, j)[0]) < FINGERS_SHUT for j in FINGER_JOINTS)
-        return shut and not any(self._sim.getContactPoints(self._arm, uid) for uid in self._objects)
+        sim, arm = self._scene.sim, self._scene.arm
+        shut = all(abs(sim.getJointState(arm, j)[0]) < FINGERS_SHUT for j in FINGER_JOINTS)
+        return shut and not any(sim.getContactPoints(arm, uid) for uid in self._scene.objects)
 
     def _observation(self) -> dict[str, np.ndarray]:
-        size = self.settings.image_size
-        width, height, rgba, _, _ = self._sim.getCameraImage(2 * size, 2 * size, self._view, self._projection)
+        size, scene = self.settings.image_size, self._scene
+        width, height, rgba, _, _ = scene.sim.getCameraImage(2 * size, 2 * size, scene.view, scene.projection)
         rgb = np.asarray(rgba, dtype=np.uint8).reshape(height, width, 4)[..., :3]
         self._picture = rgb
         from PIL import Image  # here, not at import: `import taskrl` stays light
 
         image = np.asarray(Image.fromarray(rgb).resize((size, size), Image.LANCZOS))
-        x, y, z = self.gripper_position()
-        state = np.array([x, y, z, self._yaw, 1.0 - self._step / STEPS], dtype=np.float32)
+        x, y, z = scene.gripper_position()
+        state = np.array([x, y, z, scene.yaw, 1.0 - self._step / STEPS], dtype=np.float32)
         return {"image": image, "observation": state}
 
     def render(self):
         return None if self.render_mode != "rgb_array" or self._picture is None else self._picture.copy()
 
     def close(self) -> None:
-        if getattr(self, "_sim", None) is not None:
-            self._sim.disconnect()
-            self._sim = None
+        if getattr(self, "_scene", None) is None:
+            return
+        try:
+            self._finish_preparing(cancel=True)
+        finally:
+            for scene in (self._scene, self._spare):
+                if scene is not None:
+                    scene.close()
+            self._scene = self._spare = None
 
 
 class KukaGraspVectorEnv(GymnasiumVectorEnv):
@@ -432,6 +569,7 @@ class KukaGraspVectorEnv(GymnasiumVectorEnv):
 
     def __init__(self, settings: KukaGraspSettings, num_envs: int, seed: int = 0, device: str | torch.device = "cpu") -> None:
         kwargs = settings.env_kwargs()
+        kwargs["reset_ahead"] = settings.reset_ahead and settings.vector_strategy == "async"
         super().__init__(
             lambda: KukaGraspEnv(**kwargs),
             num_envs=num_envs,
