@@ -9,6 +9,8 @@ the random policy achieves and how fast grasps are collected, and QT-Opt's runs 
     .venv/bin/python benchmarks/kuka_grasp.py lift --episodes 400 --write
     # the supervised control's data: the grasps of a collection run, every step labelled with its grasp's outcome
     .venv/bin/python benchmarks/kuka_grasp.py outcomes runs/kuka-random runs/kuka-outcomes
+    # wall-clock collection speed: copies, and the next episode prepared ahead or reset in place
+    .venv/bin/python benchmarks/kuka_grasp.py collect --arms 6:in-place 6 12:in-place 12 --minutes 3 --write
     # trained runs acting with other CEM searches (the preset's, a wider one, the benchmark's CEM actor)
     .venv/bin/python benchmarks/kuka_grasp.py search --runs runs/kuka-offline-s0 runs/kuka-offline-s1 --write
 """
@@ -348,6 +350,40 @@ def protocol(
     return {"collected": _last_row(random_run), "rows": rows, "episodes": episodes}
 
 
+def _idle_and_total_ticks() -> tuple[int, int]:
+    """The machine's idle and total CPU ticks since boot (``/proc/stat``)."""
+    fields = [int(v) for v in Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:]]
+    return fields[3] + fields[4], sum(fields)
+
+
+def collection_speed(arm: str, minutes: float, out: Path) -> dict:
+    """Wall-clock speed of ``taskrl train kukagrasp-random`` for ``minutes`` with ``arm`` = ``COPIES`` or
+    ``COPIES:in-place`` (``--no-reset-ahead``): grasps and env steps per second over the run's own clock, and how busy
+    the machine's cores were meanwhile (``/proc/stat``)."""
+    import subprocess
+    import sys
+
+    copies, _, how = arm.partition(":")
+    run = out / arm.replace(":", "-")
+    command = [sys.executable, "-m", "taskrl.cli", "train", "kukagrasp-random", "--out", str(run), "--num-envs", copies]
+    command += ["--max-hours", f"{minutes / 60:.4f}", "--no-progress", *(["--no-reset-ahead"] if how == "in-place" else [])]
+    idle, total = _idle_and_total_ticks()
+    subprocess.run(command, check=True, capture_output=True)
+    idle_after, total_after = _idle_and_total_ticks()
+    last = _last_row(run)
+    return {
+        "arm": arm,
+        "copies": int(copies),
+        "reset_ahead": how != "in-place",
+        "grasps": int(last["replay_episodes"]),
+        "env_steps": int(last["env_steps"]),
+        "seconds": float(last["wall_seconds"]),
+        "grasps_per_s": last["replay_episodes"] / last["wall_seconds"],
+        "busy_share": 1 - (idle_after - idle) / max(total_after - total, 1),
+        "random_success": float(last["train_success"]),
+    }
+
+
 def _interval(p: float, n: int) -> str:
     half = 1.96 * (p * (1 - p) / max(n, 1)) ** 0.5
     return f"{p:.2f} ± {half:.2f}"
@@ -391,6 +427,11 @@ def main() -> None:
     searches.add_argument("--workers", type=int, default=2)
     searches.add_argument("--note", default="", help="a line on how the runs were made (commands, commit, times)")
     searches.add_argument("--write", action="store_true")
+    collect = sub.add_parser("collect", help="wall-clock speed of the random collection, copies and reset_ahead")
+    collect.add_argument("--arms", nargs="+", default=["6:in-place", "6", "12:in-place", "12"], help="COPIES[:in-place]")
+    collect.add_argument("--minutes", type=float, default=3.0, help="each arm's run")
+    collect.add_argument("--out", type=Path, default=Path("/tmp/kuka_collect"))
+    collect.add_argument("--write", action="store_true")
     outcomes = sub.add_parser("outcomes", help="the supervised control's data: a run's grasps labelled by their outcome")
     outcomes.add_argument("source", type=Path)
     outcomes.add_argument("out", type=Path)
@@ -428,6 +469,40 @@ def main() -> None:
                 f"depend on what else the machine ran; the grasps-per-second column is what 2 cores would give if "
                 f"nothing else ran and the copies never waited for each other. Raw data: "
                 f"`benchmarks/results/kuka_grasp_lift.json`.\n\n" + table,
+            )
+    elif args.what == "collect":
+        import shutil
+
+        shutil.rmtree(args.out, ignore_errors=True)
+        rows = []
+        for arm in args.arms:
+            rows.append(collection_speed(arm, args.minutes, args.out))
+            print(json.dumps(rows[-1]), flush=True)
+        table = "\n".join(
+            [
+                "| copies (processes) | next episode | grasps | env steps | seconds | grasps per second | cores busy | "
+                "random success |",
+                "|---|---|---|---|---|---|---|---|",
+                *(
+                    f"| {r['copies']} | {'prepared ahead' if r['reset_ahead'] else 'reset in place'} | {r['grasps']:,} | "
+                    f"{r['env_steps']:,} | {r['seconds']:.0f} | {r['grasps_per_s']:.2f} | {100 * r['busy_share']:.0f}% | "
+                    f"{r['random_success']:.2f} |"
+                    for r in rows
+                ),
+            ]
+        )
+        print(table)
+        if args.write:
+            (RESULTS / "kuka_grasp_collect.json").write_text(json.dumps(rows, indent=1) + "\n")
+            append_results(
+                "KukaGrasp: collection speed of the random grasps on 2 cores",
+                f"`taskrl train kukagrasp-random` (the authors' random policy, staggered settling, the lift stopped once "
+                f"failed, pictures stored) run for {args.minutes:g} minutes per row, one row after the other, nothing "
+                f"else running; grasps are the episodes the replay holds at the end, over the run's own clock (`wall_seconds` "
+                f"of its metrics: the training loop's; starting the processes is not counted). \"Prepared ahead\": each copy simulates its next episode's "
+                f"initial state in a second simulation while it waits for the others (`reset_ahead`, the default); "
+                f"\"reset in place\": `--no-reset-ahead`. Cores busy: the share of the 2 cores' time not idle over the "
+                f"row (`/proc/stat`). Raw data: `benchmarks/results/kuka_grasp_collect.json`.\n\n" + table,
             )
     elif args.what == "outcomes":
         print(outcome_labelled(args.source, args.out))
