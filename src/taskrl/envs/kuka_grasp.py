@@ -40,7 +40,12 @@ Where this env differs from the authors' code, and why:
   more. A grasp that holds something lifts the full 1,000 steps (an object above 0.2 m midway can still fall, so
   success is read at the end, as theirs). ``lift="definition"`` keeps the 1,000 steps always; both report the lift
   step at which the failure was certain (``info["lift_failed_at"]``, 0 when it never was), and
-  ``benchmarks/kuka_grasp.py lift`` checks it against the full lift's outcomes.
+  ``benchmarks/kuka_grasp.py lift`` checks it against the full lift's outcomes. A stopped lift leaves the gripper
+  low in the tray, so each reset puts the arm back at its rest pose before the objects drop, where the definition's
+  reset reloads it (before commit 1d4442a, an episode after a missed grasp dropped its objects onto the gripper).
+- **The next episode prepared ahead** (``reset_ahead``, with a process per copy): a copy settles its next episode's
+  objects in a second simulation while it waits for the slowest of the others; the same draws in the same order, so
+  the same episodes (a test compares them bit for bit with resetting in place).
 - ``height_hack=True`` gives their easier variant: three actions ``(dx, dy, dyaw)`` and the gripper always
   moving down (the grasp then fires after about 3 steps). The benchmark's training config removes it; so does
   the default here.
