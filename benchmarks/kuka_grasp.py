@@ -501,7 +501,7 @@ def main() -> None:
                 f"else running; grasps are the episodes the replay holds at the end, over the run's own clock (`wall_seconds` "
                 f"of its metrics: the training loop's; starting the processes is not counted). \"Prepared ahead\": each copy simulates its next episode's "
                 f"initial state in a second simulation while it waits for the others (`reset_ahead`, the default); "
-                f"\"reset in place\": `--no-reset-ahead`. Cores busy: the share of the 2 cores' time not idle over the "
+                f'"reset in place": `--no-reset-ahead`. Cores busy: the share of the 2 cores\' time not idle over the '
                 f"row (`/proc/stat`). Raw data: `benchmarks/results/kuka_grasp_collect.json`.\n\n" + table,
             )
     elif args.what == "outcomes":

@@ -226,7 +226,9 @@ class _Scene:
         sim.loadURDF(os.path.join(root, "table/table.urdf"), [0.5, 0.0, -0.82], [0, 0, 0, 1])
         self.arm = sim.loadSDF(os.path.join(root, "kuka_iiwa/kuka_with_gripper2.sdf"))[0]
         sim.loadURDF(os.path.join(root, "tray/tray.urdf"), [0.64, 0.075, -0.19], [0, 0, 1, 0])
-        self.view = sim.computeViewMatrixFromYawPitchRoll(CAMERA["look"], CAMERA["distance"], CAMERA["yaw"], CAMERA["pitch"], 0, 2)
+        self.view = sim.computeViewMatrixFromYawPitchRoll(
+            CAMERA["look"], CAMERA["distance"], CAMERA["yaw"], CAMERA["pitch"], 0, 2
+        )
         self.projection = sim.computeProjectionMatrixFOV(CAMERA["fov"], 1.0, 0.1, 10.0)
         self.down = sim.getQuaternionFromEuler([0, -math.pi, 0])  # the gripper's orientation, pointing down
         self.objects: list[int] = []
@@ -310,7 +312,9 @@ class _Scene:
         if height < GRASP_HEIGHT:  # the authors' arm creeps up when below the grasp height
             target[2] += 0.0001
         self.yaw += dyaw
-        joints = sim.calculateInverseKinematics(self.arm, GRIPPER_LINK, target, self.down, jointDamping=[0.1] * 12, maxNumIterations=1)
+        joints = sim.calculateInverseKinematics(
+            self.arm, GRIPPER_LINK, target, self.down, jointDamping=[0.1] * 12, maxNumIterations=1
+        )
         n = GRIPPER_LINK + 1
         sim.setJointMotorControlArray(
             self.arm, list(range(n)), pb.POSITION_CONTROL, targetPositions=list(joints[:n]),
