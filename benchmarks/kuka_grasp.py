@@ -417,7 +417,9 @@ def main() -> None:
         type=Path,
         help="an earlier protocol's JSON: its trained rows join the table, marked (the same evaluation episodes)",
     )
-    proto.add_argument("--earlier-label", default="earlier", help="how the earlier rows are marked")
+    proto.add_argument(
+        "--earlier-label", default="earlier", help="how the earlier rows are marked (a row marked before keeps its mark)"
+    )
     proto.add_argument("--note", default="", help="a line on how the runs were made (commands, commit, times)")
     proto.add_argument("--write", action="store_true")
     searches = sub.add_parser("search", help="trained runs acting with other CEM searches, on their evaluation episodes")
@@ -558,7 +560,10 @@ def main() -> None:
             earlier = [r for r in saved["rows"] if r.get("updates", 0) > 0]
             label = f" ({args.earlier_label})" if args.earlier_label else ""  # "": the rows as they were marked
             # each carried row keeps the episodes it was scored on (its interval)
-            found["rows"] += [{"episodes": saved.get("episodes", 50), **r, "kind": r["kind"] + label} for r in earlier]
+            found["rows"] += [
+                {"episodes": saved.get("episodes", 50), **r, "kind": r["kind"] if r["kind"].endswith(")") else r["kind"] + label}
+                for r in earlier
+            ]
         random_rows = {r["objects"]: r for r in json.loads(args.random_test.read_text())} if args.random_test.exists() else {}
         grasps = int(found["collected"].get("replay_episodes", 0))
         lines = [
