@@ -96,14 +96,13 @@ def main() -> None:
         "--arms",
         nargs="+",
         type=arm_and_seeds,
-        default=["preset", "scripted exploration"],
+        default=[("preset", []), ("scripted exploration", [])],
         help=f"ARM or ARM:S,S (that arm's seeds instead of --seeds); arms: {' | '.join(ARMS)}",
     )
     parser.add_argument("--max-hours", type=float, default=1.3)
     parser.add_argument("--out", default="runs/bench-grasp")
     parser.add_argument("--write", action="store_true", help="replace the RESULTS section of these arms")
     args = parser.parse_args()
-    args.arms = [arm if isinstance(arm, tuple) else arm_and_seeds(arm) for arm in args.arms]
     seeds_of = {arm: seeds or args.seeds for arm, seeds in args.arms}
     args.arms = list(seeds_of)
     title, raw_name = section(args.arms)
