@@ -11,6 +11,11 @@ the random policy achieves and how fast grasps are collected, and QT-Opt's runs 
     .venv/bin/python benchmarks/kuka_grasp.py outcomes runs/kuka-random runs/kuka-outcomes
     # wall-clock collection speed: copies, and the next episode prepared ahead or reset in place
     .venv/bin/python benchmarks/kuka_grasp.py collect --arms 6:in-place 6 12:in-place 12 --minutes 3 --write
+    # the protocol's table: QT-Opt offline on a collection, online from it, the supervised control, both splits
+    # (--reuse: evaluations of unchanged runs taken over from the raw data before)
+    .venv/bin/python benchmarks/kuka_grasp.py protocol --random runs/kuka-random --runs runs/kuka-offline-s0 \
+        --online runs/kuka-online-s0 --supervised runs/kuka-supervised-s0 --episodes 100 \
+        --reuse benchmarks/results/kuka_grasp_protocol.json --write
     # trained runs acting with other CEM searches (the preset's, a wider one, the benchmark's CEM actor)
     .venv/bin/python benchmarks/kuka_grasp.py search --runs runs/kuka-offline-s0 runs/kuka-offline-s1 --write
 """
@@ -18,6 +23,7 @@ the random policy achieves and how fast grasps are collected, and QT-Opt's runs 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import time
 from pathlib import Path
@@ -309,28 +315,64 @@ def _online_part(run_dir: Path) -> dict:
     }
 
 
+def _digest(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def evaluated_weights(run_dir: Path) -> str:
+    """The SHA-256 of the weights ``taskrl eval RUN`` loads (the latest checkpoint's ``agent.safetensors``): a row
+    evaluated before is reused only for the same weights."""
+    from taskrl.checkpoint import latest_checkpoint
+
+    return _digest(latest_checkpoint(run_dir / "checkpoints") / "agent.safetensors")
+
+
+#: a row's fields that come from evaluating it (the rest describe the run and are read again)
+EVALUATED = ("mean_dz", "down_share", "train", "train_length", "train_eval_seconds", "test", "test_length", "test_eval_seconds")
+
+
 def protocol(
-    random_run: Path, runs: list[Path], supervised: list[Path], episodes: int, workers: int = 2, online: list[Path] = ()
+    random_run: Path,
+    runs: list[Path],
+    supervised: list[Path],
+    episodes: int,
+    workers: int = 2,
+    online: list[Path] = (),
+    reuse: dict | None = None,
 ) -> dict:
     """Each run evaluated greedily on training and test objects (``taskrl eval RUN`` and ``--held-out``), beside the
     random policy's success while collecting (training objects) and on the same evaluation episodes; the
     evaluations run ``workers`` at a time (one process each: an evaluation env simulates in one process). ``online``:
-    runs started from an offline run (``--init-from``) that collected with their policy."""
+    runs started from an offline run (``--init-from``) that collected with their policy. ``reuse``: an earlier
+    protocol's raw data, whose evaluations are taken over (marked ``reused``) for a run whose weights and config are
+    the same (`evaluated_weights`, the config's SHA-256) at the same episode count: evaluation is deterministic (the run's
+    evaluation seed, seeded CEM draws), so evaluating again would repeat them."""
     from concurrent.futures import ProcessPoolExecutor
 
     EPISODES[0] = episodes
     groups = (("QT-Opt", runs), ("QT-Opt, then online", list(online)), ("supervised on outcomes (gamma 0)", supervised))
     first = (runs or list(online))[0]  # the evaluation episodes are the same for every run of one seed offset
-    jobs = [("random", first, False), ("random", first, True)]
+    identity = {
+        str(run_dir): {"config_sha256": _digest(run_dir / "config.json"), "weights_sha256": evaluated_weights(run_dir)}
+        for _, group in groups
+        for run_dir in group
+    }
+    kept, random_kept = reusable(identity, reuse, episodes, str(first))
+    jobs = [] if random_kept is not None else [("random", first, False), ("random", first, True)]
     for _, group in groups:
         for run_dir in group:
-            jobs += [("actions", run_dir), ("greedy", run_dir, False), ("greedy", run_dir, True)]
+            if str(run_dir) not in kept:
+                jobs += [("actions", run_dir), ("greedy", run_dir, False), ("greedy", run_dir, True)]
     with ProcessPoolExecutor(max_workers=workers) as pool:
         done = dict(pool.map(_evaluation_job, jobs))
-    same = {"kind": "random (on the evaluation episodes)", "seed": 0, "updates": 0}
-    for split, held_out in (("train", False), ("test", True)):
-        result = done[("random", first, held_out)]
-        same[split], same[f"{split}_length"] = result["success_rate"], result["eval_length"]
+    same = {"kind": "random (on the evaluation episodes)", "seed": 0, "updates": 0, "random_of": str(first)}
+    same["config_sha256"] = identity[str(first)]["config_sha256"]
+    if ("random", first, False) in done:
+        for split, held_out in (("train", False), ("test", True)):
+            result = done[("random", first, held_out)]
+            same[split], same[f"{split}_length"] = result["success_rate"], result["eval_length"]
+    else:
+        same.update({k: random_kept[k] for k in ("train", "train_length", "test", "test_length")}, reused=True)
     rows = [same]
     for kind, group in groups:
         for run_dir in group:
@@ -338,16 +380,55 @@ def protocol(
             last = _last_row(run_dir)  # what the run did (a time limit may stop it before total_steps)
             row = {"run": str(run_dir), "kind": kind, "seed": config["seed"], "updates": int(last.get("updates", 0))}
             row["train_wall_seconds"] = last.get("wall_seconds")
+            row.update(identity[str(run_dir)])
             if kind == "QT-Opt, then online":
                 row.update(_online_part(run_dir))
-            row.update({k: v for k, v in done[("actions", run_dir)].items() if k in ("mean_dz", "down_share")})
-            for split, held_out in (("train", False), ("test", True)):
-                result = done[("greedy", run_dir, held_out)]
-                row[split], row[f"{split}_length"] = result["success_rate"], result["eval_length"]
-                row[f"{split}_eval_seconds"] = result["seconds"]
+            if str(run_dir) in kept:
+                row.update({k: kept[str(run_dir)][k] for k in EVALUATED}, reused=True)
+            else:
+                row.update({k: v for k, v in done[("actions", run_dir)].items() if k in ("mean_dz", "down_share")})
+                for split, held_out in (("train", False), ("test", True)):
+                    result = done[("greedy", run_dir, held_out)]
+                    row[split], row[f"{split}_length"] = result["success_rate"], result["eval_length"]
+                    row[f"{split}_eval_seconds"] = result["seconds"]
             rows.append(row)
             print(row, flush=True)
     return {"collected": _last_row(random_run), "rows": rows, "episodes": episodes}
+
+
+def pooled_line(rows: list[dict], episodes: int) -> str:
+    """This measurement's trained rows (not those carried from an earlier one) pooled over seeds, per kind: the
+    success over all their episodes, per split."""
+    kinds = {}
+    for r in rows:
+        if "run" in r and "episodes" not in r:  # rows carried from an earlier measurement carry their own count
+            kinds.setdefault(r["kind"], []).append(r)
+    parts = []
+    for kind, group in kinds.items():
+        n = episodes * len(group)
+        train, test = (float(np.mean([r[split] for r in group])) for split in ("train", "test"))
+        parts.append(f"{kind}, {len(group)} seeds: {train:.3f} training / {test:.3f} test objects ({n} episodes each)")
+    return "Pooled over seeds: " + "; ".join(parts) + "."
+
+
+def reusable(identity: dict[str, dict], reuse: dict | None, episodes: int, first: str) -> tuple[dict, dict | None]:
+    """What of an earlier protocol's raw data ``reuse`` stands for this one: ``({run: its earlier row}, the random
+    row or None)``. A run's row stands where its config and weights digests (``identity[run]``) are the ones evaluated
+    then, at the same episode count; the random policy's row where it was measured on the episodes of the same run
+    ``first`` (the same config)."""
+    if reuse is None or reuse.get("episodes") != episodes:
+        return {}, None
+    rows = reuse["rows"]
+    earlier = {r["run"]: r for r in rows if "run" in r and "weights_sha256" in r}
+    kept = {run: earlier[run] for run, same in identity.items() if run in earlier and _same(earlier[run], same)}
+    random_row = next((r for r in rows if r.get("random_of") == first), None)
+    if random_row is None or random_row.get("config_sha256") != identity[first]["config_sha256"]:
+        random_row = None
+    return kept, random_row
+
+
+def _same(row: dict, identity: dict) -> bool:
+    return all(row.get(key) == value for key, value in identity.items())
 
 
 def _idle_and_total_ticks() -> tuple[int, int]:
@@ -419,6 +500,11 @@ def main() -> None:
     )
     proto.add_argument(
         "--earlier-label", default="earlier", help="how the earlier rows are marked (a row marked before keeps its mark)"
+    )
+    proto.add_argument(
+        "--reuse",
+        type=Path,
+        help="an earlier protocol's JSON: the evaluations of runs whose weights and config are unchanged are taken over",
     )
     proto.add_argument("--note", default="", help="a line on how the runs were made (commands, commit, times)")
     proto.add_argument("--write", action="store_true")
@@ -554,7 +640,8 @@ def main() -> None:
                 f"{described}. {args.note} Raw data: `benchmarks/results/kuka_grasp_search.json`.\n\n" + text,
             )
     elif args.what == "protocol":
-        found = protocol(args.random, args.runs, args.supervised, args.episodes, args.workers, args.online)
+        reuse = json.loads(args.reuse.read_text()) if args.reuse else None
+        found = protocol(args.random, args.runs, args.supervised, args.episodes, args.workers, args.online, reuse)
         if args.earlier:  # read before --write replaces it (it may be the same file)
             saved = json.loads(args.earlier.read_text())
             earlier = [r for r in saved["rows"] if r.get("updates", 0) > 0]
@@ -586,11 +673,13 @@ def main() -> None:
                 if "online_grasps" in r
                 else ""
             )
+            kind += " [evaluated before]" if r.get("reused") else ""
             lines.append(
                 f"| {kind} | {r['seed']} | {updates} | {_interval(r['train'], r.get('episodes', args.episodes))} | "
                 f"{_interval(r['test'], r.get('episodes', args.episodes))} | {r['train_length']:.1f} / {r['test_length']:.1f} | "
                 + (f"{r['mean_dz']:.2f} / {r['down_share']:.2f} |" if "mean_dz" in r else "- |")
             )
+        lines += ["", pooled_line(found["rows"][1:], args.episodes)]
         text = "\n".join(lines)
         print(text)
         if args.write:
@@ -599,7 +688,9 @@ def main() -> None:
                 "KukaGrasp: QT-Opt offline on random grasps, on training and test objects",
                 f"Greedy evaluation (CEM), {args.episodes} episodes per row and split (rows carried from an earlier "
                 f"measurement: its own count), objects redrawn every episode; "
-                f"95% normal intervals. {args.note} Raw data: `benchmarks/results/kuka_grasp_protocol.json`.\n\n" + text,
+                f"95% normal intervals. Rows marked [evaluated before]: the same weights and config as in the raw "
+                f"data before (SHA-256 of each), whose evaluation is deterministic, so it was taken over, not repeated. {args.note} Raw data: `benchmarks/results/kuka_grasp_protocol.json`.\n\n"
+                + text,
             )
     elif args.what == "settle":
         row = settle_check(args.drops, args.episodes)

@@ -271,3 +271,33 @@ def test_a_collection_run_stores_pictures_and_a_run_is_evaluated_on_the_test_obj
     )
     assert loading.evaluate_run(tmp_path / "random", episodes=1, held_out=True)["episodes"] == 1
     assert built == ["test"]
+
+
+def test_the_protocol_takes_over_an_evaluation_only_for_the_same_weights_config_and_episode_count():
+    """``benchmarks/kuka_grasp.py protocol --reuse``: an earlier row stands for a run only while what it evaluated is
+    unchanged. Mutation: matching on the run's path alone (a run trained on, then re-scored from its old row) fails."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    try:
+        from kuka_grasp import reusable
+    finally:
+        sys.path.pop(0)
+    same = {"config_sha256": "c0", "weights_sha256": "w0"}
+    earlier = {
+        "episodes": 100,
+        "rows": [
+            {"kind": "random (on the evaluation episodes)", "random_of": "runs/a", "config_sha256": "c0", "test": 0.4},
+            {"run": "runs/a", **same, "test": 0.78},
+            {"run": "runs/b", "config_sha256": "c1", "weights_sha256": "w1", "test": 0.71},
+            {"run": "runs/c", "test": 0.5},  # raw data from before the digests: never taken over
+        ],
+    }
+    now = {"runs/a": same, "runs/b": {"config_sha256": "c1", "weights_sha256": "trained on"}, "runs/c": same}
+    kept, random_row = reusable(now, earlier, 100, "runs/a")
+    assert set(kept) == {"runs/a"} and kept["runs/a"]["test"] == 0.78 and random_row["test"] == 0.4
+    assert reusable(now, earlier, 50, "runs/a") == ({}, None)  # another episode count: other episodes
+    now["runs/a"] = {"config_sha256": "changed", "weights_sha256": "w0"}
+    assert reusable(now, earlier, 100, "runs/a") == ({}, None)
+    assert reusable(now, None, 100, "runs/a") == ({}, None)
