@@ -208,3 +208,29 @@ def test_a_grasp_run_is_evaluated_on_its_held_out_objects_from_the_cli(tmp_path,
     done = cli("eval", str(tmp_path / "run"), "--held-out", "--episodes", "2", "--json")
     assert done.returncode == 0, done.stderr
     assert json.loads(done.stdout)["episodes"] == 2
+
+
+def test_the_failure_sorting_tells_a_miss_of_yaw_from_a_miss_of_position_and_no_close():
+    """``benchmarks/grasp_failures.py``: one bar at the centre in four bins, closed across it, along it, beside it,
+    and never. Mutation: the object's fit left out of the sorting (every close over a spine counted held) fails."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    try:
+        from grasp_failures import OUTCOMES, _Sorting
+    finally:
+        sys.path.pop(0)
+    env = Grasp(GraspSettings(num_objects=1), num_envs=4, seed=0)
+    sorting = _Sorting(env)
+    sorting.reset(seed=0)
+    env.shape[:], env.half[:], env.centre[:], env.angle[:] = SHAPES.index("bar"), torch.tensor([0.1, 0.025]), 0.5, 0.0
+    env.gripper[:] = torch.tensor([[0.5, 0.5], [0.5, 0.5], [0.5, 0.8], [0.5, 0.5]])
+    env.yaw[:] = torch.tensor([math.pi / 2, 0.0, math.pi / 2, 0.0])
+    for _ in range(env.horizon):
+        sorting.step(torch.tensor([[0.0, 0.0, 0.0, 1.0]] * 3 + [[0.0, 0.0, 0.0, -1.0]]))
+    assert [OUTCOMES[i] for i in sorting.outcome.tolist()] == ["held", "yaw", "position", "no close"]
+    assert abs(sorting.miss_pixels[0] - 0.3 * 64) < 0.5  # 0.3 of the bin off the bar's centre, across it
+    (shape, degrees), *_ = sorting.yaw_misses
+    # along the bar, the jaws must turn to within about 28.7 degrees of across it: 61.3 degrees away
+    assert shape == SHAPES.index("bar") and 60.0 < degrees < 63.0

@@ -250,6 +250,13 @@ class Grasp(NativeEnv):
     # ------------------------------------------------------------------ grasping
     def holdable(self) -> torch.Tensor:
         """``[B, K]``: whether closing the gripper where it is now would hold each object."""
+        on_spine, fits = self.hold_conditions()
+        return on_spine & fits
+
+    def hold_conditions(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """``([B, K], [B, K])``: the two conditions of a hold (module docstring) for each object, were the gripper to
+        close where it is now: its centre is over the object's spine, and the object fits between the open jaws at the
+        gripper's yaw."""
         s = self.settings
         offset = self.gripper[:, None] - self.centre  # [B, K, 2]
         axis = torch.stack([torch.cos(self.angle), torch.sin(self.angle)], -1)
@@ -261,7 +268,7 @@ class Grasp(NativeEnv):
         c, n = torch.cos(turn).abs(), torch.sin(turn).abs()
         ellipse = (self.shape == 0) | (self.shape == 3)
         extent = torch.where(ellipse, torch.sqrt((length * c) ** 2 + (width * n) ** 2), length * c + width * n)
-        return on_spine & (extent <= s.opening / 2)
+        return on_spine, extent <= s.opening / 2
 
     def step(self, action: torch.Tensor) -> StepResult:
         s = self.settings
