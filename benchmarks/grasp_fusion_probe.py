@@ -31,6 +31,7 @@ from torch import nn
 sys.path.insert(0, str(Path(__file__).parent))
 from grasp_probe import STATE, auc, placed_bins, rows_of, shifted  # noqa: E402
 from taskrl.encoders import ImageStateInput  # noqa: E402
+from taskrl.envs.grasp import GraspSettings  # noqa: E402
 from taskrl.fused_q import PictureActionQ  # noqa: E402
 from taskrl.nets import StateActionQ  # noqa: E402
 from taskrl.types import PictureState  # noqa: E402
@@ -38,18 +39,49 @@ from taskrl.types import PictureState  # noqa: E402
 HIDDEN = (256, 256)
 
 
-def labelled_closes(n: int, seed: int) -> tuple[PictureState, torch.Tensor, torch.Tensor]:
-    """``(states [n], actions [n, 4], holds [n])``: a closing action from a placed gripper."""
+def labelled_closes(n: int, seed: int) -> tuple[PictureState, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``(states [n], actions [n, 4], holds [n], over a spine [n])``: a closing action from a placed gripper, and
+    whether its move ends over an object's spine (where the hold is decided by the yaw)."""
     env, x, g = placed_bins(n, seed, 0.2)
     action = torch.rand(n, 4, generator=g) * 2 - 1
     action[:, 3] = 1.0  # close
+    gripper, yaw = env.gripper, env.yaw
+    env.gripper = (gripper + env.settings.max_move * action[:, :2]).clamp(0.0, 1.0)  # the move `Grasp.step` makes
+    env.yaw = torch.remainder(yaw + env.settings.max_turn * action[:, 2], math.pi)
+    over_spine = env.hold_conditions()[0].any(1)
+    env.gripper, env.yaw = gripper, yaw
     _, _, _, _, info = env.step(action)
-    return x, action, info["is_success"].float()
+    return x, action, info["is_success"].float(), over_spine
+
+
+class PostMoveYaw(nn.Module):
+    """The flat join with the action extended by the gripper's yaw after the move (cos and sin of twice and four times
+    it, from the state's cos and sin of twice the yaw and the action's turn): the form in which a jaw's fit depends
+    on it (period 180 degrees for a bar, 90 for a square)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.inner = StateActionQ(STATE + 64 * 64 * 3, 4 + 4, HIDDEN, ImageStateInput(STATE, (64, 64, 3), "conv", 50))
+        self.max_turn = GraspSettings().max_turn
+
+    def extended(self, vector: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        turn = 2 * self.max_turn * action[..., 2]
+        c, s = vector[..., 2], vector[..., 3]  # cos, sin of twice the yaw
+        c2, s2 = c * torch.cos(turn) - s * torch.sin(turn), s * torch.cos(turn) + c * torch.sin(turn)
+        return torch.cat([action, torch.stack([c2, s2, c2 * c2 - s2 * s2, 2 * c2 * s2], -1)], -1)
+
+    def forward(self, x: PictureState, action: torch.Tensor) -> torch.Tensor:
+        return self.inner(x, self.extended(x.vector, action))
+
+    def score_actions(self, x: PictureState, actions: torch.Tensor) -> torch.Tensor:
+        return self.inner.score_actions(x, self.extended(x.vector[:, None], actions))
 
 
 def network(fusion: str) -> nn.Module:
     if fusion == "conv":
         return PictureActionQ(STATE, (64, 64, 3), 4, HIDDEN)
+    if fusion == "yaw":
+        return PostMoveYaw()
     return StateActionQ(STATE + 64 * 64 * 3, 4, HIDDEN, ImageStateInput(STATE, (64, 64, 3), "conv", 50))
 
 
@@ -68,7 +100,7 @@ def probe(fusion: str, pad: int, moved: bool, updates: int, train: tuple, test: 
     torch.manual_seed(seed)
     net = network(fusion)
     optimiser = torch.optim.Adam(net.parameters(), 3e-4)
-    (x, a, y), (x_test, a_test, y_test) = train, test
+    (x, a, y, _), (x_test, a_test, y_test, spine_test) = train, test
     g = torch.Generator().manual_seed(seed)
     curve, start = [], time.perf_counter()
     for step in range(updates + 1):
@@ -77,7 +109,14 @@ def probe(fusion: str, pad: int, moved: bool, updates: int, train: tuple, test: 
                 score = torch.cat(
                     [net(rows_of(x_test, slice(i, i + 500)), a_test[i : i + 500]) for i in range(0, x_test.rows, 500)]
                 )
-            curve.append({"updates": step, "auc": auc(score, y_test), "seconds": time.perf_counter() - start})
+            curve.append(
+                {
+                    "updates": step,
+                    "auc": auc(score, y_test),
+                    "yaw_auc": auc(score[spine_test], y_test[spine_test]),  # where only the yaw decides
+                    "seconds": time.perf_counter() - start,
+                }
+            )
             print(fusion, pad, moved, curve[-1], flush=True)
         rows = torch.randint(x.rows, (64,), generator=g)
         logits = net(shifted(rows_of(x, rows), pad, g, moved), a[rows])
@@ -150,6 +189,17 @@ def main() -> None:
         aucs = " | ".join(f"{row['auc']:.2f}" for row in r["curve"])
         pad = f"{r['pad']}, the gripper's x, y moved with it" if r.get("moved") else f"{r['pad']}"
         lines.append(f"| {r['fusion']} | {pad} | {aucs} | {r['ms_per_candidate']:.3f} |")
+    if all("yaw_auc" in row for r in results for row in r["curve"]):
+        lines += [
+            "",
+            "The same scores on the held-out closes whose move ends over an object's spine, where only the yaw decides "
+            "whether it holds (AUC; 0.5: the yaw not seen):",
+            "",
+            "| fusion | shift pad | " + " | ".join(f"{s:,}" for s in steps) + " |",
+            "|---|---|" + "---|" * len(steps),
+        ]
+        for r in results:
+            lines.append(f"| {r['fusion']} | {r['pad']} | " + " | ".join(f"{row['yaw_auc']:.2f}" for row in r["curve"]) + " |")
     text = "\n".join(lines)
     print(text)
     if args.write:
