@@ -7,11 +7,16 @@ action and the gripper's state embedded and added to an intermediate conv featur
 `PictureActionQ`). Bins have the gripper near an object (70%) or anywhere; the action is uniform in the box with the
 close on, and the label is whether that step's move and close holds. Arms are ``FUSION:PAD`` (pad: DrQ's random
 shift in pixels, which moves the picture but not the gripper's position in the state vector) or ``FUSION:PAD:moved``
-(the gripper's x, y moved with the picture, as ``--shift-coordinates`` does). Reported: held-out AUC
-every 1,000 updates (batch 64, Adam 3e-4, one torch thread) and the time to score one candidate action (a batch of
-64 states x 32 candidates, as the Bellman maximum does).
+(the gripper's x, y moved with the picture, as ``--shift-coordinates`` does). Two more fusions ask whether the
+critic can see the yaw: ``wide`` (the flat join from 256 picture features instead of 50) and ``yaw`` (the flat join
+given the gripper's yaw after the move, `PostMoveYaw`). Reported: held-out AUC every 1,000 updates (``--every``;
+batch 64, Adam 3e-4, one torch thread), the same on the closes where only the yaw decides (over a square's, bar's or
+ellipse's spine), and the time to score one candidate action (a batch of 64 states x 32 candidates, as the Bellman
+maximum does).
 
     .venv/bin/python benchmarks/grasp_fusion_probe.py --arms flat:0 flat:1 flat:2 flat:4 conv:0 conv:2 --workers 2 --write
+    .venv/bin/python benchmarks/grasp_fusion_probe.py --arms flat:4 wide:4 yaw:4 --updates 20000 --every 2000 \
+        --title 'Grasp critic probe: does the critic see the yaw' --raw grasp_probe_yaw.json --write
 """
 
 from __future__ import annotations
@@ -31,7 +36,7 @@ from torch import nn
 sys.path.insert(0, str(Path(__file__).parent))
 from grasp_probe import STATE, auc, placed_bins, rows_of, shifted  # noqa: E402
 from taskrl.encoders import ImageStateInput  # noqa: E402
-from taskrl.envs.grasp import GraspSettings  # noqa: E402
+from taskrl.envs.grasp import SHAPES, GraspSettings  # noqa: E402
 from taskrl.fused_q import PictureActionQ  # noqa: E402
 from taskrl.nets import StateActionQ  # noqa: E402
 from taskrl.types import PictureState  # noqa: E402
@@ -40,18 +45,20 @@ HIDDEN = (256, 256)
 
 
 def labelled_closes(n: int, seed: int) -> tuple[PictureState, torch.Tensor, torch.Tensor, torch.Tensor]:
-    """``(states [n], actions [n, 4], holds [n], over a spine [n])``: a closing action from a placed gripper, and
-    whether its move ends over an object's spine (where the hold is decided by the yaw)."""
+    """``(states [n], actions [n, 4], holds [n], the yaw decides [n])``: a closing action from a placed gripper, and
+    whether its move ends over the spine of an object that fits at some yaws only (over no disc's centre): there the
+    yaw decides whether it holds."""
     env, x, g = placed_bins(n, seed, 0.2)
     action = torch.rand(n, 4, generator=g) * 2 - 1
     action[:, 3] = 1.0  # close
     gripper, yaw = env.gripper, env.yaw
     env.gripper = (gripper + env.settings.max_move * action[:, :2]).clamp(0.0, 1.0)  # the move `Grasp.step` makes
     env.yaw = torch.remainder(yaw + env.settings.max_turn * action[:, 2], math.pi)
-    over_spine = env.hold_conditions()[0].any(1)
+    on_spine = env.hold_conditions()[0]
+    yaw_decides = on_spine.any(1) & ~(on_spine & (env.shape == SHAPES.index("disc"))).any(1)
     env.gripper, env.yaw = gripper, yaw
     _, _, _, _, info = env.step(action)
-    return x, action, info["is_success"].float(), over_spine
+    return x, action, info["is_success"].float(), yaw_decides
 
 
 class PostMoveYaw(nn.Module):
@@ -78,6 +85,8 @@ class PostMoveYaw(nn.Module):
 
 
 def network(fusion: str) -> nn.Module:
+    if fusion == "wide":  # the flat join from 256 picture features instead of 50
+        return StateActionQ(STATE + 64 * 64 * 3, 4, HIDDEN, ImageStateInput(STATE, (64, 64, 3), "conv", 256))
     if fusion == "conv":
         return PictureActionQ(STATE, (64, 64, 3), 4, HIDDEN)
     if fusion == "yaw":
@@ -96,15 +105,15 @@ def seconds_per_candidate(net: nn.Module, x: PictureState, repeats: int = 5) -> 
     return best / (64 * 32)
 
 
-def probe(fusion: str, pad: int, moved: bool, updates: int, train: tuple, test: tuple, seed: int) -> dict:
+def probe(fusion: str, pad: int, moved: bool, updates: int, train: tuple, test: tuple, seed: int, every: int = 1000) -> dict:
     torch.manual_seed(seed)
     net = network(fusion)
     optimiser = torch.optim.Adam(net.parameters(), 3e-4)
-    (x, a, y, _), (x_test, a_test, y_test, spine_test) = train, test
+    (x, a, y, _), (x_test, a_test, y_test, yaw_decides) = train, test
     g = torch.Generator().manual_seed(seed)
     curve, start = [], time.perf_counter()
     for step in range(updates + 1):
-        if step % 1000 == 0:
+        if step % every == 0:
             with torch.no_grad():
                 score = torch.cat(
                     [net(rows_of(x_test, slice(i, i + 500)), a_test[i : i + 500]) for i in range(0, x_test.rows, 500)]
@@ -113,7 +122,7 @@ def probe(fusion: str, pad: int, moved: bool, updates: int, train: tuple, test: 
                 {
                     "updates": step,
                     "auc": auc(score, y_test),
-                    "yaw_auc": auc(score[spine_test], y_test[spine_test]),  # where only the yaw decides
+                    "yaw_auc": auc(score[yaw_decides], y_test[yaw_decides]),  # where only the yaw decides
                     "seconds": time.perf_counter() - start,
                 }
             )
@@ -147,6 +156,7 @@ def main() -> None:
         help="FUSION:PAD, or FUSION:PAD:moved (the gripper's x, y moved with the picture)",
     )
     parser.add_argument("--updates", type=int, default=6000)
+    parser.add_argument("--every", type=int, default=1000, help="updates between held-out scores")
     parser.add_argument("--train-states", type=int, default=40_000)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--workers", type=int, default=1, help="arms trained at once, one process and thread each")
@@ -168,7 +178,7 @@ def main() -> None:
     else:
         train, test = labelled_closes(args.train_states, 1), labelled_closes(4_000, 2)
         jobs = [
-            (arm[0], int(arm[1]), arm[2:] == ["moved"], args.updates, train, test, args.seed)
+            (arm[0], int(arm[1]), arm[2:] == ["moved"], args.updates, train, test, args.seed, args.every)
             for arm in (a.split(":") for a in args.arms)
         ]
         # one torch thread per arm; forked workers share the labelled closes
@@ -192,8 +202,8 @@ def main() -> None:
     if all("yaw_auc" in row for r in results for row in r["curve"]):
         lines += [
             "",
-            "The same scores on the held-out closes whose move ends over an object's spine, where only the yaw decides "
-            "whether it holds (AUC; 0.5: the yaw not seen):",
+            "The same scores on the held-out closes whose move ends over the spine of a square, bar or ellipse (no "
+            "disc), where only the yaw decides whether it holds (AUC; 0.5: the yaw not seen):",
             "",
             "| fusion | shift pad | " + " | ".join(f"{s:,}" for s in steps) + " |",
             "|---|---|" + "---|" * len(steps),
@@ -210,7 +220,7 @@ def main() -> None:
             "Trained with `.venv/bin/python benchmarks/grasp_fusion_probe.py --arms "
             + " ".join(f"{r['fusion']}:{r['pad']}" + (":moved" if r.get("moved") else "") for r in results)
             + " --updates "
-            f"{args.updates} --workers {args.workers}` (raw data: `benchmarks/results/{args.raw}`): "
+            f"{args.updates}{'' if args.every == 1000 else f' --every {args.every}'} --workers {args.workers}` (raw data: `benchmarks/results/{args.raw}`): "
             f"{args.workers} arm(s) at a time, one process and torch thread each, so the milliseconds compare the arms "
             "with each other, not with an idle machine.\n\n" + text,
         )
