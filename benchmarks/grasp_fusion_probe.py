@@ -8,14 +8,15 @@ action and the gripper's state embedded and added to an intermediate conv featur
 close on, and the label is whether that step's move and close holds. Arms are ``FUSION:PAD`` (pad: DrQ's random
 shift in pixels, which moves the picture but not the gripper's position in the state vector) or ``FUSION:PAD:moved``
 (the gripper's x, y moved with the picture, as ``--shift-coordinates`` does). Two more fusions ask whether the
-critic can see the yaw: ``wide`` (the flat join from 256 picture features instead of 50) and ``yaw`` (the flat join
-given the gripper's yaw after the move, `PostMoveYaw`). Reported: held-out AUC every 1,000 updates (``--every``;
+critic can see the yaw: ``wide`` (the flat join from 256 picture features instead of 50), ``yaw`` (the flat join
+given the gripper's yaw after the move, `PostMoveYaw`) and ``glimpse`` (the flat join from the whole picture's
+features and those of the picture around the gripper turned into the jaws' frame, `GlimpseInput`). Reported: held-out AUC every 1,000 updates (``--every``;
 batch 64, Adam 3e-4, one torch thread), the same on the closes where only the yaw decides (over a square's, bar's or
 ellipse's spine), and the time to score one candidate action (a batch of 64 states x 32 candidates, as the Bellman
 maximum does).
 
     .venv/bin/python benchmarks/grasp_fusion_probe.py --arms flat:0 flat:1 flat:2 flat:4 conv:0 conv:2 --workers 2 --write
-    .venv/bin/python benchmarks/grasp_fusion_probe.py --arms flat:4 wide:4 yaw:4 --updates 20000 --every 2000 \
+    .venv/bin/python benchmarks/grasp_fusion_probe.py --arms flat:4 wide:4 yaw:4 glimpse:4:moved --updates 12000 --every 2000 \
         --title 'Grasp critic probe: does the critic see the yaw' --raw grasp_probe_yaw.json --write
 """
 
@@ -36,6 +37,8 @@ from torch import nn
 sys.path.insert(0, str(Path(__file__).parent))
 from grasp_probe import STATE, auc, placed_bins, rows_of, shifted  # noqa: E402
 from taskrl.encoders import ImageStateInput  # noqa: E402
+from taskrl.encoders.registry import picture_encoder  # noqa: E402
+from taskrl.encoders.state_input import stacked_channels  # noqa: E402
 from taskrl.envs.grasp import SHAPES, GraspSettings  # noqa: E402
 from taskrl.fused_q import PictureActionQ  # noqa: E402
 from taskrl.nets import StateActionQ  # noqa: E402
@@ -84,7 +87,45 @@ class PostMoveYaw(nn.Module):
         return self.inner.score_actions(x, self.extended(x.vector[:, None], actions))
 
 
+class GlimpseInput(nn.Module):
+    """`ImageStateInput`'s features and those of a glimpse: the picture around the gripper, turned into the jaws'
+    frame (``reach`` of the bin either side of the gripper's centre, resampled to ``size`` x ``size``), through its
+    own conv encoder; there an object that fits the jaws looks the same wherever it lies and however the bin turns."""
+
+    def __init__(self, reach: float = 0.2, size: int = 32, features: int = 50) -> None:
+        super().__init__()
+        self.whole = ImageStateInput(STATE, (64, 64, 3), "conv", features)
+        spec = picture_encoder("conv")
+        self.trunk = spec.trunk(3, size, size, True)
+        with torch.no_grad():
+            flat = self.trunk(torch.zeros(1, 3, size, size)).shape[1]
+        self.head = nn.Sequential(nn.Linear(flat, features), nn.LayerNorm(features), nn.Tanh())
+        self.reach, self.size, self.out_dim = reach, size, self.whole.out_dim + features
+
+    def glimpse(self, x: PictureState) -> torch.Tensor:
+        """``[B, 3, size, size]``: the glimpse, centred as `stacked_channels` centres the picture."""
+        gripper, c2, s2 = x.vector[:, :2], x.vector[:, 2], x.vector[:, 3]
+        yaw = torch.atan2(s2, c2) / 2  # the state holds twice the yaw: a jaw turned by pi is the same jaw
+        cos, sin, r = torch.cos(yaw), torch.sin(yaw), self.reach
+        # grid_sample's coordinates run from -1 to 1 across the picture: the bin's x is the columns, y the rows
+        theta = torch.stack(
+            [
+                torch.stack([2 * r * cos, -2 * r * sin, 2 * gripper[:, 0] - 1], -1),
+                torch.stack([2 * r * sin, 2 * r * cos, 2 * gripper[:, 1] - 1], -1),
+            ],
+            1,
+        )
+        grid = nn.functional.affine_grid(theta, [len(theta), 3, self.size, self.size], align_corners=False)
+        picture = stacked_channels(x.pictures[:, :1]) + 0.5  # [B, 3, 64, 64] in [0, 1]; outside the bin: 0
+        return nn.functional.grid_sample(picture, grid, align_corners=False) - 0.5
+
+    def forward(self, x: PictureState) -> torch.Tensor:
+        return torch.cat([self.whole(x), self.head(self.trunk(self.glimpse(x)))], dim=1)
+
+
 def network(fusion: str) -> nn.Module:
+    if fusion == "glimpse":  # the flat join from the whole picture's features and a glimpse in the jaws' frame
+        return StateActionQ(0, 4, HIDDEN, GlimpseInput())
     if fusion == "wide":  # the flat join from 256 picture features instead of 50
         return StateActionQ(STATE + 64 * 64 * 3, 4, HIDDEN, ImageStateInput(STATE, (64, 64, 3), "conv", 256))
     if fusion == "conv":

@@ -234,3 +234,30 @@ def test_the_failure_sorting_tells_a_miss_of_yaw_from_a_miss_of_position_and_no_
     (shape, degrees), *_ = sorting.yaw_misses
     # along the bar, the jaws must turn to within about 28.7 degrees of across it: 61.3 degrees away
     assert shape == SHAPES.index("bar") and 60.0 < degrees < 63.0
+
+
+def test_the_probes_glimpse_turns_the_picture_into_the_jaws_frame():
+    """``benchmarks/grasp_fusion_probe.py``'s glimpse: a bar under the gripper lies along the glimpse's rows when it
+    fits across the jaws and along its columns when it lies along them, centred, whatever the yaw. Mutation: the
+    turn's sign flipped (the picture turned the other way) fails."""
+    import sys
+    from pathlib import Path
+
+    from taskrl.envs.grasp import FLOOR
+    from taskrl.types import PictureState
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    try:
+        from grasp_fusion_probe import GlimpseInput
+    finally:
+        sys.path.pop(0)
+    floor = torch.tensor(FLOOR).float()[:, None, None] / 255
+    for yaw in (0.3, 2.2):
+        for across in (True, False):
+            env = one_object("bar", (0.1, 0.02), angle=yaw + (math.pi / 2 if across else 0.0))
+            env.gripper[:], env.yaw[:] = 0.5, yaw
+            state = PictureState(env._obs()["observation"], env.render(gripper=False)[:, None])
+            glimpse = GlimpseInput().glimpse(state)[0] + 0.5  # [3, 32, 32]
+            rows, cols = torch.nonzero((glimpse - floor).abs().sum(0) > 0.3, as_tuple=True)
+            long, short = (rows, cols) if across else (cols, rows)
+            assert long.float().std() > 3 * short.float().std() and abs(float(short.float().mean()) - 15.5) < 1
