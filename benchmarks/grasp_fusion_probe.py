@@ -188,6 +188,10 @@ def probe_arm(job: tuple) -> dict:
     return probe(*job)
 
 
+def pad_label(arm: dict) -> str:
+    return f"{arm['pad']}, the gripper's x, y moved with it" if arm.get("moved") else f"{arm['pad']}"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument(
@@ -216,6 +220,8 @@ def main() -> None:
         saved = json.loads(raw.read_text())
         share, results = saved["holding_share"], saved["arms"]
         args.workers = saved.get("workers", 1)
+        curve = results[0]["curve"]  # the training's length and scoring interval, as it ran
+        args.updates, args.every = curve[-1]["updates"], curve[1]["updates"] - curve[0]["updates"]
     else:
         train, test = labelled_closes(args.train_states, 1), labelled_closes(4_000, 2)
         jobs = [
@@ -229,7 +235,8 @@ def main() -> None:
         raw.write_text(json.dumps({"holding_share": share, "workers": args.workers, "arms": results}, indent=2) + "\n")
     steps = [row["updates"] for row in results[0]["curve"]]
     lines = [
-        f"{args.train_states:,} training closes, 4,000 held-out ones ({share:.0%} of them hold); batch 64, Adam 3e-4, "
+        f"{args.train_states:,} training closes, 4,000 held-out ones ({share:.0%} of them hold), arms "
+        f"{', '.join(sorted({r['fusion'] for r in results}))}; batch 64, Adam 3e-4, "
         f"one torch thread, seed {args.seed}; the MLP after either join is 256 x 256. Held-out AUC (0.5: chance), and the "
         "time to score one candidate action when 64 states x 32 candidates are scored at once:",
         "",
@@ -238,8 +245,7 @@ def main() -> None:
     ]
     for r in results:
         aucs = " | ".join(f"{row['auc']:.2f}" for row in r["curve"])
-        pad = f"{r['pad']}, the gripper's x, y moved with it" if r.get("moved") else f"{r['pad']}"
-        lines.append(f"| {r['fusion']} | {pad} | {aucs} | {r['ms_per_candidate']:.3f} |")
+        lines.append(f"| {r['fusion']} | {pad_label(r)} | {aucs} | {r['ms_per_candidate']:.3f} |")
     if all("yaw_auc" in row for r in results for row in r["curve"]):
         lines += [
             "",
@@ -250,7 +256,9 @@ def main() -> None:
             "|---|---|" + "---|" * len(steps),
         ]
         for r in results:
-            lines.append(f"| {r['fusion']} | {r['pad']} | " + " | ".join(f"{row['yaw_auc']:.2f}" for row in r["curve"]) + " |")
+            lines.append(
+                f"| {r['fusion']} | {pad_label(r)} | " + " | ".join(f"{row['yaw_auc']:.2f}" for row in r["curve"]) + " |"
+            )
     text = "\n".join(lines)
     print(text)
     if args.write:
