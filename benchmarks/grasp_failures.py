@@ -39,27 +39,29 @@ class _Sorting:
         return self.env.reset(seed=seed)
 
     def step(self, action: torch.Tensor):
-        env, s = self.env, self.env.settings
+        env = self.env
         action = action.reshape(self.num_envs, 4).clamp(-1, 1)
-        gripper, yaw = env.gripper, env.yaw
-        env.gripper = (gripper + s.max_move * action[:, :2]).clamp(0.0, 1.0)  # as `Grasp.step` moves, before the close
-        env.yaw = torch.remainder(yaw + s.max_turn * action[:, 2], torch.pi)
-        on_spine, fits = env.hold_conditions()
-        spine_distance = _spine_distance(env)
+        gripper, yaw = env.moved(action)  # where the close is checked
+        on_spine, fits = env.hold_conditions(gripper, yaw)
         closing = (action[:, 3] > 0) & (self.outcome < 0)
         kind = torch.where((on_spine & fits).any(1), 0, torch.where(on_spine.any(1), 2, 1))
-        self.miss_pixels += (spine_distance[closing & (kind == 1)] * s.image_size).tolist()
-        # the object closed over: the one held, else the nearest whose spine the gripper is over
-        distance = (env.gripper[:, None] - env.centre).norm(dim=-1)
-        over = distance.masked_fill(~on_spine, torch.inf).masked_fill((on_spine & fits).any(1, keepdim=True) & ~fits, torch.inf)
-        target = over.argmin(1)
-        shape = env.shape.gather(1, target[:, None])[:, 0]
-        yaw_error, fitting_share = _degrees_to_fitting_yaw(env, target)
-        for i in torch.nonzero(closing & (kind != 1))[:, 0].tolist():
-            self.closed_over.append((int(shape[i]), bool(kind[i] == 0), float(fitting_share[i])))
-        for i in torch.nonzero(closing & (kind == 2))[:, 0].tolist():
-            self.yaw_misses.append((int(shape[i]), float(yaw_error[i])))
-        env.gripper, env.yaw = gripper, yaw
+        missed = closing & (kind == 1)
+        self.miss_pixels += (_spine_distance(env, gripper)[missed] * env.settings.image_size).tolist()
+        over_spine = closing & (kind != 1)
+        if bool(over_spine.any()):
+            # the object closed over: the one held, else the nearest whose spine the gripper is over
+            distance = (gripper[:, None] - env.centre).norm(dim=-1)
+            over = distance.masked_fill(~on_spine, torch.inf).masked_fill(
+                (on_spine & fits).any(1, keepdim=True) & ~fits, torch.inf
+            )
+            rows = torch.nonzero(over_spine)[:, 0]
+            target = over[rows].argmin(1)
+            shape = env.shape[rows, target]
+            yaw_error, fitting_share = _degrees_to_fitting_yaw(env, rows, target, yaw[rows])
+            for j, i in enumerate(rows.tolist()):
+                self.closed_over.append((int(shape[j]), bool(kind[i] == 0), float(fitting_share[j])))
+                if kind[i] == 2:
+                    self.yaw_misses.append((int(shape[j]), float(yaw_error[j])))
         self.outcome = torch.where(closing, kind, self.outcome)
         result = env.step(action)
         last = (env.t == 0) & (self.outcome < 0)  # reset after its last step without a close
@@ -67,31 +69,29 @@ class _Sorting:
         return result
 
 
-def _degrees_to_fitting_yaw(env: Grasp, target: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """``([B], [B])``: how far the gripper's yaw is, in degrees, from the nearest yaw (on a 0.5-degree grid) at which
-    object ``target`` fits between the jaws; and the share of the grid's yaws at which it fits (a close at a uniformly
-    random yaw holds it that often)."""
-    yaw = env.yaw
+def _degrees_to_fitting_yaw(
+    env: Grasp, rows: torch.Tensor, target: torch.Tensor, yaw: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """``([R], [R])`` for bins ``rows``: how far ``yaw`` is, in degrees, from the nearest yaw (on a 0.5-degree grid) at
+    which object ``target`` fits between the jaws; and the share of the grid's yaws at which it fits (a close at a
+    uniformly random yaw holds it that often)."""
     grid = torch.arange(0, 180, 0.5)
     fitting = []
     for degrees in grid.tolist():
-        env.yaw = torch.full_like(yaw, degrees * torch.pi / 180)
-        fitting.append(env.hold_conditions()[1].gather(1, target[:, None])[:, 0])
-    env.yaw = yaw
-    fitting = torch.stack(fitting, 1)  # [B, grid]
+        turned = torch.full_like(env.yaw, degrees * torch.pi / 180)
+        fitting.append(env.hold_conditions(yaw=turned)[1][rows, target])
+    fitting = torch.stack(fitting, 1)  # [R, grid]
     apart = (grid[None] - yaw[:, None] * 180 / torch.pi).abs() % 180
     apart = torch.minimum(apart, 180 - apart)  # a jaw turned by 180 degrees is the same jaw
     return apart.masked_fill(~fitting, torch.inf).min(1).values, fitting.float().mean(1)
 
 
-def _spine_distance(env: Grasp) -> torch.Tensor:
-    """``[B]``: the gripper centre's distance from the nearest object's spine (a segment; a disc's is its centre)."""
-    offset = env.gripper[:, None] - env.centre
-    axis = torch.stack([torch.cos(env.angle), torch.sin(env.angle)], -1)
+def _spine_distance(env: Grasp, gripper: torch.Tensor) -> torch.Tensor:
+    """``[B]``: ``gripper``'s distance from the nearest object's spine (a segment; a disc's is its centre)."""
+    along, across = env.spine_offsets(gripper)
     length, width = env.half.unbind(-1)
-    along = ((offset * axis).sum(-1).abs() - (length - width).clamp(min=0)).clamp(min=0)
-    across = (offset[..., 0] * -axis[..., 1] + offset[..., 1] * axis[..., 0]).abs()
-    return torch.sqrt(along**2 + across**2).min(1).values
+    beyond = (along - (length - width).clamp(min=0)).clamp(min=0)
+    return torch.sqrt(beyond**2 + across**2).min(1).values
 
 
 def sort_attempts(run_dir: Path, episodes: int, held_out: bool) -> dict:
@@ -112,6 +112,7 @@ def sort_attempts(run_dir: Path, episodes: int, held_out: bool) -> dict:
     counts = {name: int((env.outcome == i).sum()) for i, name in enumerate(OUTCOMES)}
     assert counts["held"] == round(scored["success_rate"] * episodes), "the sorting disagrees with the env's reward"
     miss = torch.tensor(env.miss_pixels) if env.miss_pixels else torch.zeros(0)
+    tolerance_pixels = config.env_settings.tolerance * config.env_settings.image_size
     by_shape = {}
     for shape_id, name in enumerate(SHAPES):
         closes = [held for shape, held, _ in env.closed_over if shape == shape_id]
@@ -130,7 +131,7 @@ def sort_attempts(run_dir: Path, episodes: int, held_out: bool) -> dict:
         "episodes": episodes,
         **{name: n / episodes for name, n in counts.items()},
         "position_miss_pixels_median": float(miss.median()) if len(miss) else None,
-        "position_miss_within_2_more_pixels": float((miss <= 2 + 0.06 * 64).float().mean()) if len(miss) else None,
+        "position_miss_within_2_more_pixels": float((miss <= 2 + tolerance_pixels).float().mean()) if len(miss) else None,
         "by_shape": by_shape,
     }
 

@@ -37,7 +37,6 @@ from torch import nn
 sys.path.insert(0, str(Path(__file__).parent))
 from grasp_probe import STATE, auc, placed_bins, rows_of, shifted  # noqa: E402
 from taskrl.encoders import ImageStateInput  # noqa: E402
-from taskrl.encoders.registry import picture_encoder  # noqa: E402
 from taskrl.encoders.state_input import stacked_channels  # noqa: E402
 from taskrl.envs.grasp import SHAPES, GraspSettings  # noqa: E402
 from taskrl.fused_q import PictureActionQ  # noqa: E402
@@ -54,12 +53,8 @@ def labelled_closes(n: int, seed: int) -> tuple[PictureState, torch.Tensor, torc
     env, x, g = placed_bins(n, seed, 0.2)
     action = torch.rand(n, 4, generator=g) * 2 - 1
     action[:, 3] = 1.0  # close
-    gripper, yaw = env.gripper, env.yaw
-    env.gripper = (gripper + env.settings.max_move * action[:, :2]).clamp(0.0, 1.0)  # the move `Grasp.step` makes
-    env.yaw = torch.remainder(yaw + env.settings.max_turn * action[:, 2], math.pi)
-    on_spine = env.hold_conditions()[0]
+    on_spine = env.hold_conditions(*env.moved(action))[0]
     yaw_decides = on_spine.any(1) & ~(on_spine & (env.shape == SHAPES.index("disc"))).any(1)
-    env.gripper, env.yaw = gripper, yaw
     _, _, _, _, info = env.step(action)
     return x, action, info["is_success"].float(), yaw_decides
 
@@ -95,11 +90,7 @@ class GlimpseInput(nn.Module):
     def __init__(self, reach: float = 0.2, size: int = 32, features: int = 50) -> None:
         super().__init__()
         self.whole = ImageStateInput(STATE, (64, 64, 3), "conv", features)
-        spec = picture_encoder("conv")
-        self.trunk = spec.trunk(3, size, size, True)
-        with torch.no_grad():
-            flat = self.trunk(torch.zeros(1, 3, size, size)).shape[1]
-        self.head = nn.Sequential(nn.Linear(flat, features), nn.LayerNorm(features), nn.Tanh())
+        self.local = ImageStateInput(0, (size, size, 3), "conv", features)  # its trunk and head read the glimpse
         self.reach, self.size, self.out_dim = reach, size, self.whole.out_dim + features
 
     def glimpse(self, x: PictureState) -> torch.Tensor:
@@ -120,7 +111,7 @@ class GlimpseInput(nn.Module):
         return nn.functional.grid_sample(picture, grid, align_corners=False) - 0.5
 
     def forward(self, x: PictureState) -> torch.Tensor:
-        return torch.cat([self.whole(x), self.head(self.trunk(self.glimpse(x)))], dim=1)
+        return torch.cat([self.whole(x), self.local.head(self.local.trunk(self.glimpse(x)))], dim=1)
 
 
 def network(fusion: str) -> nn.Module:

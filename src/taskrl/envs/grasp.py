@@ -253,28 +253,43 @@ class Grasp(NativeEnv):
         on_spine, fits = self.hold_conditions()
         return on_spine & fits
 
-    def hold_conditions(self) -> tuple[torch.Tensor, torch.Tensor]:
+    def hold_conditions(
+        self, gripper: torch.Tensor | None = None, yaw: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """``([B, K], [B, K])``: the two conditions of a hold (module docstring) for each object, were the gripper to
-        close where it is now: its centre is over the object's spine, and the object fits between the open jaws at the
-        gripper's yaw."""
+        close at ``gripper`` (``[B, 2]``) and ``yaw`` (``[B]``), by default where it is now: its centre is over the
+        object's spine, and the object fits between the open jaws at that yaw."""
         s = self.settings
-        offset = self.gripper[:, None] - self.centre  # [B, K, 2]
-        axis = torch.stack([torch.cos(self.angle), torch.sin(self.angle)], -1)
-        along = (offset * axis).sum(-1).abs()
-        across = (offset[..., 0] * -axis[..., 1] + offset[..., 1] * axis[..., 0]).abs()
+        yaw = self.yaw if yaw is None else yaw
+        along, across = self.spine_offsets(gripper)
         length, width = self.half.unbind(-1)
         on_spine = (along <= (length - width).clamp(min=0) + s.tolerance) & (across <= s.tolerance)
-        turn = self.yaw[:, None] - self.angle  # the closing direction against the object's long axis
+        turn = yaw[:, None] - self.angle  # the closing direction against the object's long axis
         c, n = torch.cos(turn).abs(), torch.sin(turn).abs()
         ellipse = (self.shape == 0) | (self.shape == 3)
         extent = torch.where(ellipse, torch.sqrt((length * c) ** 2 + (width * n) ** 2), length * c + width * n)
         return on_spine, extent <= s.opening / 2
 
+    def spine_offsets(self, gripper: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """``([B, K], [B, K])``: how far ``gripper`` (default: where it is) lies from each object's centre along the
+        object's long axis and across it (absolute values)."""
+        offset = (self.gripper if gripper is None else gripper)[:, None] - self.centre  # [B, K, 2]
+        axis = torch.stack([torch.cos(self.angle), torch.sin(self.angle)], -1)
+        along = (offset * axis).sum(-1).abs()
+        across = (offset[..., 0] * -axis[..., 1] + offset[..., 1] * axis[..., 0]).abs()
+        return along, across
+
+    def moved(self, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(gripper [B, 2], yaw [B])``: where ``action`` (``[B, 4]`` in the box) moves and turns the gripper, before
+        its close is checked."""
+        s = self.settings
+        gripper = (self.gripper + s.max_move * action[:, :2]).clamp(0.0, 1.0)
+        return gripper, torch.remainder(self.yaw + s.max_turn * action[:, 2], math.pi)
+
     def step(self, action: torch.Tensor) -> StepResult:
         s = self.settings
         action = torch.as_tensor(action, device=self.device, dtype=torch.float32).reshape(self.num_envs, 4).clamp(-1, 1)
-        self.gripper = (self.gripper + s.max_move * action[:, :2]).clamp(0.0, 1.0)
-        self.yaw = torch.remainder(self.yaw + s.max_turn * action[:, 2], math.pi)
+        self.gripper, self.yaw = self.moved(action)
         self.t += 1
         closed = action[:, 3] > 0
         holdable = self.holdable() & closed[:, None]
