@@ -10,7 +10,8 @@ shift in pixels, which moves the picture but not the gripper's position in the s
 (the gripper's x, y moved with the picture, as ``--shift-coordinates`` does). Two more fusions ask whether the
 critic can see the yaw: ``wide`` (the flat join from 256 picture features instead of 50), ``yaw`` (the flat join
 given the gripper's yaw after the move, `PostMoveYaw`) and ``glimpse`` (the flat join from the whole picture's
-features and those of the picture around the gripper turned into the jaws' frame, `GlimpseInput`). Reported: held-out AUC every 1,000 updates (``--every``;
+features and those of the picture around the gripper turned into the jaws' frame, `taskrl.encoders.GlimpseInput`,
+QT-Opt's ``fusion=glimpse``). Reported: held-out AUC every 1,000 updates (``--every``;
 batch 64, Adam 3e-4, one torch thread), the same on the closes where only the yaw decides (over a square's, bar's or
 ellipse's spine), and the time to score one candidate action (a batch of 64 states x 32 candidates, as the Bellman
 maximum does).
@@ -36,12 +37,11 @@ from torch import nn
 
 sys.path.insert(0, str(Path(__file__).parent))
 from grasp_probe import STATE, auc, placed_bins, rows_of, shifted  # noqa: E402
-from taskrl.encoders import ImageStateInput  # noqa: E402
-from taskrl.encoders.state_input import stacked_channels  # noqa: E402
+from taskrl.encoders import GlimpseInput, ImageStateInput  # noqa: E402
 from taskrl.envs.grasp import SHAPES, GraspSettings  # noqa: E402
 from taskrl.fused_q import PictureActionQ  # noqa: E402
 from taskrl.nets import StateActionQ  # noqa: E402
-from taskrl.types import PictureState  # noqa: E402
+from taskrl.types import PicturePose, PictureState  # noqa: E402
 
 HIDDEN = (256, 256)
 
@@ -82,41 +82,13 @@ class PostMoveYaw(nn.Module):
         return self.inner.score_actions(x, self.extended(x.vector[:, None], actions))
 
 
-class GlimpseInput(nn.Module):
-    """`ImageStateInput`'s features and those of a glimpse: the picture around the gripper, turned into the jaws'
-    frame (``reach`` of the bin either side of the gripper's centre, resampled to ``size`` x ``size``), through its
-    own conv encoder; there an object that fits the jaws looks the same wherever it lies and however the bin turns."""
-
-    def __init__(self, reach: float = 0.2, size: int = 32, features: int = 50) -> None:
-        super().__init__()
-        self.whole = ImageStateInput(STATE, (64, 64, 3), "conv", features)
-        self.local = ImageStateInput(0, (size, size, 3), "conv", features)  # its trunk and head read the glimpse
-        self.reach, self.size, self.out_dim = reach, size, self.whole.out_dim + features
-
-    def glimpse(self, x: PictureState) -> torch.Tensor:
-        """``[B, 3, size, size]``: the glimpse, centred as `stacked_channels` centres the picture."""
-        gripper, c2, s2 = x.vector[:, :2], x.vector[:, 2], x.vector[:, 3]
-        yaw = torch.atan2(s2, c2) / 2  # the state holds twice the yaw: a jaw turned by pi is the same jaw
-        cos, sin, r = torch.cos(yaw), torch.sin(yaw), self.reach
-        # grid_sample's coordinates run from -1 to 1 across the picture: the bin's x is the columns, y the rows
-        theta = torch.stack(
-            [
-                torch.stack([2 * r * cos, -2 * r * sin, 2 * gripper[:, 0] - 1], -1),
-                torch.stack([2 * r * sin, 2 * r * cos, 2 * gripper[:, 1] - 1], -1),
-            ],
-            1,
-        )
-        grid = nn.functional.affine_grid(theta, [len(theta), 3, self.size, self.size], align_corners=False)
-        picture = stacked_channels(x.pictures[:, :1]) + 0.5  # [B, 3, 64, 64] in [0, 1]; outside the bin: 0
-        return nn.functional.grid_sample(picture, grid, align_corners=False) - 0.5
-
-    def forward(self, x: PictureState) -> torch.Tensor:
-        return torch.cat([self.whole(x), self.local.head(self.local.trunk(self.glimpse(x)))], dim=1)
+#: the grasp bin's gripper pose in the probe's (unnormalised) state vector: what `GlimpseInput` turns the picture by
+POSE = PicturePose("observation", 0, 1, 2, 3, turns=2)
 
 
 def network(fusion: str) -> nn.Module:
     if fusion == "glimpse":  # the flat join from the whole picture's features and a glimpse in the jaws' frame
-        return StateActionQ(0, 4, HIDDEN, GlimpseInput())
+        return StateActionQ(0, 4, HIDDEN, GlimpseInput(STATE, (64, 64, 3), "conv", 50, POSE))
     if fusion == "wide":  # the flat join from 256 picture features instead of 50
         return StateActionQ(STATE + 64 * 64 * 3, 4, HIDDEN, ImageStateInput(STATE, (64, 64, 3), "conv", 256))
     if fusion == "conv":

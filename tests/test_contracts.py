@@ -351,8 +351,12 @@ def test_every_algorithm_that_reads_pictures_is_generated_here():
     assert set(PICTURE_RUNS) == {name for name, spec in ALGORITHMS.items() if spec.images}
 
 
-#: each picture-reading algorithm, and QT-Opt a second time with the action inside the encoder (``fusion=conv``)
-PICTURE_ARMS = [(algo, {}) for algo in PICTURE_RUNS] + [("qtopt", {"fusion": "conv"})]
+#: each picture-reading algorithm, and QT-Opt again with the action inside the encoder (``fusion=conv``) and with a
+#: glimpse around the gripper beside the whole picture (``fusion=glimpse``, the pose moved with the shift)
+PICTURE_ARMS = [(algo, {}) for algo in PICTURE_RUNS] + [
+    ("qtopt", {"fusion": "conv"}),
+    ("qtopt", {"fusion": "glimpse", "shift_coordinates": True}),
+]
 
 
 @pytest.mark.parametrize(
@@ -391,6 +395,10 @@ def test_every_picture_encoder_trains_with_every_algorithm_that_reads_pictures(e
         built, named = encoder(run.agent).convs, spec.late_input(3, True)
     elif algo == "bc":
         built, named = encoder(run.agent).blocks, torch.nn.ModuleList(b for b, _ in spec.film_blocks(3, False))
+    elif arm.get("fusion") == "glimpse":  # the whole picture's encoder and the glimpse's, both of the named kind
+        glimpse = encoder(run.agent)
+        built = torch.nn.ModuleList([glimpse.whole.trunk, glimpse.local.trunk])
+        named = torch.nn.ModuleList([spec.trunk(3, size, size, True), spec.trunk(3, glimpse.size, glimpse.size, True)])
     else:
         built, named = encoder(run.agent).trunk, spec.trunk(3, size, size, True)
     assert [p.shape for p in built.parameters()] == [p.shape for p in named.parameters()]  # the named encoder was built

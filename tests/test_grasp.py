@@ -236,28 +236,52 @@ def test_the_failure_sorting_tells_a_miss_of_yaw_from_a_miss_of_position_and_no_
     assert shape == SHAPES.index("bar") and 60.0 < degrees < 63.0
 
 
-def test_the_probes_glimpse_turns_the_picture_into_the_jaws_frame():
-    """``benchmarks/grasp_fusion_probe.py``'s glimpse: a bar under the gripper lies along the glimpse's rows when it
-    fits across the jaws and along its columns when it lies along them, centred, whatever the yaw. Mutation: the
-    turn's sign flipped (the picture turned the other way) fails."""
-    import sys
-    from pathlib import Path
-
+def test_the_glimpse_turns_the_picture_into_the_jaws_frame():
+    """`GlimpseInput` at the pose the bin declares: a bar under the gripper lies along the glimpse's rows when it fits
+    across the jaws and along its columns when it lies along them, centred, whatever the yaw. Mutation: the turn's sign
+    flipped (the picture turned the other way) fails."""
+    from taskrl.encoders import GlimpseInput
     from taskrl.envs.grasp import FLOOR
     from taskrl.types import PictureState
 
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-    try:
-        from grasp_fusion_probe import GlimpseInput
-    finally:
-        sys.path.pop(0)
     floor = torch.tensor(FLOOR).float()[:, None, None] / 255
     for yaw in (0.3, 2.2):
         for across in (True, False):
             env = one_object("bar", (0.1, 0.02), angle=yaw + (math.pi / 2 if across else 0.0))
             env.gripper[:], env.yaw[:] = 0.5, yaw
             state = PictureState(env._obs()["observation"], env.render(gripper=False)[:, None])
-            glimpse = GlimpseInput().glimpse(state)[0] + 0.5  # [3, 32, 32]
+            glimpse = GlimpseInput(5, (64, 64, 3), "conv", 50, env.picture_pose).glimpse(state)[0] + 0.5  # [3, 32, 32]
             rows, cols = torch.nonzero((glimpse - floor).abs().sum(0) > 0.3, as_tuple=True)
             long, short = (rows, cols) if across else (cols, rows)
             assert long.float().std() > 3 * short.float().std() and abs(float(short.float().mean()) - 15.5) < 1
+
+
+def test_qtopt_with_the_glimpse_reads_the_gripper_pose_as_the_env_gives_it():
+    """``--fusion glimpse`` built as a run builds it: the pose's columns reach the network unnormalised (the other
+    columns normalised), so the glimpse is the one the env's own pose gives; a shift without the pose moved with it,
+    or an env that declares no pose, is refused naming the setting. Mutation: the pose's columns normalised like the
+    rest (no ``raw_columns``) fails it."""
+    from taskrl.encoders import GlimpseInput
+    from taskrl.overrides import with_overrides
+    from taskrl.presets import preset_config
+    from taskrl.types import PictureState
+    from taskrl.wiring.parts import make_agent, make_env
+
+    settings = {"image_size": 16, "hidden_sizes": (8,), "num_envs": 8, "fusion": "glimpse", "shift_coordinates": True}
+    config = with_overrides(preset_config("grasp-qtopt-pixels"), settings)
+    env = make_env(config, "cpu")
+    agent = make_agent(config, env, torch.device("cpu"))
+    net = agent.q.state_input
+    assert isinstance(net, GlimpseInput) and net.pose.columns == (0, 1, 2, 3)
+    for seed in range(3):
+        agent.inputs.update_statistics(env.reset(seed=seed))
+    obs = env.reset(seed=7)
+    state = agent.inputs(obs)
+    raw = obs["observation"].float()
+    assert torch.equal(state.vector[:, :4], raw[:, :4]) and not torch.allclose(state.vector[:, 4], raw[:, 4])
+    assert torch.equal(net.glimpse(state), net.glimpse(PictureState(raw, state.pictures)))
+    with pytest.raises(ConfigError, match="shift_coordinates"):
+        make_agent(with_overrides(config, {"shift_coordinates": False}), env, torch.device("cpu"))
+    config = with_overrides(preset_config("pixelpush-sac-her"), {"algo": "qtopt", "fusion": "glimpse", "image_size": 16})
+    with pytest.raises(ConfigError, match="fusion"):
+        make_agent(config, make_env(config, "cpu"), torch.device("cpu"))

@@ -30,8 +30,10 @@ from taskrl.types import PictureState
 
 __all__ = ["FUSIONS", "PictureActionQ"]
 
-#: how the action meets the picture in QT-Opt's Q-network: ``flat`` (after the encoder's features) or ``conv``
-FUSIONS = ("flat", "conv")
+#: how the action meets the picture in QT-Opt's Q-network: ``flat`` (after the encoder's features), ``conv`` (in an
+#: intermediate feature map) or ``glimpse`` (flat, after the features of the whole picture and of the picture around
+#: the gripper in the jaws' frame: `taskrl.encoders.GlimpseInput`)
+FUSIONS = ("flat", "conv", "glimpse")
 LATE = 16  # channels of the late convolution
 
 

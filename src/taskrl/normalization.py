@@ -18,11 +18,18 @@ class RunningNorm(nn.Module):
         dim: input width.
         clip: bound on the normalised values.
         eps: floor on the standard deviation (constant inputs stay finite).
+        raw_columns: columns handed on as they come, neither standardised nor clipped (a position a network reads
+            as a place in the picture: `taskrl.encoders.GlimpseInput`); their statistics are still kept.
     """
 
-    def __init__(self, dim: int, clip: float = 5.0, eps: float = 1e-2) -> None:
+    def __init__(self, dim: int, clip: float = 5.0, eps: float = 1e-2, raw_columns: tuple[int, ...] = ()) -> None:
         super().__init__()
         self.clip, self.eps = clip, eps
+        raw = None
+        if raw_columns:
+            raw = torch.zeros(dim, dtype=torch.bool)
+            raw[list(raw_columns)] = True
+        self.register_buffer("raw", raw, persistent=False)
         self.register_buffer("mean", torch.zeros(dim))
         self.register_buffer("var", torch.ones(dim))
         self.register_buffer("count", torch.zeros((), dtype=torch.float64))
@@ -49,4 +56,5 @@ class RunningNorm(nn.Module):
         self._refresh()
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return ((x - self.mean) * self.inv_std).clamp_(-self.clip, self.clip)
+        normalised = ((x - self.mean) * self.inv_std).clamp_(-self.clip, self.clip)
+        return normalised if self.raw is None else torch.where(self.raw, x, normalised)

@@ -46,3 +46,32 @@ class PictureCoordinate:
     index: int
     axis: Literal["row", "col"]
     per_pixel: float
+
+
+@dataclasses.dataclass(frozen=True)
+class PicturePose:
+    """Where a gripper seen from above is in the picture and how its jaws are turned, as columns of a vector
+    observation: ``obs[key][:, x]`` and ``obs[key][:, y]`` its position as fractions of the picture's width and height
+    (a pixel's centre at ``(column + 0.5) / width``, ``(row + 0.5) / height``), ``obs[key][:, cos]`` and
+    ``obs[key][:, sin]`` the cosine and sine of ``turns`` times its yaw (the angle from the picture's columns axis
+    towards its rows axis of the line the jaws close along; ``turns`` 2 where jaws turned by pi are the same jaws).
+
+    An env declares it (``picture_pose``) so that a network can look at the picture around the gripper in the jaws'
+    frame (`taskrl.encoders.GlimpseInput`, QT-Opt's ``fusion=glimpse``); the agent is given it with the columns
+    counted in its state vector (`in_vector`)."""
+
+    key: str
+    x: int
+    y: int
+    cos: int
+    sin: int
+    turns: int = 1
+
+    @property
+    def columns(self) -> tuple[int, int, int, int]:
+        """``(x, y, cos, sin)``."""
+        return (self.x, self.y, self.cos, self.sin)
+
+    def in_vector(self, offset: int) -> PicturePose:
+        """The same pose with its columns counted from ``offset`` (where ``key`` starts in a concatenated vector)."""
+        return dataclasses.replace(self, x=self.x + offset, y=self.y + offset, cos=self.cos + offset, sin=self.sin + offset)

@@ -121,12 +121,14 @@ class Agent:
         input_dim: int,
         conditioning: Any = None,
         picture_dim: int = 0,
+        raw_columns: tuple[int, ...] = (),
     ) -> None:
-        """The start every agent's constructor shares: its validated settings, its device, the (normalised) input of
-        the observation keys its networks read and, on multi-task runs, the task encoder (else None)."""
+        """The start every agent's constructor shares: its validated settings, its device, the (normalised, but for
+        ``raw_columns``) input of the observation keys its networks read and, on multi-task runs, the task encoder
+        (else None)."""
         config.validate()
         self.config, self.device = config, torch.device(device)
-        self.inputs = ObservationInput(keys, input_dim, config.normalize_inputs, picture_dim).to(self.device)
+        self.inputs = ObservationInput(keys, input_dim, config.normalize_inputs, picture_dim, raw_columns).to(self.device)
         self.conditioning = conditioning
         self.task_encoder = conditioning.encoder.to(self.device) if conditioning is not None else None
 

@@ -41,9 +41,13 @@ class ObservationInput(nn.Module):
         dim: the numbers one observation holds under those keys (pictures included).
         normalize: standardise the vector with running statistics from the training batches.
         picture_dim: how many of ``dim`` are pictures' values (so the vector's width is ``dim - picture_dim``).
+        raw_columns: columns of the vector handed on as the env gives them, not normalised (a gripper's pose that
+            a network reads as a place in the picture).
     """
 
-    def __init__(self, keys: Sequence[str], dim: int, normalize: bool, picture_dim: int = 0) -> None:
+    def __init__(
+        self, keys: Sequence[str], dim: int, normalize: bool, picture_dim: int = 0, raw_columns: tuple[int, ...] = ()
+    ) -> None:
         super().__init__()
         self.keys, self.dim = tuple(keys), int(dim)
         self.picture_keys = tuple(k for k in PICTURE_KEYS if k in self.keys)
@@ -51,7 +55,9 @@ class ObservationInput(nn.Module):
         self.vector_dim = self.dim - int(picture_dim)
         self.encode = ObsConcat(self.vector_keys)
         # pixels only: nothing to scale
-        self.normalize = RunningNorm(self.vector_dim) if normalize and self.vector_dim > 0 else nn.Identity()
+        self.normalize = (
+            RunningNorm(self.vector_dim, raw_columns=tuple(raw_columns)) if normalize and self.vector_dim > 0 else nn.Identity()
+        )
 
     def forward(self, obs: Obs) -> torch.Tensor | PictureState:
         if not self.picture_keys:

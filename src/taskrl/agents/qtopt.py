@@ -78,12 +78,20 @@ from taskrl.agents.parts import (
     td_target,
 )
 from taskrl.agents.spec import AlgorithmSpec
-from taskrl.encoders import DRQ_SHIFT, ImageStateInput, PictureCoordinate, picture_encoder, picture_values, shift_pictures
+from taskrl.encoders import (
+    DRQ_SHIFT,
+    GlimpseInput,
+    ImageStateInput,
+    PictureCoordinate,
+    picture_encoder,
+    picture_values,
+    shift_pictures,
+)
 from taskrl.errors import ConfigError, one_of, require
 from taskrl.fused_q import FUSIONS, PictureActionQ
 from taskrl.nets import StateActionQ
 from taskrl.replay.batch import Batch, Obs
-from taskrl.types import state_rows
+from taskrl.types import PicturePose, state_rows
 
 
 def validate_search(search: CEMConfig) -> None:
@@ -128,8 +136,11 @@ class QTOptConfig:
             scores.
         image_features: the encoded picture's size (a linear layer, LayerNorm and tanh after the encoder).
         fusion: on envs with a camera, where the action meets the picture: ``flat`` (after the encoder's
-            ``image_features``) or ``conv`` (QT-Opt's network: the action and the state vector embedded and added to
-            the ``encoder``'s intermediate feature map, then one more convolution; `taskrl.fused_q.PictureActionQ`).
+            ``image_features``), ``conv`` (QT-Opt's network: the action and the state vector embedded and added to
+            the ``encoder``'s intermediate feature map, then one more convolution; `taskrl.fused_q.PictureActionQ`)
+            or ``glimpse`` (flat, after the whole picture's features and those of the picture around the gripper
+            turned into the jaws' frame, `taskrl.encoders.GlimpseInput`; for envs that declare the gripper's pose in
+            the picture, ``picture_pose``, which then reaches the network unnormalised).
     """
 
     lr: float = 1e-3
@@ -152,7 +163,7 @@ class QTOptConfig:
     target_elites: int = 4
     encoder: str = "conv"
     image_features: int = 50
-    fusion: Literal["flat", "conv"] = "flat"
+    fusion: Literal["flat", "conv", "glimpse"] = "flat"
 
     def validate(self) -> None:
         """Raise `ConfigError` naming the first bad setting."""
@@ -192,6 +203,8 @@ class QTOptAgent(Agent):
         picture_shift: pixels of DrQ's random shift of the pictures in every update (0: none; None: DrQ's 4).
         picture_coordinates: vector entries that are positions in the picture's frame, moved with the shift
             (`taskrl.encoders.PictureCoordinate`).
+        picture_pose: where the gripper's pose is in the state vector (`taskrl.types.PicturePose`, columns counted
+            in the vector), or None; what ``fusion=glimpse`` reads.
     """
 
     acting = ("q", "normalize")
@@ -215,12 +228,27 @@ class QTOptAgent(Agent):
         image_shape: tuple[int, ...] | None = None,
         picture_shift: int | None = None,
         picture_coordinates: tuple[PictureCoordinate, ...] = (),
+        picture_pose: PicturePose | None = None,
     ) -> None:
         self.image_shape = tuple(image_shape) if image_shape is not None else None
         self.picture_shift = DRQ_SHIFT if picture_shift is None else int(picture_shift)
         self.picture_coordinates = tuple(picture_coordinates)
+        glimpse = config.fusion == "glimpse"
+        if glimpse:
+            require(
+                self.image_shape is not None and picture_pose is not None,
+                "fusion",
+                "glimpse looks around the gripper: it needs a camera and an env that declares the gripper's pose in the "
+                "picture (picture_pose, as the grasp bin does); use flat or conv",
+            )
+            require(
+                self.picture_shift == 0 or bool(self.picture_coordinates),
+                "shift_coordinates",
+                "must be on with fusion=glimpse, which reads the gripper's position from the state: the shift must "
+                "move it with the pictures (or be 0: --shift 0)",
+            )
         raw = picture_values(self.image_shape) if self.image_shape is not None else 0
-        self.setup(config, device, input_keys, input_dim, picture_dim=raw)
+        self.setup(config, device, input_keys, input_dim, picture_dim=raw, raw_columns=picture_pose.columns if glimpse else ())
         self.box = ActionBox(action_space, self.device)
         self.action_dim = self.box.dim
         self.unit_low, self.unit_high = -torch.ones_like(self.box.low), torch.ones_like(self.box.high)
@@ -231,7 +259,9 @@ class QTOptAgent(Agent):
                 return PictureActionQ(input_dim - raw, self.image_shape, self.action_dim, config.hidden_sizes, config.encoder).to(
                     self.device
                 )
-            if self.image_shape is not None:  # every network, targets included, has its own encoder
+            if glimpse:
+                state_input = GlimpseInput(input_dim - raw, self.image_shape, config.encoder, config.image_features, picture_pose)
+            elif self.image_shape is not None:  # every network, targets included, has its own encoder
                 state_input = ImageStateInput(input_dim - raw, self.image_shape, config.encoder, config.image_features)
             return StateActionQ(input_dim, self.action_dim, config.hidden_sizes, state_input).to(self.device)
 
@@ -460,6 +490,7 @@ SPEC = AlgorithmSpec(
         inputs.image_shape,
         inputs.picture_shift,
         inputs.picture_coordinates,
+        inputs.picture_pose,
     ),
     loop="off_policy",
     actions=("box",),

@@ -22,7 +22,9 @@ class AgentInputs:
     ([`PictureState`][taskrl.types.PictureState]). ``picture_shift``: the camera's random shift of the pictures the
     agent trains on, in pixels (`taskrl.envs.camera.CameraSettings.shift`); None: the algorithm's own.
     ``picture_coordinates``: the vector entries the shift moves with the picture (`taskrl.encoders.PictureCoordinate`;
-    empty unless the camera's ``shift_coordinates`` is on)."""
+    empty unless the camera's ``shift_coordinates`` is on). ``picture_pose``: where the gripper's pose in the picture
+    is in the state vector, for envs that declare one (`taskrl.types.PicturePose`, columns counted in the vector),
+    else None."""
 
     keys: tuple[str, ...]
     dim: int
@@ -30,6 +32,7 @@ class AgentInputs:
     image_shape: tuple[int, ...] | None = None
     picture_shift: int | None = None
     picture_coordinates: tuple[Any, ...] = ()
+    picture_pose: Any = None
 
 
 @dataclasses.dataclass(frozen=True)

@@ -4,11 +4,13 @@ augmentation of the update.
 An image observation reaches a network as the replay stores it, uint8 ``[B, H, W, C]`` (0-255) beside the state
 vector ([`ObservationInput`][taskrl.agents.parts.ObservationInput] gives both as a
 [`PictureState`][taskrl.types.PictureState]; no picture is flattened into the vector); `ImageStateInput`
-encodes the pictures once per state with a conv stack or a small ResNet, and hands ``[vector, image features]`` on. `random_shift` is DrQ's augmentation: pad by replicating the
+encodes the pictures once per state with a conv stack or a small ResNet, and hands ``[vector, image features]`` on;
+`GlimpseInput` adds the features of the picture around a gripper, turned into the jaws' frame. `random_shift` is DrQ's augmentation: pad by replicating the
 border, crop back at a random offset drawn per observation (a scene and its goal picture move together).
 """
 
 from taskrl.encoders.conv import conv_stack
+from taskrl.encoders.glimpse import GlimpseInput
 from taskrl.encoders.keypoints import SpatialSoftmax, keypoint_stack
 from taskrl.encoders.registry import PICTURE_ENCODERS, picture_encoder, register_picture_encoder
 from taskrl.encoders.resnet import small_resnet
@@ -31,6 +33,7 @@ __all__ = [
     "PICTURE_ENCODERS",
     "PICTURE_KEYS",
     "FiLMPictureEncoder",
+    "GlimpseInput",
     "ImageStateInput",
     "PictureCoordinate",
     "PictureEncoder",

@@ -50,7 +50,7 @@ from taskrl.envs.base import NativeEnv, Obs, StepResult
 from taskrl.envs.camera import CameraSettings
 from taskrl.envs.spec import EnvFamily, EnvRequest
 from taskrl.errors import one_of, require
-from taskrl.types import PictureCoordinate
+from taskrl.types import PictureCoordinate, PicturePose
 
 __all__ = ["GRASP_OBJECT_SETS", "Grasp", "GraspGymEnv", "GraspSettings", "detect_grasp", "scripted_attempts"]
 
@@ -234,6 +234,13 @@ class Grasp(NativeEnv):
         size and y = (row + 0.5) / size of the bin (what a shift moves with the picture, ``--shift-coordinates``)."""
         per_pixel = 1.0 / self.settings.image_size
         return (PictureCoordinate("observation", 0, "col", per_pixel), PictureCoordinate("observation", 1, "row", per_pixel))
+
+    @property
+    def picture_pose(self) -> PicturePose:
+        """The gripper's pose in the picture's frame: x, y as `picture_coordinates` gives them, and the cosine and sine
+        of twice the yaw, the angle of the line the jaws close along from the columns axis towards the rows axis (what
+        QT-Opt's ``fusion=glimpse`` turns the picture by)."""
+        return PicturePose("observation", 0, 1, 2, 3, turns=2)
 
     def _obs(self) -> Obs:
         state = torch.cat(

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Callable
 from typing import Any
 
@@ -13,6 +14,7 @@ from taskrl.agents.registry import algorithm
 from taskrl.agents.spec import AgentInputs, AlgorithmSpec
 from taskrl.conditioning.networks import make_conditioning
 from taskrl.config import TrainConfig
+from taskrl.encoders import PICTURE_KEYS
 from taskrl.envs.base import BatchedEnv
 from taskrl.envs.registry import env_family
 from taskrl.envs.spec import EnvFamily, EnvRequest, env_kind
@@ -23,6 +25,7 @@ from taskrl.setting_values import check_device
 from taskrl.sharing import TaskSharing
 from taskrl.training.evaluation import ActingPolicy, evaluate
 from taskrl.training.per_task import evaluate_per_task
+from taskrl.types import PicturePose
 
 __all__ = ["RunParts", "make_agent", "make_env", "make_evaluator", "make_relabeler", "resolve_device"]
 
@@ -137,8 +140,28 @@ def make_agent(config: TrainConfig, env: Any, device: torch.device, spec: Algori
             "shift_coordinates",
             f"{config.env!r} declares no position in the picture's frame in its state (picture_coordinates) to move",
         )
-    inputs = AgentInputs(keys, input_dim, env.single_action_space, image_shape, shift if shift >= 0 else None, coordinates)
+    inputs = AgentInputs(
+        keys,
+        input_dim,
+        env.single_action_space,
+        image_shape,
+        shift if shift >= 0 else None,
+        coordinates,
+        pose_in_vector(env, keys),
+    )
     return spec.build(inputs, config.algo_settings, device, conditioning)
+
+
+def pose_in_vector(env: BatchedEnv, keys: tuple[str, ...]) -> PicturePose | None:
+    """The gripper's pose the env declares (``picture_pose``), its columns counted in the agent's state vector (the
+    vector keys of ``keys`` concatenated in order); None where the env declares none or the agent does not read it."""
+    pose = getattr(env, "picture_pose", None)
+    vector_keys = [k for k in keys if k not in PICTURE_KEYS]
+    if pose is None or pose.key not in vector_keys:
+        return None
+    space = env.single_observation_space
+    offset = sum(int(math.prod(space[k].shape)) for k in vector_keys[: vector_keys.index(pose.key)])
+    return pose.in_vector(offset)
 
 
 def make_evaluator(
