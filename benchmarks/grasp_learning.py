@@ -6,7 +6,9 @@ control of the bin as it was (tolerance 0.025, squares of half-side 0.035-0.05);
 so on today's bin this arm is the preset; "fair bin": the preset on today's bin, beside "independent twins" (the fair
 bin's preset before lagged twins and scripted exploration), each run then evaluated by ``taskrl eval RUN`` and ``taskrl
 eval RUN --held-out``; "independent twins", "lagged twins" and "lagged twins + scripted" for half an hour, the two
-changes one at a time (runs longer than the budget are read up to it). Each arm is reported beside the success of
+changes one at a time (runs longer than the budget are read up to it); "glimpse": the fair bin's preset with
+``--fusion glimpse`` (the whole picture's features beside those of the picture around the gripper in the jaws' frame),
+compared with it at equal env steps (``--at``) as well as at the end. Each arm is reported beside the success of
 uniformly random actions at its own tolerance. The runs of each section used the preset of its commit: the arms'
 flags name what differs from today's.
 
@@ -21,6 +23,8 @@ objects); ``train success`` counts every training attempt, scripted ones include
         --max-hours 1 --out /work/runs-bench/grasp --write
     .venv/bin/python benchmarks/grasp_learning.py --arms "independent twins" "lagged twins" "lagged twins + scripted" \
         --seeds 0 --max-hours 0.5 --out /work/runs-bench/grasp --write
+    .venv/bin/python benchmarks/grasp_learning.py --arms "fair bin:0,1,2" "glimpse:0" --max-hours 1.6 \
+        --at 50000 100000 150000 --out /work/runs-bench/grasp --write
 """
 
 from __future__ import annotations
@@ -56,6 +60,8 @@ ARMS = {
     "lagged twins + scripted": "--algo.twin lagged --scripted-exploration 0.5 --scripted-steps 60000",
     # the rate of the benchmark's own config (kukagrasp-qtopt's) on the fair bin's preset: the same cost per update
     "adam 1e-3": "--lr 1e-3",
+    # the whole picture's features beside a glimpse around the gripper in the jaws' frame (the pose moved with the shift)
+    "glimpse": "--fusion glimpse --shift-coordinates",
 }
 SECTIONS = {  # the arms each RESULTS section compares, and its raw data under benchmarks/results/
     "Grasp from pixels: scripted exploration against the preset, equal budgets": (
@@ -71,9 +77,18 @@ SECTIONS = {  # the arms each RESULTS section compares, and its raw data under b
         ("independent twins", "lagged twins", "lagged twins + scripted"),
         "grasp_twins.json",
     ),
+    "Grasp from pixels: a glimpse in the jaws' frame beside the fair bin's preset": (
+        ("fair bin", "glimpse"),
+        "grasp_glimpse.json",
+    ),
 }
 #: sections whose runs are also evaluated by `taskrl eval RUN` and `taskrl eval RUN --held-out` (the issue's check)
-EVALUATED = ("Grasp from pixels: the fair bin's preset for an hour, training and held-out objects",)
+EVALUATED = (
+    "Grasp from pixels: the fair bin's preset for an hour, training and held-out objects",
+    "Grasp from pixels: a glimpse in the jaws' frame beside the fair bin's preset",
+)
+#: half the window of env steps whose evaluations `--at` averages (5 evaluations of 100 attempts at the preset's interval)
+WINDOW = 10_000
 
 
 def run(flags: str, seed: int, run_dir: Path, max_hours: float) -> list[dict]:
@@ -102,6 +117,14 @@ def main() -> None:
     parser.add_argument("--max-hours", type=float, default=1.3)
     parser.add_argument("--out", default="runs/bench-grasp")
     parser.add_argument("--write", action="store_true", help="replace the RESULTS section of these arms")
+    parser.add_argument(
+        "--at",
+        nargs="*",
+        type=int,
+        default=[],
+        help=f"env steps at which to compare the arms: each run's mean greedy success over its evaluations within "
+        f"{WINDOW:,} env steps of each (equal work, whatever the wall-clock)",
+    )
     args = parser.parse_args()
     seeds_of = {arm: seeds or args.seeds for arm, seeds in args.arms}
     args.arms = list(seeds_of)
@@ -139,6 +162,15 @@ def evaluate(run_dir: Path) -> dict:
         done = subprocess.run([TASKRL, "eval", str(run_dir), "--json", *extra], check=True, capture_output=True, text=True)
         out[name] = json.loads(done.stdout.strip().splitlines()[-1])["success_rate"]
     return out
+
+
+def at_env_steps(curve: list[dict], env_steps: int) -> str:
+    """The mean greedy success of ``curve``'s evaluations within `WINDOW` env steps of ``env_steps`` ("-" if the run
+    stopped before ``env_steps``)."""
+    if curve[-1]["env_steps"] < env_steps:
+        return "-"
+    near = [row["success_rate"] for row in curve if abs(row["env_steps"] - env_steps) <= WINDOW]
+    return f"{sum(near) / len(near):.2f}"
 
 
 def positives(row: dict) -> str:
@@ -198,6 +230,19 @@ def report(results: list[dict], args, title: str, raw_name: str) -> None:
             f"{last['wall_seconds']:.0f} | {best['success_rate']:.2f} ({best['env_steps']:,.0f}) | "
             f"{last['success_rate']:.2f} | {last['train_success']:.3f} | {positives(last)} |"
         )
+    if args.at:
+        lines += [
+            "",
+            f"At equal env steps (the mean greedy success of a run's evaluations within {WINDOW:,} env steps of each point; "
+            "-: the run did not reach it):",
+            "",
+            "| arm | seed | " + " | ".join(f"{n:,}" for n in args.at) + " |",
+            "|---|---|" + "---:|" * len(args.at),
+            *(
+                f"| {r['arm']} | {r['seed']} | " + " | ".join(at_env_steps(r["curve"], n) for n in args.at) + " |"
+                for r in results
+            ),
+        ]
     evaluated = [r for r in results if "eval" in r]
     if evaluated:
         held_out_floor = random_floor("held_out", tolerance_of(ARMS[evaluated[0]["arm"]]))
