@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import gymnasium as gym
+import numpy as np
 import pytest
 import torch
 from gymnasium.utils.env_checker import check_env
@@ -285,3 +286,32 @@ def test_qtopt_with_the_glimpse_reads_the_gripper_pose_as_the_env_gives_it():
     config = with_overrides(preset_config("pixelpush-sac-her"), {"algo": "qtopt", "fusion": "glimpse", "image_size": 16})
     with pytest.raises(ConfigError, match="fusion"):
         make_agent(config, make_env(config, "cpu"), torch.device("cpu"))
+
+
+def test_an_exported_glimpse_policy_keeps_the_pose_and_acts_like_the_run(tmp_path):
+    """``taskrl export`` of a ``--fusion glimpse`` run writes what the env declares about its pictures (the pose, the
+    coordinates the shift moves), so ``load_policy`` builds the same network without the env and acts as the run's
+    agent does. Mutation: the pose left out of ``policy.json`` fails it (the policy is refused)."""
+    from helpers import small_run
+    from taskrl.export import export_policy
+
+    small_run(
+        "grasp-qtopt-pixels",
+        tmp_path / "run",
+        total_steps=32,
+        learning_starts=16,
+        eval_interval=32,
+        eval_episodes=2,
+        image_size=16,
+        hidden_sizes=(16,),
+        fusion="glimpse",
+        shift_coordinates=True,
+    )
+    export_policy(tmp_path / "run", tmp_path / "policy")
+    policy, agent = taskrl.load_policy(tmp_path / "policy"), taskrl.load(tmp_path / "run")
+    assert policy.agent.q.state_input.pose == agent.q.state_input.pose
+    obs = Grasp(GraspSettings(image_size=16), num_envs=4, seed=3).reset(seed=3)
+    torch.manual_seed(0)
+    mine = policy.predict({k: v.numpy() for k, v in obs.items()})
+    torch.manual_seed(0)
+    assert np.array_equal(mine, agent.act({k: v.numpy() for k, v in obs.items()}))

@@ -21,6 +21,7 @@ from safetensors.torch import load_file, save_file
 from taskrl.errors import ConfigError, reason
 from taskrl.rundir import atomic_write_text
 from taskrl.tasks import TaskSet
+from taskrl.types import PictureCoordinate, PicturePose
 
 __all__ = ["FORMAT", "Policy", "export_policy", "load_policy", "space_from_json", "space_to_json"]
 
@@ -89,6 +90,9 @@ def export_policy(
         "observation_space": space_to_json(spaces.single_observation_space),
         "action_space": space_to_json(spaces.single_action_space),
         "task_set": [{"name": t.name, "description": t.description} for t in spaces.task_set] if spaces.task_set else None,
+        # what the env declares about its pictures, which the agent is built from (a glimpse's pose)
+        "picture_coordinates": [dataclasses.asdict(c) for c in spaces.picture_coordinates],
+        "picture_pose": dataclasses.asdict(spaces.picture_pose) if spaces.picture_pose is not None else None,
     }
     tensors, skeleton = flatten_state(agent.state_dict(parts=agent.acting))
     try:
@@ -137,6 +141,8 @@ def load_policy(path: str | Path, device: str = "cpu") -> Policy:
             raise ValueError(f"not a {FORMAT} file")
         tensors = load_file(str(path / "policy.safetensors"), device=str(resolve_device(device)))
         observation_space, action_space = space_from_json(meta["observation_space"]), space_from_json(meta["action_space"])
+        coordinates = tuple(PictureCoordinate(**c) for c in meta.get("picture_coordinates", []))
+        pose = PicturePose(**meta["picture_pose"]) if meta.get("picture_pose") else None
     except ConfigError:
         raise
     except Exception as error:  # missing, damaged or foreign files: one line
@@ -144,7 +150,11 @@ def load_policy(path: str | Path, device: str = "cpu") -> Policy:
     config = from_dict(meta["config"])
     tasks = meta.get("task_set")
     spaces = RunSpaces(
-        observation_space, action_space, TaskSet.from_pairs((t["name"], t["description"]) for t in tasks) if tasks else None
+        observation_space,
+        action_space,
+        TaskSet.from_pairs((t["name"], t["description"]) for t in tasks) if tasks else None,
+        coordinates,
+        pose,
     )
     # acting needs no replay: relabelling and batch sampling are training settings, off here
     agent = make_agent(

@@ -77,11 +77,14 @@ def load(
 
 @dataclasses.dataclass(frozen=True)
 class RunSpaces:
-    """The spaces (and task set) of a run's env: what its agent is built from."""
+    """The spaces (and task set) of a run's env, and what it declares about its pictures (``picture_coordinates``,
+    ``picture_pose``): what its agent is built from."""
 
     single_observation_space: gym.spaces.Space
     single_action_space: gym.spaces.Space
     task_set: Any = None
+    picture_coordinates: tuple = ()
+    picture_pose: Any = None
 
     def close(self) -> None:
         """Nothing to release."""
@@ -102,7 +105,13 @@ def load_run(
     else:
         built = family.make(config.env_settings, request)
     try:
-        spaces = RunSpaces(built.single_observation_space, built.single_action_space, getattr(built, "task_set", None))
+        spaces = RunSpaces(
+            built.single_observation_space,
+            built.single_action_space,
+            getattr(built, "task_set", None),
+            tuple(getattr(built, "picture_coordinates", ())),
+            getattr(built, "picture_pose", None),
+        )
         agent = make_agent(config, built, dev)
     finally:
         built.close()
