@@ -181,22 +181,30 @@ def test_scripted_exploration_is_refused_where_the_env_has_no_scripted_policy(tm
     validate(with_overrides(preset_config("grasp-qtopt-pixels"), {"scripted_exploration": 0.5}))
 
 
-def test_a_grasp_run_is_evaluated_on_its_held_out_objects_from_the_cli(tmp_path, monkeypatch):
-    """``taskrl eval RUN --held-out`` builds the run's env on the held-out objects (and plain eval on its own)."""
-    import json
+def tiny_grasp_run(out, **settings):
+    """``grasp-qtopt-pixels`` for 32 env steps at 16x16, evaluated once on 2 attempts."""
+    from helpers import small_run
 
-    from helpers import cli, small_run
-    from taskrl import loading
-
-    small_run(
+    return small_run(
         "grasp-qtopt-pixels",
-        tmp_path / "run",
+        out,
         total_steps=32,
         learning_starts=16,
         eval_interval=32,
         eval_episodes=2,
         image_size=16,
+        **settings,
     )
+
+
+def test_a_grasp_run_is_evaluated_on_its_held_out_objects_from_the_cli(tmp_path, monkeypatch):
+    """``taskrl eval RUN --held-out`` builds the run's env on the held-out objects (and plain eval on its own)."""
+    import json
+
+    from helpers import cli
+    from taskrl import loading
+
+    tiny_grasp_run(tmp_path / "run")
     built = []
     make = loading.make_env
     monkeypatch.setattr(
@@ -292,21 +300,9 @@ def test_an_exported_glimpse_policy_keeps_the_pose_and_acts_like_the_run(tmp_pat
     """``taskrl export`` of a ``--fusion glimpse`` run writes what the env declares about its pictures (the pose, the
     coordinates the shift moves), so ``load_policy`` builds the same network without the env and acts as the run's
     agent does. Mutation: the pose left out of ``policy.json`` fails it (the policy is refused)."""
-    from helpers import small_run
     from taskrl.export import export_policy
 
-    small_run(
-        "grasp-qtopt-pixels",
-        tmp_path / "run",
-        total_steps=32,
-        learning_starts=16,
-        eval_interval=32,
-        eval_episodes=2,
-        image_size=16,
-        hidden_sizes=(16,),
-        fusion="glimpse",
-        shift_coordinates=True,
-    )
+    tiny_grasp_run(tmp_path / "run", hidden_sizes=(16,), fusion="glimpse", shift_coordinates=True)
     export_policy(tmp_path / "run", tmp_path / "policy")
     policy, agent = taskrl.load_policy(tmp_path / "policy"), taskrl.load(tmp_path / "run")
     assert policy.agent.q.state_input.pose == agent.q.state_input.pose
