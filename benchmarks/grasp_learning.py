@@ -248,7 +248,8 @@ def report(results: list[dict], args, title: str, raw_name: str) -> None:
         held_out_floor = random_floor("held_out", tolerance_of(ARMS[evaluated[0]["arm"]]))
         lines += [
             "",
-            "After the run, `taskrl eval RUN --json` (100 attempts on the training objects) and `taskrl eval RUN --held-out "
+            f"After the run ({', '.join(dict.fromkeys(r['arm'] for r in evaluated))}), `taskrl eval RUN --json` (100 "
+            "attempts on the training objects) and `taskrl eval RUN --held-out "
             f"--episodes 100 --json` (held-out objects; random actions {held_out_floor:.3f}):",
             "",
             "| arm | seed | training objects | held-out objects |",
