@@ -379,9 +379,9 @@ def protocol(
             config = json.loads((run_dir / "config.json").read_text())
             last = _last_row(run_dir)  # what the run did (a time limit may stop it before total_steps)
             online_run = kind == "QT-Opt, then online"
-            if online_run:  # runs with another update ratio are another kind (pooled apart)
-                kind = f"{kind} at {config['updates_per_step']:g} updates per env step"
-            row = {"run": str(run_dir), "kind": kind, "seed": config["seed"], "updates": int(last.get("updates", 0))}
+            # online runs with another update ratio are another kind (pooled apart)
+            row_kind = f"{kind} at {config['updates_per_step']:.2f} updates per env step" if online_run else kind
+            row = {"run": str(run_dir), "kind": row_kind, "seed": config["seed"], "updates": int(last.get("updates", 0))}
             row["train_wall_seconds"] = last.get("wall_seconds")
             row.update(identity[str(run_dir)])
             if online_run:
