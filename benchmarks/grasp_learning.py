@@ -24,7 +24,7 @@ objects); ``train success`` counts every training attempt, scripted ones include
     .venv/bin/python benchmarks/grasp_learning.py --arms "independent twins" "lagged twins" "lagged twins + scripted" \
         --seeds 0 --max-hours 0.5 --out /work/runs-bench/grasp --write
     .venv/bin/python benchmarks/grasp_learning.py --arms "fair bin:0,1,2" "glimpse:0" --max-hours 1.6 \
-        --at 50000 100000 150000 --out /work/runs-bench/grasp --write
+        --at 50000 100000 125000 --out /work/runs-bench/grasp --write
 """
 
 from __future__ import annotations
