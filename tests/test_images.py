@@ -6,12 +6,13 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch
+from torch.nn import functional as F
 
 import taskrl
 from helpers import small_run
 from taskrl.agents.parts import ObservationInput
 from taskrl.agents.qtopt import QTOptAgent, QTOptConfig
-from taskrl.encoders import ImageStateInput, random_shift
+from taskrl.encoders import ImageStateInput, random_shift, random_shift_moves
 from taskrl.envs.grasp import Grasp, GraspSettings
 from taskrl.errors import ConfigError
 from taskrl.nets import StateActionQ
@@ -36,6 +37,19 @@ def test_random_shift_moves_each_picture_by_its_own_offset_within_the_pad():
     moves = where - torch.tensor([6, 5])
     assert moves.abs().max() <= 2 and len({tuple(m) for m in moves.tolist()}) > 10
     assert torch.equal(random_shift(images, 0), images)
+
+
+def test_random_shift_is_a_crop_of_the_replicate_padded_picture_and_says_how_far_it_moved():
+    """DrQ's definition written out picture by picture (pad by repeating the border, crop at the drawn offset):
+    the gather that never builds the padded picture gives the same pixels, borders included, and the moves."""
+    images = torch.randint(0, 256, (16, 9, 11, 3), dtype=torch.uint8)
+    pad = 3
+    shifted, moves = random_shift_moves(images, pad, torch.Generator().manual_seed(1))
+    offsets = torch.randint(0, 2 * pad + 1, (16, 2), generator=torch.Generator().manual_seed(1))
+    padded = F.pad(images.permute(0, 3, 1, 2).float(), (pad, pad, pad, pad), mode="replicate").permute(0, 2, 3, 1)
+    for picture, (row, col) in enumerate(offsets.tolist()):
+        assert torch.equal(shifted[picture], padded[picture, row : row + 9, col : col + 11].to(torch.uint8))
+    assert torch.equal(moves, pad - offsets)
 
 
 def test_pictures_stay_stored_uint8_pictures_beside_the_normalised_vector():

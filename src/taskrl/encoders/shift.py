@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
+import functools
 import math
 
 import torch
-from torch.nn import functional as F
 
 from taskrl.types import PictureCoordinate
 
@@ -38,12 +38,15 @@ def random_shift_moves(
     b, h, w, c = images.shape
     if pad <= 0:
         return images, torch.zeros(b, 2, dtype=torch.long, device=images.device)
-    padded = F.pad(images.permute(0, 3, 1, 2).float(), (pad, pad, pad, pad), mode="replicate")  # [B, C, H+2p, W+2p]
     offset = torch.randint(0, 2 * pad + 1, (b, 2), generator=generator, device=images.device)
-    rows = (offset[:, 0:1] + torch.arange(h, device=images.device))[:, None, :, None].expand(b, c, h, w + 2 * pad)
-    cropped = padded.gather(2, rows)
-    cols = (offset[:, 1:2] + torch.arange(w, device=images.device))[:, None, None, :].expand(b, c, h, w)
-    return cropped.gather(3, cols).permute(0, 2, 3, 1).to(images.dtype), pad - offset
+    # the padded picture is never built: a pixel of the crop reads the source pixel its row and column clamp to
+    # (what replicate padding holds there), one gather of whole pixels in the pictures' own dtype and layout
+    arange = functools.partial(torch.arange, device=images.device)
+    rows = (offset[:, 0:1] - pad + arange(h)).clamp(0, h - 1)  # [B, H] source row of each crop row
+    cols = (offset[:, 1:2] - pad + arange(w)).clamp(0, w - 1)  # [B, W]
+    pixel = (arange(b)[:, None, None] * h + rows[:, :, None]) * w + cols[:, None, :]  # [B, H, W] flat source pixel
+    shifted = images.reshape(b * h * w, c).index_select(0, pixel.reshape(-1)).reshape(b, h, w, c)
+    return shifted, pad - offset
 
 
 def random_shift(images: torch.Tensor, pad: int, generator: torch.Generator | None = None) -> torch.Tensor:
