@@ -22,8 +22,12 @@ path it replaced, in one process and in alternating blocks (the machine's drift 
   one batched matmul per layer mixed by an ``einsum``;
 - ``ReLU in place``: the ``mt10-sac-onehot``, ``mt10-sac-care`` and ``mt10-sac-film-language`` presets' eager SAC updates with the networks'
   ReLUs in place (``nets.activation_after``, taskrl's) against out of place.
+- ``picture shift``: DrQ's random shift of 64 pictures of 64x64x3 (uint8, a pad of 4) as one gather of whole pixels
+  from the clamped rows and columns (``encoders.random_shift_moves``, taskrl's) against building the replicate-padded
+  picture and cropping it with two gathers; then ``grasp-qtopt-pixels``' eager QT-Opt update (batch 64, pictures
+  and next pictures shifted) with each, the preset's and ``--fusion glimpse --shift-coordinates``'. Its own section.
 
-    cd benchmarks && ../.venv/bin/python per_call_costs.py [--only stance 'size asserts' 'C++ wrapper' 'Adam scalars' 'clip norm' 'obs concat' split 'CARE encoders' 'ReLU in place'] [--write]
+    cd benchmarks && ../.venv/bin/python per_call_costs.py [--only stance 'size asserts' 'C++ wrapper' 'Adam scalars' 'clip norm' 'obs concat' split 'CARE encoders' 'ReLU in place' 'picture shift'] [--write]
 """
 
 from __future__ import annotations
@@ -49,7 +53,9 @@ PAIRS = (
     "split",
     "CARE encoders",
     "ReLU in place",
+    "picture shift",
 )
+SHIFT_TITLE = "Per-call costs of the pictures' random shift, side by side"
 
 
 def _row(what: str, old: str, new: str, a: list[float], b: list[float]) -> str:
@@ -305,25 +311,104 @@ def relu_pairs(rounds: int = 10, block: int = 2) -> list[str]:
     return rows
 
 
+def pad_and_crop_shift(images: torch.Tensor, pad: int, generator: torch.Generator | None = None):
+    """The shift taskrl's one-gather ``random_shift_moves`` replaced: the replicate-padded float picture built, then
+    cropped at the drawn offsets by a gather of rows and a gather of columns (the same offsets, pixels and moves)."""
+    from torch.nn import functional as F
+
+    b, h, w, c = images.shape
+    padded = F.pad(images.permute(0, 3, 1, 2).float(), (pad, pad, pad, pad), mode="replicate")
+    offset = torch.randint(0, 2 * pad + 1, (b, 2), generator=generator, device=images.device)
+    rows = (offset[:, 0:1] + torch.arange(h))[:, None, :, None].expand(b, c, h, w + 2 * pad)
+    cols = (offset[:, 1:2] + torch.arange(w))[:, None, None, :].expand(b, c, h, w)
+    cropped = padded.gather(2, rows).gather(3, cols)
+    return cropped.permute(0, 2, 3, 1).to(images.dtype), pad - offset
+
+
+def grasp_agent_and_batch(overrides: dict):
+    """``grasp-qtopt-pixels``' agent with ``overrides`` and a batch of its size from 4 random steps of its 16 envs."""
+    from taskrl.overrides import with_overrides
+    from taskrl.presets import preset_config
+    from taskrl.replay.batch import Batch
+    from taskrl.wiring.parts import make_agent, make_env
+
+    config = with_overrides(preset_config("grasp-qtopt-pixels"), overrides)
+    env = make_env(config, "cpu")
+    agent = make_agent(config, env, torch.device("cpu"))
+    obs, steps = env.reset(seed=0), []
+    for _ in range(config.batch_size // env.num_envs):
+        action = torch.rand(env.num_envs, env.single_action_space.shape[-1]) * 2 - 1
+        next_obs, reward, terminated, truncated, info = env.step(action)
+        index = torch.zeros(env.num_envs, dtype=torch.long)
+        steps.append(Batch(obs, action, reward, info["final_obs"], terminated, truncated, index, index))
+        obs = next_obs
+    batch = Batch.interleave(steps)
+    agent.inputs.update_statistics(batch.obs)
+    return agent, batch
+
+
+def shift_pairs(rounds: int = ROUNDS, block: int = 20) -> list[str]:
+    from taskrl.encoders import random_shift_moves
+
+    images = torch.randint(0, 256, (64, 64, 64, 3), dtype=torch.uint8)
+    ours = random_shift_moves(images, 4, torch.Generator().manual_seed(0))
+    theirs = pad_and_crop_shift(images, 4, torch.Generator().manual_seed(0))
+    assert all(torch.equal(a, b) for a, b in zip(ours, theirs))  # the same pixels and moves, to the bit
+
+    def shifts(shift):
+        for _ in range(block * 10):
+            shift(images, 4)
+        return block * 10
+
+    ms = alternating_blocks({"a": lambda: shifts(pad_and_crop_shift), "b": lambda: shifts(random_shift_moves)}, rounds)
+    rows = [_row("shift of 64 pictures of 64x64x3, pad 4", "padded, two gathers", "one gather", ms["a"], ms["b"])]
+    print(rows[-1], flush=True)
+    replaced = functools.partial(_replaced, "taskrl.encoders.shift", "random_shift_moves", pad_and_crop_shift)
+    for name, overrides in (("preset", {}), ("glimpse", {"fusion": "glimpse", "shift_coordinates": True})):
+        agent, batch = grasp_agent_and_batch(overrides)
+
+        def run(context=contextlib.nullcontext, agent=agent, batch=batch):
+            with context():
+                for _ in range(block):
+                    agent.update(batch)
+            return block
+
+        for context in (contextlib.nullcontext, replaced):
+            run(context)  # a warm start of each path
+        ms = alternating_blocks({"a": lambda run=run: run(replaced), "b": run}, rounds)
+        what = f"eager grasp-qtopt-pixels QT-Opt update, {name} (batch 64)"
+        rows.append(_row(what, "padded, two gathers", "one gather", ms["a"], ms["b"]))
+        print(rows[-1], flush=True)
+    return rows
+
+
 def main() -> None:
     args = micro_benchmark_args(__doc__, PAIRS)
     rows = [*compiled_pairs(32, (64, 64), args.only), *compiled_pairs(256, (256, 256), args.only)]
     rows += [*split_pairs(32, (64, 64)), *split_pairs(256, (256, 256))] if "split" in args.only else []
     rows += care_pairs() if "CARE encoders" in args.only else []
     rows += relu_pairs() if "ReLU in place" in args.only else []
-    table = "\n".join(
-        [
-            f"One torch thread; {ROUNDS} alternating blocks per row (MT10 rows: 10 blocks of 2 updates); ms per call (median over blocks) of the path "
-            "replaced and of taskrl's, and the median ratio of taskrl's to it per pair of blocks (quartiles in brackets).",
-            "",
-            "| what | replaced path, ms | taskrl's path, ms | taskrl / replaced |",
-            "|---|---|---|---|",
-            *rows,
-        ]
-    )
-    print(table)
-    if args.write:
-        append_results("Per-call costs of the compiled update and the replay gather, side by side", table)
+    shift_rows = shift_pairs() if "picture shift" in args.only else []
+    header = ["| what | replaced path, ms | taskrl's path, ms | taskrl / replaced |", "|---|---|---|---|"]
+    blocks = "(MT10 rows: 10 blocks of 2 updates)"
+    for title, found, unit in (
+        ("Per-call costs of the compiled update and the replay gather, side by side", rows, f"per row {blocks}"),
+        (SHIFT_TITLE, shift_rows, "per row, of 200 shifts or 20 updates"),
+    ):
+        if not found:
+            continue
+        table = "\n".join(
+            [
+                f"One torch thread; {ROUNDS} alternating blocks {unit}; ms per call (median over blocks) of the path "
+                "replaced and of taskrl's, and the median ratio of taskrl's to it per pair of blocks (quartiles in brackets).",
+                "",
+                *header,
+                *found,
+            ]
+        )
+        print(table)
+        if args.write:
+            append_results(title, table)
 
 
 if __name__ == "__main__":
