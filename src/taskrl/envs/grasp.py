@@ -132,6 +132,20 @@ def _pack(rgb: tuple[int, int, int]) -> int:
     return rgb[0] | rgb[1] << 8 | rgb[2] << 16
 
 
+def covers(
+    x: torch.Tensor, y: torch.Tensor, centre: torch.Tensor, angle: torch.Tensor, half: torch.Tensor, ellipse: torch.Tensor
+) -> torch.Tensor:
+    """Whether the points ``(x, y)`` (``[b, ...]`` each, broadcast together) lie inside each row's shape: an ellipse
+    (``ellipse`` true) or a rectangle of half-length and half-width ``half`` (``[b, 2]``) turned by ``angle`` (``[b]``)
+    about ``centre`` (``[b, 2]``). The camera paints a pixel with a shape when the pixel's centre is inside it."""
+    view = (-1,) + (1,) * (x.dim() - 1)
+    dx, dy = x - centre[:, 0].view(view), y - centre[:, 1].view(view)
+    cos, sin = torch.cos(angle).view(view), torch.sin(angle).view(view)
+    u = (dx * cos + dy * sin).abs() / half[:, 0].view(view)
+    v = (-dx * sin + dy * cos).abs() / half[:, 1].view(view)
+    return torch.where(ellipse.view(view), u * u + v * v <= 1.0, torch.maximum(u, v) <= 1.0)
+
+
 def detect_grasp(
     before: torch.Tensor, after: torch.Tensor, block: int = 4, changed: float = 40.0, min_blocks: int = 1
 ) -> torch.Tensor:
@@ -419,12 +433,7 @@ class Grasp(NativeEnv):
         first = torch.floor((centre - reach[:, None]) * size).long()  # [b, 2] (column, row) of the window's corner
         col = first[:, 0:1, None] + offsets[None, None, :]  # [b, 1, w]
         row = first[:, 1:2, None] + offsets[None, :, None]  # [b, w, 1]
-        x, y = (col.float() + 0.5) / size, (row.float() + 0.5) / size
-        dx, dy = x - centre[:, 0, None, None], y - centre[:, 1, None, None]
-        cos, sin = torch.cos(angle)[:, None, None], torch.sin(angle)[:, None, None]
-        u = (dx * cos + dy * sin).abs() / half[:, 0, None, None]
-        v = (-dx * sin + dy * cos).abs() / half[:, 1, None, None]
-        inside = torch.where(ellipse[:, None, None], u * u + v * v <= 1.0, torch.maximum(u, v) <= 1.0)  # [b, w, w]
+        inside = covers((col.float() + 0.5) / size, (row.float() + 0.5) / size, centre, angle, half, ellipse)  # [b, w, w]
         in_picture = (col >= 0) & (col < size) & (row >= 0) & (row < size)
         inside = inside & in_picture
         if visible is not None:
