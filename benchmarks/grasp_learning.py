@@ -3,12 +3,13 @@
 Arms: the preset; scripted exploration (a share of training episodes acted by the env's scripted grasp); a looser
 hold (``--env.tolerance 0.06``: the gripper's centre may be 0.06 off an object's spine, about 4 pixels), the positive
 control of the bin as it was (tolerance 0.025, squares of half-side 0.035-0.05); 0.06 is the fair bin's default since,
-so on today's bin this arm is the preset; "fair bin": the preset on today's bin, beside "independent twins" (the fair
-bin's preset before lagged twins and scripted exploration), each run then evaluated by ``taskrl eval RUN`` and ``taskrl
-eval RUN --held-out``; "independent twins", "lagged twins" and "lagged twins + scripted" for half an hour, the two
-changes one at a time (runs longer than the budget are read up to it); "glimpse": the fair bin's preset with
-``--fusion glimpse`` (the whole picture's features beside those of the picture around the gripper in the jaws' frame),
-compared with it at equal env steps (``--at``) as well as at the end. Each arm is reported beside the success of
+so on today's bin this arm is the preset; "fair bin": the preset on today's bin with the flat join (``--fusion flat
+--no-shift-coordinates``, the preset's network until the glimpse's hour), beside "independent twins" (the fair bin's
+preset before lagged twins and scripted exploration), each run then evaluated by ``taskrl eval RUN`` and ``taskrl eval
+RUN --held-out``; "independent twins", "lagged twins" and "lagged twins + scripted" for half an hour, the two changes
+one at a time (runs longer than the budget are read up to it); "glimpse": ``--fusion glimpse --shift-coordinates``
+(the whole picture's features beside those of the picture around the gripper in the jaws' frame, today's preset),
+compared with the flat join at equal env steps (``--at``) as well as at the end. Each arm is reported beside the success of
 uniformly random actions at its own tolerance. The runs of each section used the preset of its commit: the arms'
 flags name what differs from today's.
 
@@ -23,8 +24,8 @@ objects); ``train success`` counts every training attempt, scripted ones include
         --max-hours 1 --out /work/runs-bench/grasp --write
     .venv/bin/python benchmarks/grasp_learning.py --arms "independent twins" "lagged twins" "lagged twins + scripted" \
         --seeds 0 --max-hours 0.5 --out /work/runs-bench/grasp --write
-    .venv/bin/python benchmarks/grasp_learning.py --arms "fair bin:0,1,2" "glimpse:0" --max-hours 1.6 \
-        --at 50000 100000 125000 --out /work/runs-bench/grasp --write
+    .venv/bin/python benchmarks/grasp_learning.py --arms "fair bin:0" "glimpse:0,1,2" --max-hours 1.0 \
+        --at 25000 50000 90000 --out /work/runs-bench/grasp --write
 """
 
 from __future__ import annotations
@@ -49,18 +50,20 @@ from taskrl.presets import PRESETS  # noqa: E402
 TASKRL = str(Path(sys.executable).with_name("taskrl"))
 PRESET = "grasp-qtopt-pixels"
 BATCH = PRESETS[PRESET].overrides["batch_size"]
+FLAT = "--fusion flat --no-shift-coordinates"  # the flat join, the preset's network until the glimpse's hour
 ARMS = {
     "preset": "",
     "scripted exploration": "--scripted-exploration 0.5 --scripted-steps 60000",
     "looser hold": "--env.tolerance 0.06",
-    "fair bin": "",  # the preset on today's bin (tolerance 0.06, the sizes at which yaw matters), its own section
+    "fair bin": FLAT,  # the preset on today's bin (tolerance 0.06, the sizes at which yaw matters) with the flat join
     # the fair bin's preset until the twins measurement (two online networks), and the two changes measured against it
-    "independent twins": "--algo.twin independent --scripted-exploration 0",
-    "lagged twins": "--algo.twin lagged --scripted-exploration 0",
-    "lagged twins + scripted": "--algo.twin lagged --scripted-exploration 0.5 --scripted-steps 60000",
+    "independent twins": f"{FLAT} --algo.twin independent --scripted-exploration 0",
+    "lagged twins": f"{FLAT} --algo.twin lagged --scripted-exploration 0",
+    "lagged twins + scripted": f"{FLAT} --algo.twin lagged --scripted-exploration 0.5 --scripted-steps 60000",
     # the rate of the benchmark's own config (kukagrasp-qtopt's) on the fair bin's preset: the same cost per update
-    "adam 1e-3": "--lr 1e-3",
-    # the whole picture's features beside a glimpse around the gripper in the jaws' frame (the pose moved with the shift)
+    "adam 1e-3": f"{FLAT} --lr 1e-3",
+    # the whole picture's features beside a glimpse around the gripper in the jaws' frame (the pose moved with the
+    # shift): the preset's network since its hour
     "glimpse": "--fusion glimpse --shift-coordinates",
 }
 SECTIONS = {  # the arms each RESULTS section compares, and its raw data under benchmarks/results/

@@ -25,7 +25,8 @@ path it replaced, in one process and in alternating blocks (the machine's drift 
 - ``picture shift``: DrQ's random shift of 64 pictures of 64x64x3 (uint8, a pad of 4) as one gather of whole pixels
   from the clamped rows and columns (``encoders.random_shift_moves``, taskrl's) against building the replicate-padded
   picture and cropping it with two gathers; then ``grasp-qtopt-pixels``' eager QT-Opt update (batch 64, pictures
-  and next pictures shifted) with each, the preset's and ``--fusion glimpse --shift-coordinates``'. Its own section.
+  and next pictures shifted) with each, the preset's (the glimpse) and ``--fusion flat --no-shift-coordinates``'.
+  Its own section.
 
     cd benchmarks && ../.venv/bin/python per_call_costs.py [--only stance 'size asserts' 'C++ wrapper' 'Adam scalars' 'clip norm' 'obs concat' split 'CARE encoders' 'ReLU in place' 'picture shift'] [--write]
 """
@@ -364,7 +365,7 @@ def shift_pairs(rounds: int = ROUNDS, block: int = 20) -> list[str]:
     rows = [_row("shift of 64 pictures of 64x64x3, pad 4", "padded, two gathers", "one gather", ms["a"], ms["b"])]
     print(rows[-1], flush=True)
     replaced = functools.partial(_replaced, "taskrl.encoders.shift", "random_shift_moves", pad_and_crop_shift)
-    for name, overrides in (("preset", {}), ("glimpse", {"fusion": "glimpse", "shift_coordinates": True})):
+    for name, overrides in (("the flat join", {"fusion": "flat", "shift_coordinates": False}), ("the glimpse", {})):
         agent, batch = grasp_agent_and_batch(overrides)
 
         def run(context=contextlib.nullcontext, agent=agent, batch=batch):

@@ -579,7 +579,7 @@ def test_qtopt_with_the_fused_network_trains_it_and_its_targets_keep_their_own()
     [
         ("grasp-qtopt-pixels", {}),
         ("grasp-qtopt-pixels", {"fusion": "conv"}),
-        ("grasp-qtopt-pixels", {"fusion": "glimpse", "shift_coordinates": True}),
+        ("grasp-qtopt-pixels", {"fusion": "flat", "shift_coordinates": False}),
         ("grasp-qtopt-pixels", {"algo": "sac"}),
         ("pixelreach-sac-her", {}),  # the scene and its goal picture: two pictures, stacked
     ],
