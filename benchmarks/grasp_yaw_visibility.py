@@ -131,8 +131,9 @@ def main() -> None:
     lines = [
         f"{args.objects:,} objects per shape and picture size (seed {args.seed}), each rendered alone at {ANGLES} angles "
         "(0.25 degree apart) with its own size and centre; hold shares with the gripper on the spine. `random yaw`: "
-        "the share of yaws that hold; `best from the picture`: the bound (the module docstring); `blind degrees`: "
-        "the median width of the angles whose picture is the true one's. Raw data: "
+        "the share of yaws that hold; `best, centre known` and `best, centre within half a pixel`: the two bounds (the "
+        "script's docstring); `blind degrees, centre known`: the median width of the angles whose picture is the true "
+        "one's at the true centre. Raw data: "
         "`benchmarks/results/grasp_yaw_visibility.json`.",
         "",
         "| picture | shape | half-length | objects | random yaw | best, centre known | best, centre within half a pixel "
