@@ -37,7 +37,9 @@ PRESETS: dict[str, Preset] = {
             "buffer_size": 100_000,
             "learning_starts": 1_000,
             "updates_per_step": 0.25,
-            "total_steps": 300_000,  # about an hour on one core of an AMD EPYC at lagged twins' 80-90 env steps/s
+            # more than an hour makes: the flat join made 246k-300k env steps in an hour on one AMD EPYC core, the glimpse
+            # 91k-101k on a machine where the flat join made 128k (benchmarks/RESULTS.md); --max-hours 1 stops at the hour
+            "total_steps": 300_000,
             "eval_interval": 5_000,
             "eval_episodes": 100,
         },
