@@ -14,7 +14,7 @@ Beside them: a uniformly random yaw's share; that some yaw holds each object is 
 less (the size and centre unknown, the picture shifted, the gripper and other objects in it), so a policy's hold
 rate on closes over the spine stays under the bounds.
 
-    .venv/bin/python benchmarks/grasp_yaw_visibility.py --objects 2000 --image-sizes 64 96 128 --write
+    .venv/bin/python benchmarks/grasp_yaw_visibility.py --objects 300 --image-sizes 64 --write
 """
 
 from __future__ import annotations
@@ -29,10 +29,11 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).parent))
 from common import append_results  # noqa: E402
-from taskrl.envs.grasp import SHAPES, SIZES, GraspSettings, covers  # noqa: E402
+from taskrl.envs.grasp import SHAPES, SIZES, GraspSettings, covers, fits_between_jaws  # noqa: E402
 
 TITLE = "Grasp env: how much of an object's yaw the picture shows (an upper bound on choosing the yaw)"
 ANGLES = 720  # every 0.25 degree of the half turn (a parallel jaw is the same turned by pi)
+GRID = torch.arange(ANGLES) * (math.pi / ANGLES)
 #: the shapes whose hold depends on the yaw, and the size buckets reported for each (half-length edges)
 BUCKETS = {"square": (0.052, 0.0585, 0.065), "bar": (0.08, 0.10, 0.12), "ellipse": (0.075, 0.0875, 0.10)}
 
@@ -56,27 +57,24 @@ def pictures(size: int, half: torch.Tensor, angle: torch.Tensor, centre: torch.T
     pixels = torch.arange(2 * reach + 1)
     x = ((first[0] + pixels).float() + 0.5) / size
     y = ((first[1] + pixels).float() + 0.5) / size
-    ellipse = torch.full((len(angle),), SHAPES.index(shape) in (0, 3))
+    ellipse = torch.full((len(angle),), is_ellipse(shape))
     return covers(x[None, None, :], y[None, :, None], centre, angle, half, ellipse).flatten(1)
 
 
 def fits(opening: float, half: torch.Tensor, turn: torch.Tensor, shape: str) -> torch.Tensor:
     """Whether the object fits between the open jaws when the closing direction is ``turn`` off its long axis
-    (`Grasp.hold_conditions`' second condition, the same formula)."""
-    length, width = half[..., 0], half[..., 1]
-    c, n = torch.cos(turn).abs(), torch.sin(turn).abs()
-    if shape == "ellipse":
-        extent = torch.sqrt((length * c) ** 2 + (width * n) ** 2)
-    else:
-        extent = length * c + width * n
-    return extent <= opening / 2
+    (`Grasp.hold_conditions`' second condition)."""
+    return fits_between_jaws(half, turn, is_ellipse(shape), opening)
 
 
-def best_share(opening: float, half: torch.Tensor, angles: torch.Tensor, weights: torch.Tensor, shape: str) -> float:
-    """The most that one yaw holds of objects at ``angles`` (weighted: how likely each is given the picture)."""
-    grid = torch.arange(ANGLES) * (math.pi / ANGLES)
-    holds = fits(opening, half, grid[:, None] - angles[None, :], shape).float()  # [yaw, angle]
-    return float((holds @ weights).max() / weights.sum())
+def is_ellipse(shape: str) -> bool:
+    """Drawn as an ellipse (a disc or an ellipse), as the env's camera and hold read its shape ids."""
+    return SHAPES.index(shape) in (0, 3)
+
+
+def best_share(opening: float, half: torch.Tensor, angles: torch.Tensor, shape: str) -> float:
+    """The most that one yaw holds of objects at ``angles`` (equally likely given the picture)."""
+    return float(fits(opening, half, GRID[:, None] - angles[None, :], shape).float().mean(1).max())
 
 
 def bound(shape: str, image_size: int, objects: int, seed: int, offsets: int = 9, chunk: int = 4096) -> list[dict]:
@@ -85,13 +83,12 @@ def bound(shape: str, image_size: int, objects: int, seed: int, offsets: int = 9
     ``offsets`` candidate centres, a uniform prior over them and the angles)."""
     opening = GraspSettings().opening
     generator = torch.Generator().manual_seed(seed)
-    grid = torch.arange(ANGLES) * (math.pi / ANGLES)
     step = torch.linspace(-0.5, 0.5, offsets) / image_size
     shifts = torch.stack(torch.meshgrid(step, step, indexing="ij"), -1).reshape(-1, 2)  # [offsets^2, 2], (0, 0) in it
+    angles = GRID.repeat(len(shifts))  # [offsets^2 * ANGLES]: every angle at each candidate centre
     rows = []
     for half, angle, centre in zip(*draw(shape, objects, generator)):
         truth = pictures(image_size, half[None], angle[None], centre[None], shape, centre)
-        angles = grid.repeat(len(shifts))  # [offsets^2 * ANGLES]: every angle at each candidate centre
         centres = (centre + shifts).repeat_interleave(ANGLES, 0)
         differing = torch.cat(
             [
@@ -100,15 +97,16 @@ def bound(shape: str, image_size: int, objects: int, seed: int, offsets: int = 9
             ]
         )
         at_centre = differing.view(len(shifts), ANGLES)[len(shifts) // 2]  # the true centre: the middle shift
-        known = grid[at_centre == at_centre.min()]
+        known = GRID[at_centre == at_centre.min()]
         near = differing == differing.min()  # the (angle, centre) pairs the picture cannot tell from the truth
+        holds_at = fits(opening, half, GRID - angle, shape)  # each yaw of the grid against the true angle
         rows.append(
             {
                 "half_length": float(half[0]),
-                "random_yaw": float(fits(opening, half, grid - angle, shape).float().mean()),
-                "best_centre_known": best_share(opening, half, known, torch.ones(len(known)), shape),
-                "best_centre_within_half_pixel": best_share(opening, half, angles[near], torch.ones(int(near.sum())), shape),
-                "some_yaw_fits": bool(fits(opening, half, grid - angle, shape).any()),
+                "random_yaw": float(holds_at.float().mean()),
+                "best_centre_known": best_share(opening, half, known, shape),
+                "best_centre_within_half_pixel": best_share(opening, half, angles[near], shape),
+                "some_yaw_fits": bool(holds_at.any()),
                 "blind_degrees_centre_known": float(len(known) * 180 / ANGLES),
             }
         )

@@ -146,6 +146,16 @@ def covers(
     return torch.where(ellipse.view(view), u * u + v * v <= 1.0, torch.maximum(u, v) <= 1.0)
 
 
+def fits_between_jaws(half: torch.Tensor, turn: torch.Tensor, ellipse: torch.Tensor | bool, opening: float) -> torch.Tensor:
+    """Whether an object of half-length and half-width ``half`` (``[..., 2]``) fits between jaws open by ``opening``
+    when they close along a direction ``turn`` off its long axis: its extent along that direction (an ellipse's, or a
+    rectangle's, by ``ellipse``), broadcast over ``half[..., 0]``, ``turn`` and ``ellipse``."""
+    length, width = half[..., 0], half[..., 1]
+    c, n = torch.cos(turn).abs(), torch.sin(turn).abs()
+    extent = torch.where(torch.as_tensor(ellipse), torch.sqrt((length * c) ** 2 + (width * n) ** 2), length * c + width * n)
+    return extent <= opening / 2
+
+
 def detect_grasp(
     before: torch.Tensor, after: torch.Tensor, block: int = 4, changed: float = 40.0, min_blocks: int = 1
 ) -> torch.Tensor:
@@ -286,10 +296,8 @@ class Grasp(NativeEnv):
         length, width = self.half.unbind(-1)
         on_spine = (along <= (length - width).clamp(min=0) + s.tolerance) & (across <= s.tolerance)
         turn = yaw[:, None] - self.angle  # the closing direction against the object's long axis
-        c, n = torch.cos(turn).abs(), torch.sin(turn).abs()
         ellipse = (self.shape == 0) | (self.shape == 3)
-        extent = torch.where(ellipse, torch.sqrt((length * c) ** 2 + (width * n) ** 2), length * c + width * n)
-        return on_spine, extent <= s.opening / 2
+        return on_spine, fits_between_jaws(self.half, turn, ellipse, s.opening)
 
     def spine_offsets(self, gripper: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """``([B, K], [B, K])``: how far ``gripper`` (default: where it is) lies from each object's centre along the
