@@ -242,8 +242,8 @@ def report(results: list[dict], args, title: str, raw_name: str) -> None:
     if args.at:
         lines += [
             "",
-            f"At equal env steps (the mean greedy success of a run's evaluations within {WINDOW:,} env steps of each point; "
-            "-: the run did not reach it):",
+            f"{' against '.join(args.arms)} at equal env steps (the mean greedy success of a run's evaluations within "
+            f"{WINDOW:,} env steps of each point; -: the run did not reach it):",
             "",
             "| arm | seed | " + " | ".join(f"{n:,}" for n in args.at) + " |",
             "|---|---|" + "---:|" * len(args.at),
