@@ -53,20 +53,21 @@ TASKRL = str(Path(sys.executable).with_name("taskrl"))
 PRESET = "grasp-qtopt-pixels"
 BATCH = PRESETS[PRESET].overrides["batch_size"]
 FLAT = "--fusion flat --no-shift-coordinates"  # the flat join, the preset's network until the glimpse's hour
+ADAM_3E4 = "--lr 3e-4"  # the preset's rate until the glimpse at 1e-3 was measured: the arms run before keep it
 ARMS = {
     "preset": "",
     "scripted exploration": "--scripted-exploration 0.5 --scripted-steps 60000",
     "looser hold": "--env.tolerance 0.06",
-    "fair bin": FLAT,  # the preset on today's bin (tolerance 0.06, the sizes at which yaw matters) with the flat join
+    "fair bin": f"{FLAT} {ADAM_3E4}",  # the preset on today's bin (tolerance 0.06, the sizes at which yaw matters) with the flat join
     # the fair bin's preset until the twins measurement (two online networks), and the two changes measured against it
-    "independent twins": f"{FLAT} --algo.twin independent --scripted-exploration 0",
-    "lagged twins": f"{FLAT} --algo.twin lagged --scripted-exploration 0",
-    "lagged twins + scripted": f"{FLAT} --algo.twin lagged --scripted-exploration 0.5 --scripted-steps 60000",
+    "independent twins": f"{FLAT} {ADAM_3E4} --algo.twin independent --scripted-exploration 0",
+    "lagged twins": f"{FLAT} {ADAM_3E4} --algo.twin lagged --scripted-exploration 0",
+    "lagged twins + scripted": f"{FLAT} {ADAM_3E4} --algo.twin lagged --scripted-exploration 0.5 --scripted-steps 60000",
     # the rate of the benchmark's own config (kukagrasp-qtopt's) on the fair bin's preset: the same cost per update
     "adam 1e-3": f"{FLAT} --lr 1e-3",
     # the whole picture's features beside a glimpse around the gripper in the jaws' frame (the pose moved with the
     # shift): the preset's network since its hour
-    "glimpse": "--fusion glimpse --shift-coordinates",
+    "glimpse": f"--fusion glimpse --shift-coordinates {ADAM_3E4}",
     # the glimpse at the benchmark's own Adam rate (kukagrasp-qtopt's): the same cost per update, more learning per update?
     "glimpse adam 1e-3": "--fusion glimpse --shift-coordinates --lr 1e-3",
 }
