@@ -315,6 +315,16 @@ def _online_part(run_dir: Path) -> dict:
     }
 
 
+def online_kind(kind: str, config: dict) -> str:
+    """An online run's row kind: its update ratio and, where it has one, its on-policy window (``--recent-fraction``),
+    so that runs which differ in either are pooled apart."""
+    kind = f"{kind} at {config['updates_per_step']:.2f} updates per env step"
+    window = config["replay"].get("recent_fraction", 0.0)
+    if window > 0:
+        kind += f", {window:.0%} of each batch from the {config['replay']['recent_episodes']:,} newest grasps"
+    return kind
+
+
 def _digest(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
@@ -379,8 +389,7 @@ def protocol(
             config = json.loads((run_dir / "config.json").read_text())
             last = _last_row(run_dir)  # what the run did (a time limit may stop it before total_steps)
             online_run = kind == "QT-Opt, then online"
-            # online runs with another update ratio are another kind (pooled apart)
-            row_kind = f"{kind} at {config['updates_per_step']:.2f} updates per env step" if online_run else kind
+            row_kind = online_kind(kind, config) if online_run else kind
             row = {"run": str(run_dir), "kind": row_kind, "seed": config["seed"], "updates": int(last.get("updates", 0))}
             row["train_wall_seconds"] = last.get("wall_seconds")
             row.update(identity[str(run_dir)])

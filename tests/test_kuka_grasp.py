@@ -301,3 +301,23 @@ def test_the_protocol_takes_over_an_evaluation_only_for_the_same_weights_config_
     now["runs/a"] = {"config_sha256": "changed", "weights_sha256": "w0"}
     assert reusable(now, earlier, 100, "runs/a") == ({}, None)
     assert reusable(now, None, 100, "runs/a") == ({}, None)
+
+
+def test_the_protocol_pools_online_runs_apart_by_update_ratio_and_on_policy_window():
+    """``benchmarks/kuka_grasp.py protocol``: an online run's kind names its update ratio and its on-policy window
+    (``--recent-fraction``), so the pooled line never mixes runs trained differently. Mutation: leaving the window out
+    of the kind pools the windowed runs with the uniform ones (the first assertion fails)."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    try:
+        from kuka_grasp import online_kind
+    finally:
+        sys.path.pop(0)
+    uniform = {"updates_per_step": 0.25, "replay": {"recent_fraction": 0.0, "recent_episodes": 1000}}
+    window = {"updates_per_step": 0.25, "replay": {"recent_fraction": 0.5, "recent_episodes": 1000}}
+    assert online_kind("online", uniform) != online_kind("online", window)
+    assert online_kind("online", uniform) == "online at 0.25 updates per env step"
+    assert online_kind("online", window) == "online at 0.25 updates per env step, 50% of each batch from the 1,000 newest grasps"
+    assert online_kind("online", {**uniform, "updates_per_step": 1.0}) != online_kind("online", uniform)
