@@ -11,13 +11,12 @@ one at a time (runs longer than the budget are read up to it); "glimpse": ``--fu
 (the whole picture's features beside those of the picture around the gripper in the jaws' frame, today's preset),
 compared with the flat join at equal env steps (``--at``) as well as at the end; "glimpse adam 1e-3" (today's preset)
 and "two threads" (``--threads 2``: the preset on both cores, one run at a time, as the issue's hour on 2 cores
-allows). Each arm is reported beside the success of
-uniformly random actions at its own tolerance. The runs of each section used the preset of its commit: the arms'
-flags name what differs from today's.
+allows). Each arm is reported beside the success of uniformly random actions at its own tolerance. The runs of each
+section used the preset of its commit: the arms' flags name what differs from today's.
 
 Each arm is ``taskrl train grasp-qtopt-pixels --seed S --threads 1 --max-hours H`` plus its flags (an arm's
-``--threads`` replaces the 1), its own process; a run directory that already holds a finished run (its ``learning_curve.png``) is read instead of trained again, so
-runs made by hand with these commands count. Evaluation is the greedy policy alone (100 attempts on the training
+``--threads`` replaces the 1), its own process; a run directory that already holds a finished run (its
+``learning_curve.png``) is read instead of trained again, so runs made by hand with these commands count. Evaluation is the greedy policy alone (100 attempts on the training
 objects); ``train success`` counts every training attempt, scripted ones included.
 
     .venv/bin/python benchmarks/grasp_learning.py --seeds 0 --max-hours 0.75 --out /work/runs-bench/grasp --write
@@ -229,8 +228,8 @@ def report(results: list[dict], args, title: str, raw_name: str) -> None:
         arms_at.setdefault(tolerance_of(ARMS[arm]), []).append(arm)
     lines = [
         f"`taskrl train {PRESET} --seed S --threads 1 --max-hours {args.max_hours}` plus each arm's flags, one process "
-        "each, one torch thread unless the arm's flags set `--threads` (what ran beside them: the note); greedy evaluation on 100 attempts at the training objects "
-        "every 5,000 env steps; `train success` counts every training attempt, scripted ones included. Uniformly random "
+        "each, one torch thread unless the arm's flags set `--threads` (what ran beside them: the note); greedy evaluation "
+        "on 100 attempts at the training objects every 5,000 env steps; `train success` counts every training attempt, scripted ones included. Uniformly random "
         "actions (`benchmarks/grasp_random.py`, 10,000 attempts): "
         + ", ".join(
             f"{random_floor('train', tolerance):.3f} (tolerance {tolerance}: {', '.join(arms)})"
