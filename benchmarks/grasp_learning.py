@@ -11,7 +11,8 @@ one at a time (runs longer than the budget are read up to it); "glimpse": ``--fu
 (the whole picture's features beside those of the picture around the gripper in the jaws' frame, today's preset),
 compared with the flat join at equal env steps (``--at``) as well as at the end; "glimpse adam 1e-3" (today's preset)
 and "two threads" (``--threads 2``: the preset on both cores, one run at a time, as the issue's hour on 2 cores
-allows). Each arm is reported beside the success of uniformly random actions at its own tolerance. The runs of each
+allows); "half the updates per step" (``--updates-per-step 0.125`` against the preset's 0.25: the same updates, about
+twice the env steps). Each arm is reported beside the success of uniformly random actions at its own tolerance. The runs of each
 section used the preset of its commit: the arms' flags name what differs from today's.
 
 Each arm is ``taskrl train grasp-qtopt-pixels --seed S --threads 1 --max-hours H`` plus its flags (an arm's
@@ -31,6 +32,8 @@ objects); ``train success`` counts every training attempt, scripted ones include
         --at 25000 50000 90000 --out /work/runs-bench/grasp --write
     .venv/bin/python benchmarks/grasp_learning.py --arms "glimpse adam 1e-3:0,1,2" "two threads:0" --max-hours 1.0 \
         --at 25000 50000 90000 --out /work/runs-bench/grasp --write
+    .venv/bin/python benchmarks/grasp_learning.py --arms "preset:0" "half the updates per step:0,1,2" --max-hours 1.0 \
+        --at 25000 50000 90000 140000 --at-updates 5000 10000 20000 30000 40000 --out /work/runs-bench/grasp --write
 """
 
 from __future__ import annotations
@@ -75,6 +78,9 @@ ARMS = {
     "glimpse adam 1e-3": "--fusion glimpse --shift-coordinates --lr 1e-3",
     # the preset (the glimpse at 1e-3) with two torch threads: one run on both cores, as the issue's hour allows
     "two threads": "--threads 2",
+    # half the preset's updates per env step: an update costs ~95% of the hour, so about twice the env steps for the
+    # same updates; does learning follow the data or the updates?
+    "half the updates per step": "--updates-per-step 0.125",
 }
 SECTIONS = {  # the arms each RESULTS section compares, and its raw data under benchmarks/results/
     "Grasp from pixels: scripted exploration against the preset, equal budgets": (
@@ -99,6 +105,10 @@ SECTIONS = {  # the arms each RESULTS section compares, and its raw data under b
         ("glimpse adam 1e-3", "two threads"),
         "grasp_two_threads.json",
     ),
+    "Grasp from pixels: half the updates per env step against the preset": (
+        ("preset", "half the updates per step"),
+        "grasp_update_ratio.json",
+    ),
 }
 #: sections whose runs are also evaluated by `taskrl eval RUN` and `taskrl eval RUN --held-out` (the issue's check)
 EVALUATED = (
@@ -106,9 +116,12 @@ EVALUATED = (
     "Grasp from pixels: a glimpse in the jaws' frame beside the fair bin's preset",
     "Grasp from pixels: the glimpse at Adam 1e-3 against 3e-4",
     "Grasp from pixels: the preset on both cores (two torch threads) against one",
+    "Grasp from pixels: half the updates per env step against the preset",
 )
 #: half the window of env steps whose evaluations `--at` averages (5 evaluations of 100 attempts at the preset's interval)
 WINDOW = 10_000
+#: half the window of updates whose evaluations `--at-updates` averages (the same 5 evaluations at the preset's ratio)
+UPDATE_WINDOW = 2_500
 
 
 def run(flags: str, seed: int, run_dir: Path, max_hours: float) -> list[dict]:
@@ -144,6 +157,14 @@ def main() -> None:
         default=[],
         help=f"env steps at which to compare the arms: each run's mean greedy success over its evaluations within "
         f"{WINDOW:,} env steps of each (equal work, whatever the wall-clock)",
+    )
+    parser.add_argument(
+        "--at-updates",
+        nargs="*",
+        type=int,
+        default=[],
+        help=f"updates at which to compare the arms: each run's mean greedy success over its evaluations within "
+        f"{UPDATE_WINDOW:,} updates of each (for arms that differ in updates per env step)",
     )
     args = parser.parse_args()
     seeds_of = {arm: seeds or args.seeds for arm, seeds in args.arms}
@@ -184,12 +205,12 @@ def evaluate(run_dir: Path) -> dict:
     return out
 
 
-def at_env_steps(curve: list[dict], env_steps: int) -> str:
-    """The mean greedy success of ``curve``'s evaluations within `WINDOW` env steps of ``env_steps`` ("-" if the run
-    stopped before ``env_steps``)."""
-    if curve[-1]["env_steps"] < env_steps:
+def at_point(curve: list[dict], point: int, key: str = "env_steps", window: int = WINDOW) -> str:
+    """The mean greedy success of ``curve``'s evaluations within ``window`` of ``point`` counted in ``key`` (env steps or
+    updates; "-" if the run stopped before ``point``)."""
+    if curve[-1][key] < point:
         return "-"
-    near = [row["success_rate"] for row in curve if abs(row["env_steps"] - env_steps) <= WINDOW]
+    near = [row["success_rate"] for row in curve if abs(row[key] - point) <= window]
     return f"{sum(near) / len(near):.2f}"
 
 
@@ -250,19 +271,23 @@ def report(results: list[dict], args, title: str, raw_name: str) -> None:
             f"{last['wall_seconds']:.0f} | {best['success_rate']:.2f} ({best['env_steps']:,.0f}) | "
             f"{last['success_rate']:.2f} | {last['train_success']:.3f} | {positives(last)} |"
         )
-    if args.at:
-        lines += [
-            "",
-            f"{' against '.join(args.arms)} at equal env steps (the mean greedy success of a run's evaluations within "
-            f"{WINDOW:,} env steps of each point; -: the run did not reach it):",
-            "",
-            "| arm | seed | " + " | ".join(f"{n:,}" for n in args.at) + " |",
-            "|---|---|" + "---:|" * len(args.at),
-            *(
-                f"| {r['arm']} | {r['seed']} | " + " | ".join(at_env_steps(r["curve"], n) for n in args.at) + " |"
-                for r in results
-            ),
-        ]
+    for points, key, window, unit in (
+        (args.at, "env_steps", WINDOW, "env steps"),
+        (args.at_updates, "updates", UPDATE_WINDOW, "updates"),
+    ):
+        if points:
+            lines += [
+                "",
+                f"{' against '.join(args.arms)} at equal {unit} (the mean greedy success of a run's evaluations within "
+                f"{window:,} {unit} of each point; -: the run did not reach it):",
+                "",
+                "| arm | seed | " + " | ".join(f"{n:,}" for n in points) + " |",
+                "|---|---|" + "---:|" * len(points),
+                *(
+                    f"| {r['arm']} | {r['seed']} | " + " | ".join(at_point(r["curve"], n, key, window) for n in points) + " |"
+                    for r in results
+                ),
+            ]
     evaluated = [r for r in results if "eval" in r]
     if evaluated:
         held_out_floor = random_floor("held_out", tolerance_of(ARMS[evaluated[0]["arm"]]))
