@@ -39,9 +39,12 @@ PRESETS: dict[str, Preset] = {
             "batch_size": 64,
             "buffer_size": 100_000,
             "learning_starts": 1_000,
-            "updates_per_step": 0.25,
-            # more than an hour makes: the flat join made 246k-300k env steps in an hour on one AMD EPYC core, the glimpse
-            # 91k-101k on a machine where the flat join made 128k (benchmarks/RESULTS.md); --max-hours 1 stops at the hour
+            # an update is most of the hour's cost, and at equal env steps 0.125 learnt as 0.25 did: in the hour on one
+            # core 0.76-0.86 on training and 0.84 on held-out objects (3 seeds) against 0.56 / 0.75 for 0.25 beside
+            # them (benchmarks/RESULTS.md, "half the updates per env step against the preset")
+            "updates_per_step": 0.125,
+            # at 0.125 the glimpse made 300k env steps in 55 minutes on one Intel Xeon core (0.25: 159k in the hour;
+            # AMD EPYC: 101k-109k at 0.25); --max-hours 1 stops at the hour on slower machines
             "total_steps": 300_000,
             "eval_interval": 5_000,
             "eval_episodes": 100,
