@@ -11,8 +11,9 @@ one at a time (runs longer than the budget are read up to it); "glimpse": ``--fu
 (the whole picture's features beside those of the picture around the gripper in the jaws' frame, today's preset),
 compared with the flat join at equal env steps (``--at``) as well as at the end; "glimpse adam 1e-3" (today's preset)
 and "two threads" (``--threads 2``: the preset on both cores, one run at a time, as the issue's hour on 2 cores
-allows); "half the updates per step" (``--updates-per-step 0.125`` against the preset's 0.25: the same updates, about
-twice the env steps). Each arm is reported beside the success of uniformly random actions at its own tolerance. The runs of each
+allows); "half the updates per step" (``--updates-per-step 0.125``, today's preset) against "0.25 updates per step" (the
+preset's until then: about twice the env steps for the same updates), and "0.0625 updates per step" against 0.125. Each
+arm is reported beside the success of uniformly random actions at its own tolerance. The runs of each
 section used the preset of its commit: the arms' flags name what differs from today's.
 
 Each arm is ``taskrl train grasp-qtopt-pixels --seed S --threads 1 --max-hours H`` plus its flags (an arm's
@@ -32,8 +33,12 @@ objects); ``train success`` counts every training attempt, scripted ones include
         --at 25000 50000 90000 --out /work/runs-bench/grasp --write
     .venv/bin/python benchmarks/grasp_learning.py --arms "glimpse adam 1e-3:0,1,2" "two threads:0" --max-hours 1.0 \
         --at 25000 50000 90000 --out /work/runs-bench/grasp --write
-    .venv/bin/python benchmarks/grasp_learning.py --arms "preset:0" "half the updates per step:0,1,2" --max-hours 1.0 \
-        --at 25000 50000 90000 140000 --at-updates 5000 10000 20000 30000 40000 --out /work/runs-bench/grasp --write
+    .venv/bin/python benchmarks/grasp_learning.py --arms "0.25 updates per step:0" "half the updates per step:0,1,2" \
+        --max-hours 1.0 --at 25000 50000 90000 140000 --at-updates 5000 10000 20000 30000 --out /work/runs-bench/grasp \
+        --write
+    .venv/bin/python benchmarks/grasp_learning.py --arms "half the updates per step:0,1,2" "0.0625 updates per step:0" \
+        --max-hours 1.0 --at 25000 50000 90000 140000 200000 250000 --at-updates 5000 10000 15000 \
+        --out /work/runs-bench/grasp --write
 """
 
 from __future__ import annotations
@@ -60,27 +65,31 @@ PRESET = "grasp-qtopt-pixels"
 BATCH = PRESETS[PRESET].overrides["batch_size"]
 FLAT = "--fusion flat --no-shift-coordinates"  # the flat join, the preset's network until the glimpse's hour
 ADAM_3E4 = "--lr 3e-4"  # the preset's rate until the glimpse at 1e-3 was measured: the arms run before keep it
+RATIO_025 = "--updates-per-step 0.25"  # the preset's ratio until 0.125 was measured: the arms run before keep it
 ARMS = {
     "preset": "",
     "scripted exploration": "--scripted-exploration 0.5 --scripted-steps 60000",
     "looser hold": "--env.tolerance 0.06",
-    "fair bin": f"{FLAT} {ADAM_3E4}",  # the preset on today's bin (tolerance 0.06, the sizes at which yaw matters) with the flat join
+    "fair bin": f"{FLAT} {ADAM_3E4} {RATIO_025}",  # the preset on today's bin (tolerance 0.06, the sizes at which yaw matters) with the flat join
     # the fair bin's preset until the twins measurement (two online networks), and the two changes measured against it
-    "independent twins": f"{FLAT} {ADAM_3E4} --algo.twin independent --scripted-exploration 0",
-    "lagged twins": f"{FLAT} {ADAM_3E4} --algo.twin lagged --scripted-exploration 0",
-    "lagged twins + scripted": f"{FLAT} {ADAM_3E4} --algo.twin lagged --scripted-exploration 0.5 --scripted-steps 60000",
+    "independent twins": f"{FLAT} {ADAM_3E4} {RATIO_025} --algo.twin independent --scripted-exploration 0",
+    "lagged twins": f"{FLAT} {ADAM_3E4} {RATIO_025} --algo.twin lagged --scripted-exploration 0",
+    "lagged twins + scripted": f"{FLAT} {ADAM_3E4} {RATIO_025} --algo.twin lagged --scripted-exploration 0.5 --scripted-steps 60000",
     # the rate of the benchmark's own config (kukagrasp-qtopt's) on the fair bin's preset: the same cost per update
-    "adam 1e-3": f"{FLAT} --lr 1e-3",
+    "adam 1e-3": f"{FLAT} --lr 1e-3 {RATIO_025}",
     # the whole picture's features beside a glimpse around the gripper in the jaws' frame (the pose moved with the
     # shift): the preset's network since its hour
-    "glimpse": f"--fusion glimpse --shift-coordinates {ADAM_3E4}",
+    "glimpse": f"--fusion glimpse --shift-coordinates {ADAM_3E4} {RATIO_025}",
     # the glimpse at the benchmark's own Adam rate (kukagrasp-qtopt's): the same cost per update, more learning per update?
-    "glimpse adam 1e-3": "--fusion glimpse --shift-coordinates --lr 1e-3",
+    "glimpse adam 1e-3": f"--fusion glimpse --shift-coordinates --lr 1e-3 {RATIO_025}",
     # the preset (the glimpse at 1e-3) with two torch threads: one run on both cores, as the issue's hour allows
-    "two threads": "--threads 2",
-    # half the preset's updates per env step: an update costs ~95% of the hour, so about twice the env steps for the
-    # same updates; does learning follow the data or the updates?
+    "two threads": f"--threads 2 {RATIO_025}",
+    # the preset's ratio until the measurement below, and half of it: an update costs most of the hour, so about twice
+    # the env steps for the same updates; does learning follow the data or the updates? (0.125: the preset's since)
+    "0.25 updates per step": RATIO_025,
     "half the updates per step": "--updates-per-step 0.125",
+    # half again: does learning still follow the env steps?
+    "0.0625 updates per step": "--updates-per-step 0.0625",
 }
 SECTIONS = {  # the arms each RESULTS section compares, and its raw data under benchmarks/results/
     "Grasp from pixels: scripted exploration against the preset, equal budgets": (
@@ -106,8 +115,12 @@ SECTIONS = {  # the arms each RESULTS section compares, and its raw data under b
         "grasp_two_threads.json",
     ),
     "Grasp from pixels: half the updates per env step against the preset": (
-        ("preset", "half the updates per step"),
+        ("0.25 updates per step", "half the updates per step"),
         "grasp_update_ratio.json",
+    ),
+    "Grasp from pixels: 0.0625 updates per env step against the preset's 0.125, one seed": (
+        ("half the updates per step", "0.0625 updates per step"),
+        "grasp_update_ratio_0625.json",
     ),
 }
 #: sections whose runs are also evaluated by `taskrl eval RUN` and `taskrl eval RUN --held-out` (the issue's check)
@@ -117,6 +130,7 @@ EVALUATED = (
     "Grasp from pixels: the glimpse at Adam 1e-3 against 3e-4",
     "Grasp from pixels: the preset on both cores (two torch threads) against one",
     "Grasp from pixels: half the updates per env step against the preset",
+    "Grasp from pixels: 0.0625 updates per env step against the preset's 0.125, one seed",
 )
 #: half the window of env steps whose evaluations `--at` averages (5 evaluations of 100 attempts at the preset's interval)
 WINDOW = 10_000
