@@ -130,7 +130,6 @@ EVALUATED = (
     "Grasp from pixels: the glimpse at Adam 1e-3 against 3e-4",
     "Grasp from pixels: the preset on both cores (two torch threads) against one",
     "Grasp from pixels: half the updates per env step against the preset",
-    "Grasp from pixels: 0.0625 updates per env step against the preset's 0.125, one seed",
 )
 #: half the window of env steps whose evaluations `--at` averages (5 evaluations of 100 attempts at the preset's interval)
 WINDOW = 10_000
