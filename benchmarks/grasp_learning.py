@@ -9,8 +9,8 @@ preset before lagged twins and scripted exploration), each run then evaluated by
 RUN --held-out``; "independent twins", "lagged twins" and "lagged twins + scripted" for half an hour, the two changes
 one at a time (runs longer than the budget are read up to it); "glimpse": ``--fusion glimpse --shift-coordinates``
 (the whole picture's features beside those of the picture around the gripper in the jaws' frame, today's preset),
-compared with the flat join at equal env steps (``--at``) as well as at the end; "glimpse adam 1e-3" (today's preset)
-and "two threads" (``--threads 2``: the preset on both cores, one run at a time, as the issue's hour on 2 cores
+compared with the flat join at equal env steps (``--at``) as well as at the end; "glimpse adam 1e-3" (the
+preset at 0.25 updates per step) and "two threads" (``--threads 2``: the preset on both cores, one run at a time, as the issue's hour on 2 cores
 allows); "half the updates per step" (``--updates-per-step 0.125``, today's preset) against "0.25 updates per step" (the
 preset's until then: about twice the env steps for the same updates), and "0.0625 updates per step" against 0.125. Each
 arm is reported beside the success of uniformly random actions at its own tolerance. The runs of each
@@ -37,7 +37,7 @@ objects); ``train success`` counts every training attempt, scripted ones include
         --max-hours 1.0 --at 25000 50000 90000 140000 --at-updates 5000 10000 20000 30000 --out /work/runs-bench/grasp \
         --write
     .venv/bin/python benchmarks/grasp_learning.py --arms "half the updates per step:0,1,2" "0.0625 updates per step:0" \
-        --max-hours 1.0 --at 25000 50000 90000 140000 200000 250000 --at-updates 5000 10000 15000 \
+        --max-hours 1.0 --at 25000 50000 90000 140000 200000 --at-updates 5000 10000 15000 \
         --out /work/runs-bench/grasp --write
 """
 
@@ -133,7 +133,7 @@ EVALUATED = (
 )
 #: half the window of env steps whose evaluations `--at` averages (5 evaluations of 100 attempts at the preset's interval)
 WINDOW = 10_000
-#: half the window of updates whose evaluations `--at-updates` averages (the same 5 evaluations at the preset's ratio)
+#: half the window of updates whose evaluations `--at-updates` averages (the same 5 evaluations at 0.25 updates per step)
 UPDATE_WINDOW = 2_500
 
 
