@@ -18,7 +18,7 @@ from pathlib import Path
 
 import torch
 
-from taskrl.envs.grasp import SHAPES, Grasp
+from taskrl.envs.grasp import SHAPES, SIZES, Grasp
 
 HERE = Path(__file__).resolve().parent
 OUTCOMES = ("held", "position", "yaw", "no close")
@@ -32,7 +32,8 @@ class _Sorting:
         self.outcome = torch.full((env.num_envs,), -1, dtype=torch.long)  # index into OUTCOMES; -1 while running
         self.miss_pixels: list[float] = []
         self.yaw_misses: list[tuple[int, float]] = []  # (shape id, degrees to the nearest yaw at which it fits)
-        self.closed_over: list[tuple[int, bool, float]] = []  # (shape id, held, share of yaws that fit) per close
+        # (shape id, held, share of yaws that fit, half-length) per close
+        self.closed_over: list[tuple[int, bool, float, float]] = []
 
     def reset(self, seed: int | None = None):
         self.outcome.fill_(-1)
@@ -56,10 +57,10 @@ class _Sorting:
             )
             rows = torch.nonzero(over_spine)[:, 0]
             target = over[rows].argmin(1)
-            shape = env.shape[rows, target]
+            shape, half_length = env.shape[rows, target], env.half[rows, target, 0]
             yaw_error, fitting_share = _degrees_to_fitting_yaw(env, rows, target, yaw[rows])
             for j, i in enumerate(rows.tolist()):
-                self.closed_over.append((int(shape[j]), bool(kind[i] == 0), float(fitting_share[j])))
+                self.closed_over.append((int(shape[j]), bool(kind[i] == 0), float(fitting_share[j]), float(half_length[j])))
                 if kind[i] == 2:
                     self.yaw_misses.append((int(shape[j]), float(yaw_error[j])))
         self.outcome = torch.where(closing, kind, self.outcome)
@@ -94,6 +95,23 @@ def _spine_distance(env: Grasp, gripper: torch.Tensor) -> torch.Tensor:
     return torch.sqrt(beyond**2 + across**2).min(1).values
 
 
+def _by_size(closed_over: list[tuple[int, bool, float, float]], shape_id: int, name: str) -> dict:
+    """The closes over one shape's spine split at the middle of its sampled half-lengths (`SIZES`): the larger half
+    of the squares fits within fewer degrees of face on."""
+    low, high = SIZES[name][0]
+    middle = (low + high) / 2
+    halves = {}
+    for label, smaller in ((f"{low:g}-{middle:g}", True), (f"{middle:g}-{high:g}", False)):
+        part = [(held, share) for shape, held, share, half in closed_over if shape == shape_id and (half < middle) == smaller]
+        if part:
+            halves[label] = {
+                "closes_over_spine": len(part),
+                "held": sum(h for h, _ in part) / len(part),
+                "held_at_random_yaw": sum(s for _, s in part) / len(part),
+            }
+    return halves
+
+
 def sort_attempts(run_dir: Path, episodes: int, held_out: bool) -> dict:
     """The greedy attempts of ``run_dir``'s latest checkpoint on ``episodes`` bins, sorted into `OUTCOMES`."""
     from taskrl.config import load
@@ -115,8 +133,8 @@ def sort_attempts(run_dir: Path, episodes: int, held_out: bool) -> dict:
     tolerance_pixels = config.env_settings.tolerance * config.env_settings.image_size
     by_shape = {}
     for shape_id, name in enumerate(SHAPES):
-        closes = [held for shape, held, _ in env.closed_over if shape == shape_id]
-        by_chance = [share for shape, _, share in env.closed_over if shape == shape_id]
+        closes = [held for shape, held, _, _ in env.closed_over if shape == shape_id]
+        by_chance = [share for shape, _, share, _ in env.closed_over if shape == shape_id]
         errors = torch.tensor([e for shape, e in env.yaw_misses if shape == shape_id])
         if closes:
             by_shape[name] = {
@@ -124,6 +142,7 @@ def sort_attempts(run_dir: Path, episodes: int, held_out: bool) -> dict:
                 "held": sum(closes) / len(closes),
                 "held_at_random_yaw": sum(by_chance) / len(by_chance),
                 "yaw_miss_degrees_median": float(errors.median()) if len(errors) else None,
+                "by_size": _by_size(env.closed_over, shape_id, name),
             }
     return {
         "run": str(run_dir),
@@ -175,6 +194,22 @@ def main() -> None:
                 f"| {Path(r['run']).name} | {r['objects']} | {shape} | {c['closes_over_spine']} | {c['held']:.2f} | "
                 f"{c['held_at_random_yaw']:.2f} | {degrees} |"
             )
+    lines += [
+        "",
+        "The same closes split at the middle of each shape's sampled half-lengths (the discs left out: they fit at any yaw):",
+        "",
+        "| run | objects | shape | half-length | closes over its spine | held | held at a uniformly random yaw |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        for shape, c in r["by_shape"].items():
+            if shape == "disc":
+                continue
+            for size, part in c.get("by_size", {}).items():
+                lines.append(
+                    f"| {Path(r['run']).name} | {r['objects']} | {shape} | {size} | {part['closes_over_spine']} | "
+                    f"{part['held']:.2f} | {part['held_at_random_yaw']:.2f} |"
+                )
     text = "\n".join(lines)
     print(text)
     if args.write:
